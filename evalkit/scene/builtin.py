@@ -1,0 +1,210 @@
+"""Built-in scenes: `cornell-box`, `furnace` and `atrium`.
+
+- ``cornell-box`` is ``mi.cornell_box()`` itself, read through the Mitsuba importer.
+- ``furnace`` is a closed cube of one diffuse, emissive material seen from inside. Every surface
+  has the same outgoing radiance, so each bounce adds a known amount (`furnace_radiance`).
+- ``atrium`` is procedural and Sponza-like: two storeys of column arcades with arches around an
+  open courtyard, hanging cloth, textured floor and cloth, a sun and a point light. It has over
+  250k triangles, because the cost gap between perfect and imperfect bundles only shows on large
+  scenes. It is generated deterministically in about a second.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from evalkit.scene.model import Camera, Light, Material, Mesh, Scene, assemble, look_at, srgb_to_linear
+from evalkit.scene.tessellate import box, surface
+
+FURNACE_ALBEDO = 0.5
+FURNACE_EMISSION = 1.0
+
+
+def cornell_box() -> Scene:
+    from evalkit.mitsuba_env import mitsuba
+    from evalkit.scene.mitsuba_io import load_mitsuba_dict
+
+    mi = mitsuba()
+    return load_mitsuba_dict(mi.cornell_box(), name="cornell-box", source="cornell-box")
+
+
+def furnace_radiance(max_depth: int) -> float:
+    """Radiance of every furnace pixel for Mitsuba's path ``max_depth`` (1: emission seen directly,
+    2: plus direct lighting, k + 2: plus k indirect bounces): Le * sum_{j < max_depth} albedo^j."""
+    return FURNACE_EMISSION * sum(FURNACE_ALBEDO**j for j in range(max_depth))
+
+
+def furnace() -> Scene:
+    """The inside of the cube [-1, 1]^3, each face split 4x4, all emitting and reflecting."""
+    positions, faces = box(np.array([-1.0] * 3), np.array([1.0] * 3), subdivisions=4, inward=True)
+    material = Material("furnace", albedo=(FURNACE_ALBEDO,) * 3, emission=(FURNACE_EMISSION,) * 3)
+    camera = Camera(look_at([0, 0, 0], [0, 0, -1], [0, 1, 0]), fov=90.0, fov_axis="x", width=128, height=128)
+    return assemble("furnace", "furnace", [Mesh("enclosure", positions, faces, 0)], [material], [], camera)
+
+
+# --- atrium ---------------------------------------------------------------------------------------
+
+_STOREY_HEIGHT = 5.5
+_SPRING = 3.4  # column top (arch springline) above the storey floor
+_SPANDREL_TOP = 5.0
+_COLUMN_RADIUS = 0.35
+_HALF_LENGTH, _HALF_WIDTH = 10.0, 6.0  # the column lines around the courtyard
+_OUTER_X, _OUTER_Z = 14.0, 10.0
+_LONG_COLUMNS = np.linspace(-_HALF_LENGTH, _HALF_LENGTH, 9)
+_SHORT_COLUMNS = np.linspace(-_HALF_WIDTH, _HALF_WIDTH, 5)
+_COLUMN_SEGMENTS = (48, 24)  # around, along
+_ARCH_SEGMENTS = 48
+_CLOTH_SEGMENTS = (112, 72)  # down, across
+
+
+def atrium() -> Scene:
+    parts: dict[str, list] = {"stone": [], "column": [], "floor": [], "cloth": []}
+    flat: list = []  # boxes: flat-shaded stone
+    for storey in range(2):
+        base = storey * _STOREY_HEIGHT
+        for x in _LONG_COLUMNS:
+            for z in (-_HALF_WIDTH, _HALF_WIDTH):
+                _column(parts["column"], flat, x, z, base)
+        for z in _SHORT_COLUMNS[1:-1]:
+            for x in (-_HALF_LENGTH, _HALF_LENGTH):
+                _column(parts["column"], flat, x, z, base)
+        for z in (-_HALF_WIDTH, _HALF_WIDTH):
+            for a, b in zip(_LONG_COLUMNS[:-1], _LONG_COLUMNS[1:]):
+                _arch(parts["stone"], a, b, z, base, along_x=True)
+        for x in (-_HALF_LENGTH, _HALF_LENGTH):
+            for a, b in zip(_SHORT_COLUMNS[:-1], _SHORT_COLUMNS[1:]):
+                _arch(parts["stone"], a, b, x, base, along_x=False)
+        top = base + _SPANDREL_TOP
+        inner = _HALF_WIDTH - _COLUMN_RADIUS
+        for s in (-1, 1):  # the gallery ceiling / floor slab above this storey, as a ring of boxes
+            flat.append(box(np.array([-_OUTER_X, top, min(s * inner, s * _OUTER_Z)]),
+                             np.array([_OUTER_X, top + 0.5, max(s * inner, s * _OUTER_Z)])))
+            xi = _HALF_LENGTH - _COLUMN_RADIUS
+            flat.append(box(np.array([min(s * xi, s * _OUTER_X), top, -inner]),
+                             np.array([max(s * xi, s * _OUTER_X), top + 0.5, inner])))
+    height = 2 * _STOREY_HEIGHT
+    for s in (-1, 1):  # outer walls
+        flat.append(box(np.array([-_OUTER_X - 0.3, 0.0, s * _OUTER_Z - 0.15]), np.array([_OUTER_X + 0.3, height, s * _OUTER_Z + 0.15])))
+        flat.append(box(np.array([s * _OUTER_X - 0.15, 0.0, -_OUTER_Z]), np.array([s * _OUTER_X + 0.15, height, _OUTER_Z])))
+    # Ground: one textured quad under courtyard and galleries; uv repeats the tile texture.
+    g = np.array([[-_OUTER_X, 0, -_OUTER_Z], [_OUTER_X, 0, -_OUTER_Z], [_OUTER_X, 0, _OUTER_Z], [-_OUTER_X, 0, _OUTER_Z]], float)
+    parts["floor"].append((g, np.array([[0, 2, 1], [0, 3, 2]]), np.tile([0.0, 1.0, 0.0], (4, 1)), g[:, [0, 2]] / 2.0))
+    # Curtains hang in the upper gallery behind the arches of one long side.
+    for a, b in zip(_LONG_COLUMNS[:-1], _LONG_COLUMNS[1:]):
+        _cloth(parts["cloth"], a + 0.45, b - 0.45, _HALF_WIDTH + 0.75, _STOREY_HEIGHT + _SPANDREL_TOP - 0.1, 3.8)
+
+    rng = np.random.default_rng(7)
+    materials = [
+        Material("sandstone", albedo=(0.62, 0.55, 0.44), twosided=True),
+        Material("column", albedo=(0.70, 0.66, 0.58), twosided=True),
+        _textured("floor-tiles", _tile_texture(rng)),
+        _textured("curtain", _stripe_texture()),
+    ]
+    meshes = [Mesh("walls-and-slabs", *_merge_flat(flat), material=0)]
+    for key, material in (("stone", 0), ("column", 1), ("floor", 2), ("cloth", 3)):
+        p, f, n, uv = _merge(parts[key])
+        meshes.append(Mesh(key, p, f, material=material, normals=n, uvs=uv))
+    sun = np.array([0.35, -1.0, 0.25])
+    lights = [
+        Light("directional", (6.0, 5.6, 5.0), direction=sun / np.linalg.norm(sun)),
+        Light("point", (60.0, 45.0, 30.0), position=np.array([-12.0, 3.0, -8.0])),
+    ]
+    camera = Camera(look_at([-8.5, 1.7, -1.5], [6.0, 4.6, 1.5], [0, 1, 0]), fov=75.0, fov_axis="x", width=960, height=512,
+                    near_clip=0.01, far_clip=100.0)
+    return assemble("atrium", "atrium", meshes, materials, lights, camera)
+
+
+def _textured(name: str, texture: np.ndarray) -> Material:
+    mean = texture.reshape(-1, 3).mean(axis=0)
+    return Material(name, albedo=tuple(float(x) for x in mean), texture=texture, twosided=True)
+
+
+def _column(out: list, flat: list, x: float, z: float, base: float) -> None:
+    r = _COLUMN_RADIUS
+
+    def shaft(u, v):  # u: around, v: up; a slight entasis (swelling) like classical columns
+        radius = r * (1.0 + 0.06 * np.sin(math.pi * v))
+        return np.stack([x + radius * np.cos(2 * math.pi * u), base + 0.3 + v * (_SPRING - 0.6), z - radius * np.sin(2 * math.pi * u)], -1)
+
+    out.append(surface(shaft, *_COLUMN_SEGMENTS))
+    for y0 in (base, base + _SPRING - 0.3):  # plinth and capital
+        flat.append(box(np.array([x - 0.5, y0, z - 0.5]), np.array([x + 0.5, y0 + 0.3, z + 0.5])))
+    # The pier between neighbouring arches' spandrels, above the capital.
+    flat.append(box(np.array([x - r, base + _SPRING, z - r]), np.array([x + r, base + _SPANDREL_TOP, z + r])))
+
+
+def _arch(out: list, a: float, b: float, across: float, base: float, along_x: bool) -> None:
+    """A semicircular arch between columns at a and b on a side, with its two spandrel walls."""
+    centre, radius = 0.5 * (a + b), 0.5 * (b - a) - _COLUMN_RADIUS
+    spring, top, half_depth = base + _SPRING, base + _SPANDREL_TOP, _COLUMN_RADIUS
+
+    def place(t, y, w):  # side coordinate t, height y, depth offset w -> world
+        return np.stack([t, y, across + w] if along_x else [across + w, y, t], -1)
+
+    def intrados(u, v):
+        theta = math.pi * (1.0 - u)
+        return place(centre + radius * np.cos(theta), spring + radius * np.sin(theta), half_depth * (2 * v - 1))
+
+    out.append(surface(intrados, _ARCH_SEGMENTS, 4))
+    for w in (-half_depth, half_depth):
+        def spandrel(u, v, w=w):
+            theta = math.pi * (1.0 - u)
+            t = centre + radius * np.cos(theta)
+            y = spring + radius * np.sin(theta)
+            return place(t, y + v * (top - y), w + 0 * u)
+
+        out.append(surface(spandrel, _ARCH_SEGMENTS, 1))
+
+
+def _cloth(out: list, t0: float, t1: float, depth: float, top: float, length: float) -> None:
+    def drape(u, v):  # u: down, v: across; folds deepen toward the hem
+        t = t0 + v * (t1 - t0)
+        fold = 0.12 * np.sin(2 * math.pi * 5 * v) * (0.35 + 0.65 * u)
+        sway = 0.25 * u * u
+        return np.stack([t, top - u * length, depth + fold + sway], -1)
+
+    out.append(surface(drape, *_CLOTH_SEGMENTS))
+
+
+def _merge(parts: list):
+    offset, faces = 0, []
+    for p, f, _, _ in parts:
+        faces.append(f + offset)
+        offset += len(p)
+    return (np.concatenate([p[0] for p in parts]), np.concatenate(faces),
+            np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts]))
+
+
+def _merge_flat(boxes: list):
+    offset, faces = 0, []
+    for p, f in boxes:
+        faces.append(f + offset)
+        offset += len(p)
+    return np.concatenate([b[0] for b in boxes]), np.concatenate(faces)
+
+
+def _tile_texture(rng: np.random.Generator, size: int = 512, tiles: int = 8) -> np.ndarray:
+    """Stone floor tiles with mortar joints; each tile's tone varies (seeded)."""
+    cell = size // tiles
+    tone = rng.uniform(0.8, 1.15, (tiles, tiles))
+    i = np.arange(size)
+    img = np.repeat(np.repeat(tone, cell, 0), cell, 1)[..., None] * np.array([0.72, 0.64, 0.52])
+    img = img * (1 + 0.06 * rng.standard_normal((size, size, 1)))
+    joint = (i % cell < 3)
+    img[joint, :] = [0.35, 0.33, 0.30]
+    img[:, joint] = [0.35, 0.33, 0.30]
+    return srgb_to_linear(np.clip(img, 0, 1)).astype(np.float32)
+
+
+def _stripe_texture(size: int = 256) -> np.ndarray:
+    """Curtain fabric: deep red with gold stripes, in sRGB then linearised."""
+    u = (np.arange(size) + 0.5) / size
+    stripe = (np.sin(2 * math.pi * 6 * u) > 0.85)[None, :, None]
+    img = np.where(stripe, np.array([0.85, 0.68, 0.25]), np.array([0.62, 0.10, 0.09]))
+    img = np.broadcast_to(img, (size, size, 3))
+    return srgb_to_linear(img).astype(np.float32)
+
+
+BUILTIN_SCENES = {"cornell-box": cornell_box, "furnace": furnace, "atrium": atrium}

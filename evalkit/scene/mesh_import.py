@@ -1,0 +1,135 @@
+"""OBJ, PLY, glTF and GLB files through trimesh, with their materials and textures.
+
+trimesh is lenient: garbage and empty files come back as empty scenes, and with ``process=True``
+NaN vertices vanish with their faces. So the file is loaded with ``process=False`` (nothing is
+dropped behind our back) and `assemble` validates what came back.
+
+Material mapping: a PBR material's base colour (factor times texture) or a simple material's
+diffuse colour and image become the albedo; 8-bit textures are sRGB and are linearised; factors
+are linear. glTF ``doubleSided`` maps to a two-sided material; OBJ and PLY have no such notion and
+are imported two-sided. PBR metal/roughness is ignored, with a warning, because the toolkit is
+diffuse only. A file with no emissive material gets a default sun, and every file gets a default
+camera (trimesh reads none), both stated in the scene's warnings.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from evalkit.errors import InputError
+from evalkit.scene.model import Material, Mesh, Scene, assemble, default_sun, rgb, srgb_to_linear
+
+
+def load_mesh_file(path: str | os.PathLike) -> Scene:
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError(path, "file not found")
+    if os.path.getsize(path) == 0:
+        raise InputError(path, "the file is empty")
+    import trimesh
+
+    try:
+        loaded = trimesh.load(path, force="scene", process=False, validate=False)
+    except IndexError as e:
+        raise InputError(path, f"a face refers to a vertex that does not exist ({e})") from None
+    except Exception as e:  # trimesh raises many types for unreadable input; all mean the same here
+        raise InputError(path, f"cannot be read as {os.path.splitext(path)[1].lstrip('.').upper()}: {type(e).__name__}: {e}") from None
+
+    warnings: list[str] = []
+    materials: list[Material] = []
+    material_index: dict[int, int] = {}
+    meshes: list[Mesh] = []
+    for node in loaded.graph.nodes_geometry:
+        transform, geometry_name = loaded.graph[node]
+        geometry = loaded.geometry[geometry_name]
+        if not isinstance(geometry, trimesh.Trimesh):
+            warnings.append(f"'{geometry_name}' is a {type(geometry).__name__}, not a triangle mesh; it is left out")
+            continue
+        mesh = _mesh(path, node, geometry, np.asarray(transform, dtype=np.float64), materials, material_index, warnings)
+        if mesh is not None:
+            meshes.append(mesh)
+    if not meshes:
+        raise InputError(path, "no triangle geometry in the file (empty, or not a mesh this reader understands)")
+    lights = []
+    if not any(m.emissive for m in materials):
+        lights.append(default_sun())
+        warnings.append("no emissive material in the file; a default sun (directional light) is used")
+    name = os.path.splitext(os.path.basename(path))[0]
+    return assemble(name, path, meshes, materials, lights, camera=None, warnings=warnings)
+
+
+def _mesh(path, node, geometry, transform, materials, material_index, warnings) -> Mesh | None:
+    vertices = np.asarray(geometry.vertices, dtype=np.float64)
+    faces = np.asarray(geometry.faces)
+    if len(faces) == 0:
+        warnings.append(f"'{node}' has no faces; it is left out")
+        return None
+    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+        worst = int(faces.min()) if faces.min() < 0 else int(faces.max())
+        raise InputError(path, f"mesh '{node}': face index {worst} is out of range for {len(vertices)} vertices")
+    positions = vertices @ transform[:3, :3].T + transform[:3, 3]
+    normals = None
+    # trimesh computes normals on demand; only normals that the file itself carried are kept.
+    if "vertex_normals" in geometry._cache.cache:
+        normals = np.asarray(geometry.vertex_normals, dtype=np.float64) @ np.linalg.inv(transform[:3, :3])
+    if np.linalg.det(transform[:3, :3]) < 0:
+        faces = faces[:, ::-1]
+    visual = geometry.visual
+    uvs = None
+    uv = getattr(visual, "uv", None)
+    if uv is not None and len(uv) == len(vertices):
+        uvs = np.asarray(uv, dtype=np.float64).copy()
+        uvs[:, 1] = 1.0 - uvs[:, 1]  # trimesh: v up from the image's bottom row; ours: row = v * H
+    key = id(getattr(visual, "material", visual))
+    if key not in material_index:
+        material_index[key] = len(materials)
+        materials.append(_material(node, visual, uvs is not None, warnings))
+    return Mesh(str(node), positions, faces, material_index[key], normals, uvs)
+
+
+def _material(node, visual, has_uvs: bool, warnings: list[str]) -> Material:
+    material = getattr(visual, "material", None)
+    if material is None:  # ColorVisuals: per-vertex or per-face colours
+        kind = getattr(visual, "kind", None)
+        if kind is None:
+            return Material(f"{node}.default", albedo=(0.5, 0.5, 0.5), twosided=True, source_bsdf="none")
+        colors = np.asarray(visual.vertex_colors if kind == "vertex" else visual.face_colors, dtype=np.float64)[:, :3] / 255.0
+        mean = rgb(srgb_to_linear(colors).mean(axis=0))
+        warnings.append(f"'{node}': {kind} colours are approximated by their mean {tuple(round(c, 4) for c in mean)}")
+        return Material(f"{node}.colors", albedo=mean, twosided=True, source_bsdf=f"{kind} colors", approximated=True)
+
+    name = getattr(material, "name", None) or f"{node}.material"
+    kind = type(material).__name__
+    if kind == "PBRMaterial":
+        factor = _color(material.baseColorFactor, default=(1.0, 1.0, 1.0))
+        image = material.baseColorTexture
+        emission = rgb(material.emissiveFactor) if material.emissiveFactor is not None else (0.0, 0.0, 0.0)
+        twosided = bool(material.doubleSided)
+        metallic = material.metallicFactor
+        approximated = metallic is not None and metallic > 0
+        if approximated:
+            warnings.append(f"material '{name}': metallic {metallic} is approximated as diffuse with its base colour")
+    else:  # SimpleMaterial (OBJ/MTL)
+        factor = _color(getattr(material, "diffuse", None), default=(0.8, 0.8, 0.8))
+        image = getattr(material, "image", None)
+        emission, twosided, approximated = (0.0, 0.0, 0.0), True, False
+    texture = None
+    if image is not None:
+        if not has_uvs:
+            warnings.append(f"material '{name}': has a texture but the mesh has no uvs; its mean colour is used")
+        texels = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
+        texture = (srgb_to_linear(texels) * np.asarray(factor)).astype(np.float32)
+        if not has_uvs:
+            factor, texture = rgb(texture.reshape(-1, 3).mean(axis=0)), None
+    albedo = rgb(texture.reshape(-1, 3).mean(axis=0)) if texture is not None else rgb(factor)
+    return Material(name, albedo, texture, emission, twosided, source_bsdf=kind, approximated=approximated)
+
+
+def _color(value, default):
+    """A linear colour factor; trimesh hands some out as 0..255 integers."""
+    if value is None:
+        return default
+    c = np.asarray(value).reshape(-1)[:3]
+    return rgb(c / 255.0 if np.issubdtype(c.dtype, np.integer) else c)

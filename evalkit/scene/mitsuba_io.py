@@ -1,0 +1,351 @@
+"""Mitsuba 3 scenes in and out: XML files and dicts are loaded by Mitsuba itself, then read back
+through its public object API; a `Scene` exports to a Mitsuba dict that renders the same thing.
+
+Import rules:
+- meshes (obj, ply, serialized, and the mesh-backed rectangle and cube) are copied as Mitsuba holds
+  them, in world space; sphere and disk are tessellated (`SPHERE_SEGMENTS`, `DISK_SEGMENTS`);
+- the albedo of every BSDF is its ``eval_diffuse_reflectance``, sampled at the texel centres of
+  its bitmap (or on a `BAKE_RESOLUTION` grid for a procedural texture), so any texture plugin and
+  any ``to_uv`` transform come out right. ``diffuse`` and ``twosided(diffuse)`` map exactly; every
+  other BSDF is approximated as diffuse with a warning, once per BSDF, recorded in the scene;
+- emitters: area, point, spot, directional, constant and envmap; anything else, and media, are
+  named in a warning.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ElementTree
+
+import numpy as np
+
+from evalkit.errors import InputError
+from evalkit.scene.model import Camera, Light, Material, Mesh, Scene, assemble, rgb
+from evalkit.scene.tessellate import unit_disk, unit_sphere
+
+SPHERE_SEGMENTS = (128, 64)  # (longitude, latitude): area within 0.1 % of the analytic sphere
+DISK_SEGMENTS = 128
+BAKE_RESOLUTION = 256
+_DIFFUSE_KEYS = {"reflectance.value", "reflectance.data", "reflectance.to_uv"}
+
+
+def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Scene:
+    """Load a Mitsuba XML scene file (relative mesh and texture paths resolve from its folder)."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError(path, "file not found")
+    try:
+        ElementTree.parse(path)
+    except ElementTree.ParseError as e:
+        raise InputError(path, f"malformed XML: {e}") from None
+    mi = _mitsuba(variant)
+    try:
+        mi_scene = mi.load_file(path)
+    except Exception as e:  # Mitsuba reports every load problem as a RuntimeError with its own text
+        raise InputError(path, f"Mitsuba could not load it: {_last_line(e)}") from None
+    return from_mitsuba_scene(mi, mi_scene, name=os.path.splitext(os.path.basename(path))[0], source=path)
+
+
+def load_mitsuba_dict(scene_dict: dict, name: str, source: str | None = None, variant: str | None = None) -> Scene:
+    """Load a Mitsuba scene dict (as ``mi.load_dict`` takes it)."""
+    source = source or name
+    mi = _mitsuba(variant)
+    try:
+        mi_scene = mi.load_dict(scene_dict)
+    except Exception as e:
+        raise InputError(source, f"Mitsuba could not load it: {_last_line(e)}") from None
+    return from_mitsuba_scene(mi, mi_scene, name=name, source=source)
+
+
+def from_mitsuba_scene(mi, mi_scene, name: str, source: str) -> Scene:
+    """Read a loaded ``mi.Scene`` into a `Scene`."""
+    warnings: list[str] = []
+    materials: list[Material] = []
+    material_index: dict[tuple, int] = {}
+    meshes: list[Mesh] = []
+    for shape_no, shape in enumerate(mi_scene.shapes()):
+        shape_name = shape.id() or f"shape{shape_no}"
+        kind = shape.class_name()
+        if shape.interior_medium() is not None or shape.exterior_medium() is not None:
+            warnings.append(f"shape '{shape_name}': participating media are not supported; the medium is ignored")
+        geometry = _shape_geometry(mi, shape, kind)
+        if geometry is None:
+            warnings.append(f"shape '{shape_name}': plugin {kind} is not supported; the shape is left out")
+            continue
+        emission = _area_emission(mi, shape, shape_name, warnings)
+        bsdf = shape.bsdf()
+        key = (bsdf.ptr, emission)
+        if key not in material_index:
+            material_index[key] = len(materials)
+            materials.append(_material(mi, bsdf, shape_name, emission, warnings))
+        positions, faces, normals, uvs = geometry
+        meshes.append(Mesh(shape_name, positions, faces, material_index[key], normals, uvs))
+
+    lights = []
+    for emitter in mi_scene.emitters():
+        light = _light(mi, emitter, warnings)
+        if light is not None:
+            lights.append(light)
+
+    camera = None
+    sensors = mi_scene.sensors()
+    if sensors:
+        camera = _camera(mi, sensors[0], warnings)
+    return assemble(name, source, meshes, materials, lights, camera, warnings)
+
+
+# --- import helpers -------------------------------------------------------------------------------
+
+
+def _mitsuba(variant):
+    from evalkit.mitsuba_env import mitsuba
+
+    return mitsuba(variant)
+
+
+def _last_line(e: Exception) -> str:
+    lines = [line.strip() for line in str(e).splitlines() if line.strip()]
+    return lines[-1] if lines else type(e).__name__
+
+
+def _np(value) -> np.ndarray:
+    return np.array(value, dtype=np.float64)
+
+
+def _matrix(transform) -> np.ndarray:
+    return _np(transform.matrix).reshape(4, 4)
+
+
+def _shape_geometry(mi, shape, kind):
+    """(positions, faces, normals or None, uvs or None) in world space, or None if unsupported."""
+    if shape.is_mesh():
+        positions = _np(shape.vertex_positions_buffer()).reshape(-1, 3)
+        faces = np.array(shape.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+        normals = _np(shape.vertex_normals_buffer()).reshape(-1, 3) if shape.has_vertex_normals() else None
+        uvs = _np(shape.vertex_texcoords_buffer()).reshape(-1, 2) if shape.has_vertex_texcoords() else None
+        return positions, faces, normals, uvs
+    if kind in ("Sphere", "Disk"):
+        to_world = _matrix(mi.traverse(shape)["to_world"])
+        local = unit_sphere(SPHERE_SEGMENTS) if kind == "Sphere" else unit_disk(DISK_SEGMENTS)
+        return _transform(local, to_world)
+    return None
+
+
+def _transform(local, to_world: np.ndarray):
+    pos, faces, normals, uv = local
+    world = pos @ to_world[:3, :3].T + to_world[:3, 3]
+    n = normals @ np.linalg.inv(to_world[:3, :3])  # inverse transpose, applied to row vectors
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    if np.linalg.det(to_world[:3, :3]) < 0:  # a mirroring transform flips the winding
+        faces = faces[:, ::-1]
+    return world, faces, n, uv
+
+
+def _area_emission(mi, shape, shape_name: str, warnings: list[str]):
+    emitter = shape.emitter()
+    if emitter is None:
+        return (0.0, 0.0, 0.0)
+    params = mi.traverse(emitter)
+    if "radiance.value" in params:
+        return rgb(_np(params["radiance.value"]))
+    data = [k for k in params.keys() if k.endswith(".data")]
+    if data:
+        mean = _np(params[data[0]]).reshape(-1, _np(params[data[0]]).shape[-1])[:, :3].mean(axis=0)
+        warnings.append(f"shape '{shape_name}': textured area emission is approximated by its mean {tuple(np.round(mean, 4))}")
+        return rgb(mean)
+    warnings.append(f"shape '{shape_name}': area emitter radiance could not be read; it is left dark")
+    return (0.0, 0.0, 0.0)
+
+
+def _material(mi, bsdf, shape_name: str, emission, warnings: list[str]) -> Material:
+    params = mi.traverse(bsdf)
+    keys = set(params.keys())
+    kind = bsdf.class_name()
+    name = bsdf.id() or f"{shape_name}.bsdf"
+    twosided = kind == "TwoSidedBRDF"
+    inner = {k.split(".", 1)[1] for k in keys if k.startswith("brdf_")} if twosided else keys
+    exact = (kind == "SmoothDiffuse" or twosided) and inner <= _DIFFUSE_KEYS
+    texture, albedo = _bake_albedo(mi, bsdf, params)
+    if not exact:
+        warnings.append(
+            f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo {tuple(round(a, 4) for a in albedo)} "
+            "(its diffuse reflectance)"
+        )
+    return Material(name, albedo, texture, emission, twosided, source_bsdf=kind, approximated=not exact)
+
+
+def _bake_albedo(mi, bsdf, params):
+    """The BSDF's diffuse reflectance: (texture or None, mean rgb)."""
+    data_keys = sorted(k for k in params.keys() if k.endswith(".data"))
+    to_uv_keys = sorted(k for k in params.keys() if k.endswith(".to_uv"))
+    probe = np.random.default_rng(0).random((16, 2))
+    values = _eval_reflectance(mi, bsdf, probe)
+    if np.ptp(values, axis=0).max() <= 1e-7:
+        return None, rgb(values[0])
+    if data_keys:
+        h, w = np.shape(params[data_keys[0]])[:2]
+    else:
+        h = w = BAKE_RESOLUTION
+    # Texel centres in texture space, pulled back to the mesh's uv space through to_uv, so that
+    # eval(uv) lands exactly on each texel and bilinear filtering returns the stored value.
+    tv, tu = np.meshgrid((np.arange(h) + 0.5) / h, (np.arange(w) + 0.5) / w, indexing="ij")
+    uv = np.stack([tu.ravel(), tv.ravel()], axis=-1)
+    if to_uv_keys:
+        m = _np(params[to_uv_keys[0]].matrix).reshape(3, 3)
+        if not np.allclose(m, np.eye(3)):
+            uv = (np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(m).T)[:, :2]
+    texels = _eval_reflectance(mi, bsdf, uv).reshape(h, w, 3).astype(np.float32)
+    return texels, rgb(texels.reshape(-1, 3).mean(axis=0))
+
+
+def _eval_reflectance(mi, bsdf, uv: np.ndarray) -> np.ndarray:
+    import drjit as dr
+
+    if mi.variant().startswith("scalar"):
+        out = []
+        for u, v in uv:
+            si = mi.SurfaceInteraction3f()
+            si.uv, si.wi = mi.Point2f(u, v), mi.Vector3f(0, 0, 1)
+            out.append(_np(bsdf.eval_diffuse_reflectance(si)).reshape(3))
+        return np.array(out)
+    si = dr.zeros(mi.SurfaceInteraction3f, len(uv))
+    si.uv = mi.Point2f(uv[:, 0].astype(np.float32), uv[:, 1].astype(np.float32))
+    si.wi = mi.Vector3f(0, 0, 1)
+    return _np(bsdf.eval_diffuse_reflectance(si)).reshape(3, -1).T
+
+
+def _light(mi, emitter, warnings: list[str]) -> Light | None:
+    kind = emitter.class_name()
+    if kind == "AreaLight":
+        return None  # read with its shape
+    p = mi.traverse(emitter)
+    if kind == "PointLight":
+        return Light("point", rgb(_np(p["intensity.value"])), position=_np(p["position"]).reshape(3))
+    if kind == "SpotLight":
+        m = _matrix(p["to_world"])
+        if "texture.value" not in p or np.ptp(_np(p["texture.value"])) > 0 or float(_np(p["texture.value"]).ravel()[0]) != 1.0:
+            warnings.append("spot light: a projected texture is not supported; it is ignored")
+        return Light("spot", rgb(_np(p["intensity.value"])), position=m[:3, 3].copy(), direction=_unit(m[:3, 2]),
+                     cutoff_angle=float(_np(p["cutoff_angle"]).ravel()[0]), beam_width=float(_np(p["beam_width"]).ravel()[0]))
+    if kind == "DirectionalEmitter":
+        m = _matrix(p["to_world"])
+        return Light("directional", rgb(_np(p["irradiance.value"])), direction=_unit(m[:3, 2]))
+    if kind == "ConstantBackgroundEmitter":
+        return Light("constant", rgb(_np(p["radiance.value"])))
+    if kind == "EnvironmentMapEmitter":
+        # Mitsuba pads its lat-long data with one wrapped column on each side.
+        texels = _np(p["data"])[:, 1:-1, :3].astype(np.float32)
+        scale = float(_np(p["scale"]).ravel()[0])
+        return Light("envmap", rgb(scale), envmap=texels, to_world=_matrix(p["to_world"]))
+    warnings.append(f"emitter plugin {kind} is not supported; it is left out")
+    return None
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _camera(mi, sensor, warnings: list[str]) -> Camera | None:
+    kind = sensor.class_name()
+    if kind != "PerspectiveCamera":
+        warnings.append(f"sensor plugin {kind} is not supported (only a pinhole perspective camera); a default camera is used")
+        return None
+    p = mi.traverse(sensor)
+    width, height = (int(x) for x in sensor.film().size())
+    return Camera(
+        _matrix(p["to_world"]),
+        fov=float(_np(p["x_fov"]).ravel()[0]),
+        fov_axis="x",  # Mitsuba stores every fov axis as x_fov once loaded
+        width=width,
+        height=height,
+        near_clip=float(_np(p["near_clip"]).ravel()[0]),
+        far_clip=float(_np(p["far_clip"]).ravel()[0]),
+    )
+
+
+# --- export ---------------------------------------------------------------------------------------
+
+
+def to_mitsuba_dict(scene: Scene, mi, spp: int = 64, width: int | None = None, height: int | None = None) -> dict:
+    """A Mitsuba scene dict of ``scene`` (sensor, meshes, materials, emitters; no integrator).
+
+    ``mi`` is the Mitsuba module with the variant to build for (the meshes are Mitsuba objects).
+    The sensor uses a box pixel filter and a float32 film, which is what comparisons with the
+    rasterizer need (FIELD_NOTES.md). Positions are in scene space (recentred).
+    """
+    cam = scene.camera
+    d: dict = {
+        "type": "scene",
+        "sensor": {
+            "type": "perspective",
+            "fov": cam.fov,
+            "fov_axis": cam.fov_axis,
+            "near_clip": cam.near_clip,
+            "far_clip": cam.far_clip,
+            "to_world": mi.ScalarTransform4f(cam.to_world.tolist()),
+            "sampler": {"type": "independent", "sample_count": int(spp)},
+            "film": {
+                "type": "hdrfilm",
+                "width": int(width or cam.width),
+                "height": int(height or cam.height),
+                "rfilter": {"type": "box"},
+                "pixel_format": "rgb",
+                "component_format": "float32",
+            },
+        },
+    }
+    bsdfs = [mi.load_dict(_bsdf_dict(mi, m)) for m in scene.materials]
+    for i, mesh in enumerate(scene.meshes):
+        mat = scene.materials[mesh.material]
+        props = mi.Properties()
+        props["bsdf"] = bsdfs[mesh.material]
+        if mat.emissive:
+            props["emitter"] = mi.load_dict({"type": "area", "radiance": {"type": "rgb", "value": list(mat.emission)}})
+        m = mi.Mesh(mesh.name, len(mesh.positions), len(mesh.faces), props,
+                    has_vertex_normals=mesh.normals is not None, has_vertex_texcoords=mesh.uvs is not None)
+        params = mi.traverse(m)
+        params["vertex_positions"] = mi.Float(mesh.positions.astype(np.float32).ravel())
+        params["faces"] = mi.UInt(mesh.faces.astype(np.uint32).ravel())
+        if mesh.normals is not None:
+            params["vertex_normals"] = mi.Float(mesh.normals.astype(np.float32).ravel())
+        if mesh.uvs is not None:
+            params["vertex_texcoords"] = mi.Float(mesh.uvs.astype(np.float32).ravel())
+        params.update()
+        d[f"mesh{i:05d}"] = m
+    for i, light in enumerate(scene.lights):
+        d[f"light{i:03d}"] = _emitter_dict(mi, light)
+    return d
+
+
+def _bsdf_dict(mi, mat: Material) -> dict:
+    if mat.texture is None:
+        reflectance = {"type": "rgb", "value": list(mat.albedo)}
+    else:
+        reflectance = {"type": "bitmap", "bitmap": mi.Bitmap(mat.texture), "raw": True,
+                       "filter_type": "bilinear", "wrap_mode": "repeat"}
+    diffuse = {"type": "diffuse", "reflectance": reflectance}
+    return {"type": "twosided", "bsdf": diffuse} if mat.twosided else diffuse
+
+
+def _emitter_dict(mi, light: Light) -> dict:
+    value = {"type": "rgb", "value": list(light.intensity)}
+    if light.kind == "point":
+        return {"type": "point", "position": light.position.tolist(), "intensity": value}
+    if light.kind == "spot":
+        frame = mi.ScalarTransform4f().look_at(origin=light.position.tolist(),
+                                               target=(light.position + light.direction).tolist(),
+                                               up=_any_perpendicular(light.direction).tolist())
+        return {"type": "spot", "to_world": frame, "intensity": value,
+                "cutoff_angle": light.cutoff_angle, "beam_width": light.beam_width}
+    if light.kind == "directional":
+        return {"type": "directional", "direction": light.direction.tolist(), "irradiance": value}
+    if light.kind == "constant":
+        return {"type": "constant", "radiance": value}
+    return {"type": "envmap", "bitmap": mi.Bitmap(light.envmap), "scale": light.intensity[0],
+            "to_world": mi.ScalarTransform4f(light.to_world.tolist())}
+
+
+def _any_perpendicular(d: np.ndarray) -> np.ndarray:
+    axis = np.eye(3)[int(np.argmin(np.abs(d)))]
+    return np.cross(d, axis)

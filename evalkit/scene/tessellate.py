@@ -1,0 +1,72 @@
+"""Triangle grids for analytic shapes: Mitsuba's sphere and disk on import, and the built-in scenes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def grid_faces(rows: int, cols: int) -> np.ndarray:
+    """Two triangles per cell of a (rows+1) x (cols+1) row-major vertex grid, wound so that the
+    front side faces d(row) x d(col)."""
+    r, c = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    a = (r * (cols + 1) + c).ravel()
+    b, d = a + 1, a + cols + 1
+    return np.concatenate([np.stack([a, d, b], -1), np.stack([b, d, d + 1], -1)])
+
+
+def surface(fn, rows: int, cols: int):
+    """A parametric surface P = fn(u, v) sampled on a (rows+1) x (cols+1) grid over [0, 1]^2.
+
+    Returns (positions, faces, normals, uvs) with smooth normals from the finite-difference
+    tangents (front side along dP/du x dP/dv) and uv = (v, u).
+    """
+    u, v = np.meshgrid(np.linspace(0, 1, rows + 1), np.linspace(0, 1, cols + 1), indexing="ij")
+    p = fn(u, v)
+    n = np.cross(np.gradient(p, axis=0), np.gradient(p, axis=1))
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return p.reshape(-1, 3), grid_faces(rows, cols), n.reshape(-1, 3), np.stack([v, u], -1).reshape(-1, 2)
+
+
+def unit_sphere(segments: tuple[int, int]):
+    """Unit sphere, outward, with Mitsuba's uv (u = phi / 2pi, v = theta / pi) and exact normals.
+
+    ``segments`` is (longitude, latitude). Returns (positions, faces, normals, uvs).
+    """
+    n_phi, n_theta = segments
+    t, p = np.meshgrid(np.linspace(0.0, math.pi, n_theta + 1), np.linspace(0.0, 2 * math.pi, n_phi + 1), indexing="ij")
+    pos = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1).reshape(-1, 3)
+    uv = np.stack([p / (2 * math.pi), t / math.pi], axis=-1).reshape(-1, 2)
+    return pos, grid_faces(n_theta, n_phi), pos.copy(), uv
+
+
+def unit_disk(segments: int):
+    """Unit disk in z = 0 facing +z, as a fan, with Mitsuba's polar uv (u = r, v = phi / 2pi)."""
+    phi = np.linspace(0.0, 2 * math.pi, segments + 1)
+    rim = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=-1)
+    pos = np.vstack([[0.0, 0.0, 0.0], rim])
+    uv = np.vstack([[0.0, 0.0], np.stack([np.ones_like(phi), phi / (2 * math.pi)], axis=-1)])
+    k = np.arange(1, segments + 1)
+    faces = np.stack([np.zeros_like(k), k, k + 1], axis=-1)
+    return pos, faces, np.tile([0.0, 0.0, 1.0], (len(pos), 1)), uv
+
+
+def box(lo: np.ndarray, hi: np.ndarray, subdivisions: int = 1, inward: bool = False):
+    """An axis-aligned box [lo, hi], each face split into subdivisions^2 quads, front sides facing
+    out (or in). Returns (positions, faces); faces share no vertices, so shading stays flat."""
+    positions, faces = [], []
+    t = np.linspace(0.0, 1.0, subdivisions + 1)
+    for axis in range(3):
+        b, c = (axis + 1) % 3, (axis + 2) % 3
+        for is_hi, side in ((False, lo), (True, hi)):
+            grid = np.zeros((subdivisions + 1, subdivisions + 1, 3))
+            grid[..., axis] = side[axis]
+            grid[..., b] = (lo[b] + t * (hi[b] - lo[b]))[:, None]
+            grid[..., c] = (lo[c] + t * (hi[c] - lo[c]))[None, :]
+            f = grid_faces(subdivisions, subdivisions)  # front side along e_b x e_c = +e_axis
+            if is_hi == inward:
+                f = f[:, ::-1]
+            faces.append(f + sum(len(p) for p in positions))
+            positions.append(grid.reshape(-1, 3))
+    return np.concatenate(positions), np.concatenate(faces)

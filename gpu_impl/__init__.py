@@ -1,0 +1,1 @@
+"""The GLSL implementation of ray-bundle tracing and its Python driver (headless EGL)."""
