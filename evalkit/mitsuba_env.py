@@ -31,10 +31,10 @@ def llvm_major(path: str) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def find_libllvm() -> str | None:
+def find_libllvm(patterns: tuple[str, ...] = _LLVM_GLOBS) -> str | None:
     """The libLLVM to give Dr.Jit: version 19 if present, else the newest at or above 17."""
     candidates = {}
-    for pattern in _LLVM_GLOBS:
+    for pattern in patterns:
         for path in sorted(glob.glob(pattern)):
             major = llvm_major(path)
             if major is not None and major >= MIN_LLVM_MAJOR and os.path.isfile(path):

@@ -69,7 +69,8 @@ def _mesh(path, node, geometry, transform, materials, material_index, warnings) 
     if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
         worst = int(faces.min()) if faces.min() < 0 else int(faces.max())
         raise InputError(path, f"mesh '{node}': face index {worst} is out of range for {len(vertices)} vertices")
-    positions = vertices @ transform[:3, :3].T + transform[:3, 3]
+    with np.errstate(invalid="ignore"):  # NaN vertices are reported by assemble, naming the file
+        positions = vertices @ transform[:3, :3].T + transform[:3, 3]
     normals = None
     # trimesh computes normals on demand; only normals that the file itself carried are kept.
     if "vertex_normals" in geometry._cache.cache:

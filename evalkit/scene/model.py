@@ -354,10 +354,8 @@ def assemble(
         mesh = _validate_mesh(source, mesh, len(materials))
         keep = _nondegenerate(mesh)
         removed += int((~keep).sum())
-        if keep.all():
-            clean.append(mesh)
-        elif keep.any():
-            clean.append(_subset_faces(mesh, keep))
+        if keep.any():
+            clean.append(_unit_normals(source, mesh if keep.all() else _subset_faces(mesh, keep)))
         else:
             warnings.append(f"mesh '{mesh.name}' has only degenerate triangles and was removed")
     if removed:
@@ -370,7 +368,7 @@ def assemble(
         _check_finite(source, f"material '{mat.name}' emission", mat.emission)
         if mat.texture is not None:
             _check_finite(source, f"material '{mat.name}' texture", mat.texture)
-        if mat.emissive:
+        if mat.emissive and any(m.material == i for m in meshes):
             area = sum(float(m.triangle_areas().sum()) for m in clean if m.material == i)
             if not area > 0.0:
                 raise InputError(source, f"emitter '{mat.name}' has zero area: no triangle of it emits any light")
@@ -433,10 +431,6 @@ def _validate_mesh(source: str, mesh: Mesh, n_materials: int) -> Mesh:
         normals = np.asarray(normals, dtype=np.float64)
         if normals.shape != p.shape:
             raise InputError(source, f"{where}: {normals.shape[0]} normals for {p.shape[0]} vertices")
-        length = np.linalg.norm(normals, axis=1)
-        if not (np.isfinite(length).all() and (length > 0).all()):
-            raise InputError(source, f"{where}: vertex normals contain NaN, Inf or zero vectors")
-        normals = normals / length[:, None]
     if uvs is not None:
         uvs = np.asarray(uvs, dtype=np.float64)
         if uvs.shape != (p.shape[0], 2):
@@ -444,6 +438,16 @@ def _validate_mesh(source: str, mesh: Mesh, n_materials: int) -> Mesh:
         if not np.isfinite(uvs).all():
             raise InputError(source, f"{where}: uvs contain NaN or Inf")
     return Mesh(mesh.name, p, f.astype(np.int64), mesh.material, normals, uvs)
+
+
+def _unit_normals(source: str, mesh: Mesh) -> Mesh:
+    """Normalised shading normals; checked after degenerate removal, whose normals may be NaN."""
+    if mesh.normals is None:
+        return mesh
+    length = np.linalg.norm(mesh.normals, axis=1)
+    if not (np.isfinite(length).all() and (length > 0).all()):
+        raise InputError(source, f"mesh '{mesh.name}': vertex normals contain NaN, Inf or zero vectors")
+    return replace(mesh, normals=mesh.normals / length[:, None])
 
 
 def _nondegenerate(mesh: Mesh) -> np.ndarray:

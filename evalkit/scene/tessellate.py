@@ -38,7 +38,11 @@ def unit_sphere(segments: tuple[int, int]):
     t, p = np.meshgrid(np.linspace(0.0, math.pi, n_theta + 1), np.linspace(0.0, 2 * math.pi, n_phi + 1), indexing="ij")
     pos = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1).reshape(-1, 3)
     uv = np.stack([p / (2 * math.pi), t / math.pi], axis=-1).reshape(-1, 2)
-    return pos, grid_faces(n_theta, n_phi), pos.copy(), uv
+    faces = grid_faces(n_theta, n_phi)
+    # The grid's cells at the poles have two corners on the pole: keep their one real triangle.
+    pole = (faces // (n_phi + 1) == 0).sum(axis=1) >= 2
+    pole |= (faces // (n_phi + 1) == n_theta).sum(axis=1) >= 2
+    return pos, faces[~pole], pos.copy(), uv
 
 
 def unit_disk(segments: int):

@@ -1,0 +1,217 @@
+"""Importers: Mitsuba XML (through Mitsuba), mesh files (through trimesh), built-in scenes, and the
+one-line errors for bad files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from conftest import write_obj, write_texture
+from evalkit.errors import InputError
+from evalkit.scene import load_scene
+from evalkit.scene.builtin import FURNACE_ALBEDO, FURNACE_EMISSION, furnace_radiance
+from evalkit.scene.mitsuba_io import SPHERE_SEGMENTS
+from evalkit.scene.model import srgb_to_linear
+
+TRI = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+
+
+def xml_scene(tmp_path, body: str, name: str = "scene.xml") -> str:
+    path = tmp_path / name
+    path.write_text(f'<scene version="3.0.0">\n{body}\n</scene>\n')
+    return str(path)
+
+
+@pytest.fixture
+def mixed_xml(tmp_path):
+    """An XML scene with an obj and a ply mesh, a sphere, a textured diffuse, a plastic, a medium,
+    and point, spot, directional and constant emitters."""
+    (tmp_path / "quad.obj").write_text("v -2 0 -2\nv 2 0 -2\nv 2 0 2\nv -2 0 2\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+                                       "f 1/1 3/3 2/2\nf 1/1 4/4 3/3\n")
+    trimesh.creation.icosphere(subdivisions=2, radius=0.4).apply_translation([1, 0.4, 0]).export(tmp_path / "ball.ply")
+    write_texture(tmp_path / "tex.png")
+    return xml_scene(tmp_path, """
+  <sensor type="perspective"><float name="fov" value="40"/><string name="fov_axis" value="y"/>
+    <transform name="to_world"><lookat origin="0, 3, 6" target="0, 0, 0" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="32"/></film></sensor>
+  <bsdf type="twosided" id="floor"><bsdf type="diffuse"><texture type="bitmap" name="reflectance"><string name="filename" value="tex.png"/></texture></bsdf></bsdf>
+  <bsdf type="roughplastic" id="plastic"><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/></bsdf>
+  <medium type="homogeneous" id="fog"/>
+  <shape type="obj"><string name="filename" value="quad.obj"/><ref id="floor"/></shape>
+  <shape type="ply"><string name="filename" value="ball.ply"/><ref id="plastic"/></shape>
+  <shape type="ply"><string name="filename" value="ball.ply"/><ref id="plastic"/>
+    <transform name="to_world"><translate x="-2"/></transform></shape>
+  <shape type="sphere"><point name="center" x="-1" y="0.5" z="0"/><float name="radius" value="0.5"/>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.7, 0.7"/></bsdf><ref name="interior" id="fog"/></shape>
+  <shape type="cylinder"/>
+  <emitter type="point"><point name="position" x="0" y="3" z="0"/><rgb name="intensity" value="5, 4, 3"/></emitter>
+  <emitter type="spot"><transform name="to_world"><lookat origin="0, 4, 0" target="0, 0, 0" up="0, 0, 1"/></transform>
+    <float name="cutoff_angle" value="30"/></emitter>
+  <emitter type="directional"><vector name="direction" x="0" y="-1" z="0"/><rgb name="irradiance" value="2, 2, 2"/></emitter>
+  <emitter type="constant"><rgb name="radiance" value="0.1, 0.1, 0.1"/></emitter>
+""")
+
+
+def test_mitsuba_xml_with_obj_ply_sphere_textures_and_lights(mixed_xml, tmp_path):
+    s = load_scene(mixed_xml)
+    names = {m.name for m in s.materials}
+    assert {"floor", "plastic"} <= names
+    floor = next(m for m in s.materials if m.name == "floor")
+    # the bitmap comes back linear and in Mitsuba's orientation (texel row = v * H)
+    texels = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(tmp_path / "tex.png"), dtype=np.float64) / 255
+    np.testing.assert_allclose(floor.texture, srgb_to_linear(texels), atol=2e-3)
+    assert floor.twosided and not floor.approximated
+    plastic = next(m for m in s.materials if m.name == "plastic")
+    assert plastic.approximated and plastic.albedo == pytest.approx((0.2, 0.4, 0.6), abs=1e-5)
+    # warned once per BSDF even though two shapes use it
+    assert sum("BSDF 'plastic' (RoughPlastic) is approximated as diffuse" in w for w in s.warnings) == 1
+    assert any("participating media" in w for w in s.warnings)
+    assert any("Cylinder is not supported" in w for w in s.warnings)
+    assert s.features().approximated_bsdfs == ("plastic (RoughPlastic)",)
+    assert s.degenerate_removed == 0  # the tessellation itself makes no degenerate triangles
+    # the sphere is tessellated; its area is that of the analytic sphere to 0.1 %
+    n_phi, n_theta = SPHERE_SEGMENTS
+    sphere = [m for m in s.meshes if len(m.faces) == 2 * n_phi * (n_theta - 1)]
+    assert len(sphere) == 1
+    assert sphere[0].triangle_areas().sum() == pytest.approx(np.pi, rel=1e-3)
+    assert sorted(light.kind for light in s.lights) == ["constant", "directional", "point", "spot"]
+    spot = next(light for light in s.lights if light.kind == "spot")
+    np.testing.assert_allclose(spot.direction, [0, -1, 0], atol=1e-6)
+    assert spot.cutoff_angle == pytest.approx(30)
+    point = next(light for light in s.lights if light.kind == "point")
+    np.testing.assert_allclose(point.position + s.origin, [0, 3, 0], atol=1e-6)
+    assert s.camera.fov_axis == "x" and (s.camera.width, s.camera.height) == (48, 32)
+    f = s.features()
+    assert f.textures and f.environment == "constant" and f.light_types == ("constant", "directional", "point", "spot")
+
+
+def test_mitsuba_dict_envmap_roundtrip(mi):
+    from evalkit.scene.mitsuba_io import load_mitsuba_dict
+
+    env = np.random.default_rng(3).random((8, 16, 3)).astype(np.float32)
+    s = load_mitsuba_dict({"type": "scene", "e": {"type": "envmap", "bitmap": mi.Bitmap(env), "scale": 2.0},
+                           "r": {"type": "rectangle"}}, name="env")
+    (light,) = s.lights
+    assert light.kind == "envmap" and light.intensity == (2.0, 2.0, 2.0)
+    np.testing.assert_allclose(light.envmap, env, rtol=1e-6)
+    assert any("no camera" in w for w in s.warnings)
+
+
+@pytest.mark.parametrize("body, message", [
+    ('<shape type="obj"><string name="filename" value="nowhere.obj"/></shape>', "Mitsuba could not load it"),
+    ('<shape type="rectangle"/><shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1,1,1"/></emitter>'
+     '<transform name="to_world"><scale x="0" y="0" z="1"/></transform></shape>', "zero area"),
+])
+def test_mitsuba_errors_are_one_line_and_name_the_file(tmp_path, body, message):
+    path = xml_scene(tmp_path, body)
+    with pytest.raises(InputError, match=message) as e:
+        load_scene(path)
+    assert str(e.value).startswith(path) and "\n" not in str(e.value)
+
+
+def test_malformed_xml(tmp_path):
+    path = tmp_path / "bad.xml"
+    path.write_text('<scene version="3.0.0"><shape type="obj">\n</scene>')
+    with pytest.raises(InputError, match=r"bad\.xml: malformed XML: mismatched tag: line 2"):
+        load_scene(path)
+
+
+def test_obj_with_mtl_texture(tmp_path):
+    texels = write_texture(tmp_path / "t.png")
+    (tmp_path / "m.mtl").write_text("newmtl painted\nKd 1 1 1\nmap_Kd t.png\n")
+    path = write_obj(tmp_path / "m.obj", [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [],
+                     extra="mtllib m.mtl\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl painted\n")
+    with open(path, "a") as f:
+        f.write("f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    s = load_scene(path)
+    (mat,) = s.materials
+    np.testing.assert_allclose(mat.texture, srgb_to_linear(texels / 255.0), atol=1e-6)
+    # OBJ's vt (0, 0) is the image's bottom-left: our uv (0, 1), i.e. the last row
+    np.testing.assert_allclose(s.meshes[0].uvs[0], [0, 1])
+    assert mat.twosided
+    assert any("default sun" in w for w in s.warnings) and any("default camera" in w for w in s.warnings)
+
+
+@pytest.mark.parametrize("ext", ["gltf", "glb", "ply"])
+def test_gltf_glb_ply(tmp_path, ext):
+    m = trimesh.creation.box(extents=[1, 2, 3])
+    m.visual = trimesh.visual.TextureVisuals(
+        uv=np.random.default_rng(0).random((len(m.vertices), 2)),
+        material=trimesh.visual.material.PBRMaterial(baseColorFactor=[0.2, 0.4, 0.6, 1.0], emissiveFactor=[1.0, 0.5, 0.0]))
+    path = tmp_path / f"box.{ext}"
+    m.export(path)
+    s = load_scene(path)
+    assert s.triangle_count == 12
+    np.testing.assert_allclose(s.bounds()[1] - s.bounds()[0], [1, 2, 3])
+    if ext != "ply":  # PLY carries no materials
+        (mat,) = s.materials
+        assert mat.albedo == pytest.approx((0.2, 0.4, 0.6), abs=3e-3)
+        assert mat.emission == pytest.approx((1.0, 0.5, 0.0))
+        assert not any("default sun" in w for w in s.warnings)
+
+
+BAD_FILES = {
+    "nan.obj": ("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n", "NaN or Inf coordinates"),
+    "inf.obj": ("v 0 0 0\nv 1 0 0\nv 0 inf 0\nf 1 2 3\n", "NaN or Inf coordinates"),
+    "range.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "vertex that does not exist|out of range"),
+    "empty.obj": ("", "the file is empty"),
+    "garbage.obj": (bytes(range(256)) * 4, "no triangle geometry|cannot be read"),
+    "garbage.ply": (b"ply\nformat nonsense\n" + bytes(range(256)), "cannot be read|no triangle geometry"),
+    "garbage.glb": (b"glTF" + bytes(range(200)), "cannot be read|no triangle geometry"),
+    "nofaces.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no triangle geometry"),
+    "flat.obj": ("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "all degenerate"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_FILES))
+def test_bad_mesh_files(tmp_path, name):
+    content, message = BAD_FILES[name]
+    path = tmp_path / name
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(InputError, match=message) as e:
+        load_scene(path)
+    assert str(e.value).startswith(str(path)) and "\n" not in str(e.value)
+
+
+def test_missing_files_and_unknown_names(tmp_path):
+    for name in ("missing.obj", "missing.xml"):
+        with pytest.raises(InputError, match="file not found"):
+            load_scene(tmp_path / name)
+    with pytest.raises(InputError, match="not a built-in scene"):
+        load_scene("no-such-scene")
+    (tmp_path / "x.fbx").write_text("x")
+    with pytest.raises(InputError, match="unsupported file type '.fbx'"):
+        load_scene(tmp_path / "x.fbx")
+
+
+def test_cornell_box_is_mitsubas_own(mi):
+    s = load_scene("cornell-box")
+    ref = mi.load_dict(mi.cornell_box())
+    ref_area = sum(float(np.array(sh.surface_area()).ravel()[0]) for sh in ref.shapes())
+    assert s.surface_area() == pytest.approx(ref_area, rel=1e-6)
+    assert s.triangle_count == 36
+    assert s.features().light_types == ("area",)
+    assert s.camera.fov == pytest.approx(39.3077, rel=1e-5) and (s.camera.width, s.camera.height) == (256, 256)
+
+
+def test_furnace_is_closed_uniform_and_analytic():
+    s = load_scene("furnace")
+    (mat,) = s.materials
+    assert mat.albedo == (FURNACE_ALBEDO,) * 3 and mat.emission == (FURNACE_EMISSION,) * 3
+    # closed: every edge is shared by exactly two triangles, wound oppositely
+    mesh = trimesh.Trimesh(s.meshes[0].positions, s.meshes[0].faces, process=True)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    # front sides face inward: the signed volume of an inward-wound closed mesh is negative
+    assert mesh.volume == pytest.approx(-8.0)
+    assert furnace_radiance(1) == 1.0 and furnace_radiance(2) == 1.5
+    assert furnace_radiance(200) == pytest.approx(FURNACE_EMISSION / (1 - FURNACE_ALBEDO))
+
+
+def test_atrium_is_large_textured_and_lit():
+    s = load_scene("atrium")
+    f = s.features()
+    assert f.triangle_count >= 250_000
+    assert f.textures and set(f.light_types) == {"directional", "point"}
+    assert s.degenerate_removed == 0
+    assert load_scene("atrium").content_hash() == s.content_hash()  # deterministic

@@ -1,0 +1,144 @@
+"""The Scene model: validation, degenerate removal, recentring, features and content hash."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from evalkit.errors import InputError
+from evalkit.scene import Material, Mesh, assemble
+from evalkit.scene.model import Light, look_at, default_camera
+from evalkit.scene.tessellate import box, unit_sphere
+
+QUAD = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+QUAD_FACES = np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def scene_of(*meshes, materials=None, lights=(), source="test.obj"):
+    materials = materials or [Material("m")]
+    return assemble("test", source, list(meshes), materials, list(lights), camera=None)
+
+
+def test_nan_and_inf_vertices_are_errors_naming_file_and_vertex():
+    for bad in (np.nan, np.inf, -np.inf):
+        p = QUAD.copy()
+        p[2, 1] = bad
+        with pytest.raises(InputError, match=r"test\.obj: mesh 'q': 1 vertices have NaN or Inf coordinates \(first: vertex 2\)"):
+            scene_of(Mesh("q", p, QUAD_FACES, 0))
+
+
+def test_out_of_range_and_negative_indices_are_errors():
+    with pytest.raises(InputError, match="face index 4 is out of range for 4 vertices"):
+        scene_of(Mesh("q", QUAD, np.array([[0, 1, 4]]), 0))
+    with pytest.raises(InputError, match="face index -1 is out of range"):
+        scene_of(Mesh("q", QUAD, np.array([[0, 1, -1]]), 0))
+
+
+def test_huge_coordinates_are_errors():
+    with pytest.raises(InputError, match="beyond the supported"):
+        scene_of(Mesh("q", QUAD * 1e19, QUAD_FACES, 0))
+
+
+def test_no_geometry_is_an_error():
+    with pytest.raises(InputError, match="no triangle geometry"):
+        scene_of()
+    with pytest.raises(InputError, match="is empty"):
+        scene_of(Mesh("q", QUAD, np.zeros((0, 3), int), 0))
+
+
+def test_all_degenerate_is_no_geometry():
+    line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float)
+    with pytest.raises(InputError, match=r"no triangle geometry \(1 triangles, all degenerate\)"):
+        scene_of(Mesh("l", line, np.array([[0, 1, 2]]), 0))
+
+
+def test_degenerate_triangles_are_removed_and_counted():
+    p = np.vstack([QUAD, [[2, 0, 0], [3, 0, 0]]])  # 4, 5 collinear with 1
+    faces = np.vstack([QUAD_FACES, [[1, 4, 5], [0, 0, 2]]])
+    s = scene_of(Mesh("q", p, faces, 0))
+    assert s.degenerate_removed == 2
+    assert s.triangle_count == 2
+    assert len(s.meshes[0].positions) == 4  # unused vertices go too
+    assert any("2 degenerate triangle(s)" in w for w in s.warnings)
+    assert s.surface_area() == pytest.approx(1.0)
+
+
+def test_sliver_that_is_not_degenerate_is_kept():
+    sliver = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1e-9, 0]], float)  # sin(angle) ~ 4e-9 >> 1e-12
+    assert scene_of(Mesh("s", sliver, np.array([[0, 1, 2]]), 0)).triangle_count == 1
+
+
+def test_zero_area_emitter_is_an_error():
+    line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float)
+    mats = [Material("m"), Material("lamp", emission=(5, 5, 5))]
+    with pytest.raises(InputError, match="emitter 'lamp' has zero area"):
+        scene_of(Mesh("q", QUAD, QUAD_FACES, 0), Mesh("lamp", line, np.array([[0, 1, 2]]), 1), materials=mats)
+
+
+def test_bad_lights_are_errors():
+    q = Mesh("q", QUAD, QUAD_FACES, 0)
+    with pytest.raises(InputError, match="point light position contains NaN"):
+        scene_of(q, lights=[Light("point", (1, 1, 1), position=np.array([np.nan, 0, 0]))])
+    with pytest.raises(InputError, match="negative intensity"):
+        scene_of(q, lights=[Light("directional", (-1, 1, 1), direction=np.array([0, -1.0, 0]))])
+    with pytest.raises(InputError, match="cutoff angle"):
+        scene_of(q, lights=[Light("spot", (1, 1, 1), position=np.zeros(3), direction=np.array([0, -1.0, 0]), cutoff_angle=0.0)])
+
+
+def test_far_from_origin_geometry_keeps_float32_precision_after_recentring():
+    # Two parallel quads 1e-4 apart, 1e4 from the world origin: in float32 world coordinates
+    # they collapse to one depth (FIELD_NOTES); recentred they stay distinct.
+    offset = np.array([1e4, -1e4, 1e4])
+    a, b = QUAD + offset, QUAD + offset + [0, 0, 1e-4]
+    assert np.float32(a[0, 2]) == np.float32(b[0, 2])
+    s = scene_of(Mesh("a", a, QUAD_FACES, 0), Mesh("b", b, QUAD_FACES, 0))
+    za = np.float32(s.meshes[0].positions[0, 2])
+    zb = np.float32(s.meshes[1].positions[0, 2])
+    assert zb - za == pytest.approx(1e-4, rel=1e-3)
+    np.testing.assert_allclose(s.origin, offset + [0.5, 0.5, 5e-5])
+    # the camera and point lights move with the geometry
+    s2 = assemble("t", "t", [Mesh("a", a, QUAD_FACES, 0)], [Material("m")],
+                  [Light("point", (1, 1, 1), position=offset + [0.5, 0.5, 2.0])], default_camera(a.min(0), a.max(0)))
+    np.testing.assert_allclose(s2.lights[0].position, [0, 0, 2.0])
+    assert np.linalg.norm(s2.camera.position) < 10
+
+
+def test_depth_complexity_is_the_crofton_mean_crossing_count():
+    # A closed sphere is crossed exactly twice by every line through its bounding sphere.
+    p, f, n, uv = unit_sphere((256, 128))
+    s = scene_of(Mesh("s", p, f, 0, n, uv))
+    assert s.features().depth_complexity == pytest.approx(2.0, rel=2e-3)
+    # A cube: area 24, bounding radius sqrt(3): 24 / (2 pi 3).
+    p, f = box(-np.ones(3), np.ones(3))
+    assert scene_of(Mesh("b", p, f, 0)).features().depth_complexity == pytest.approx(24 / (6 * math.pi))
+
+
+def test_features_report_what_the_scene_uses():
+    tex = np.full((4, 4, 3), 0.5, np.float32)
+    mats = [Material("plain"), Material("tex", texture=tex), Material("lamp", emission=(1, 1, 1))]
+    q = Mesh("q", QUAD, QUAD_FACES, 0)
+    f = scene_of(q, materials=mats).features()
+    assert (f.textures, f.emitters, f.environment, f.light_types) == (False, False, None, ())
+    lights = [Light("constant", (0.2, 0.2, 0.2)), Light("point", (1, 1, 1), position=np.ones(3))]
+    f = scene_of(q, Mesh("t", QUAD + 2, QUAD_FACES, 1), Mesh("l", QUAD + 4, QUAD_FACES, 2), materials=mats, lights=lights).features()
+    assert f.textures and f.emitters and f.environment == "constant"
+    assert f.light_types == ("area", "constant", "point")
+    assert f.triangle_count == 6
+
+
+def test_content_hash_is_stable_and_sensitive():
+    def make(albedo=0.5, z=0.0):
+        return scene_of(Mesh("q", QUAD + [0, 0, z], QUAD_FACES, 0), materials=[Material("m", albedo=(albedo,) * 3)])
+
+    h = make().content_hash()
+    assert make().content_hash() == h
+    assert make(albedo=0.51).content_hash() != h
+    assert make(z=1e-9).content_hash() != h
+
+
+def test_look_at_matches_mitsuba(mi):
+    m = look_at([1, 2, 3], [0, 0.5, -1], [0, 1, 0])
+    ref = np.array(mi.ScalarTransform4f().look_at(origin=[1, 2, 3], target=[0, 0.5, -1], up=[0, 1, 0]).matrix)
+    np.testing.assert_allclose(m, ref, atol=1e-6)
