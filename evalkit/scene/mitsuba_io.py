@@ -166,11 +166,10 @@ def _material(mi, bsdf, shape_name: str, emission, warnings: list[str]) -> Mater
     inner = {k.split(".", 1)[1] for k in keys if k.startswith("brdf_")} if twosided else keys
     exact = (kind == "SmoothDiffuse" or twosided) and inner <= _DIFFUSE_KEYS
     texture, albedo = _bake_albedo(mi, bsdf, params)
-    if not exact:
-        warnings.append(
-            f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo {tuple(round(a, 4) for a in albedo)} "
-            "(its diffuse reflectance)"
-        )
+    message = (f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo "
+               f"{tuple(round(a, 4) for a in albedo)} (its diffuse reflectance)")
+    if not exact and message not in warnings:  # once per BSDF, also when shared by an emitter
+        warnings.append(message)
     return Material(name, albedo, texture, emission, twosided, source_bsdf=kind, approximated=not exact)
 
 
