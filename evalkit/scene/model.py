@@ -137,10 +137,6 @@ class Camera:
     def position(self) -> np.ndarray:
         return self.to_world[:3, 3]
 
-    def with_resolution(self, width: int, height: int) -> "Camera":
-        """The same view at another resolution; the fov along ``fov_axis`` is kept."""
-        return replace(self, width=int(width), height=int(height))
-
 
 @dataclass(frozen=True)
 class SceneFeatures:
