@@ -1,4 +1,4 @@
-"""Shared fixtures: the Mitsuba module, a seeded generator, scene files written on the fly, and a
+"""Shared fixtures: the Mitsuba module, a seeded generator, texture files written on the fly, and a
 runner for the installed `evalkit` command (bad input must end in exit 2 without a traceback)."""
 
 from __future__ import annotations
@@ -28,17 +28,6 @@ def rng():
 def run_evalkit(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
     """`evalkit ARGS` in a child process, as a user runs it."""
     return subprocess.run([sys.executable, "-m", "evalkit.cli", *args], capture_output=True, text=True, timeout=timeout, cwd=REPO)
-
-
-def write_obj(path, vertices, faces, extra: str = "") -> str:
-    """A minimal OBJ: ``vertices`` (V, 3), ``faces`` (F, 3) zero-based."""
-    with open(path, "w") as f:
-        f.write(extra)
-        for v in vertices:
-            f.write("v " + " ".join(repr(float(x)) for x in v) + "\n")
-        for t in faces:
-            f.write("f " + " ".join(str(int(i) + 1) for i in t) + "\n")
-    return str(path)
 
 
 def write_texture(path, size: int = 8, seed: int = 0) -> np.ndarray:

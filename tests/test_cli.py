@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import pytest
 
@@ -94,7 +95,7 @@ def test_bad_input_is_one_line_exit_2_no_traceback(tmp_path, name):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in done.stderr
     assert lines[0].startswith(f"evalkit: error: {path}: ")
-    assert __import__("re").search(message, lines[0]), lines[0]
+    assert re.search(message, lines[0]), lines[0]
 
 
 def test_verbose_shows_the_traceback(tmp_path):

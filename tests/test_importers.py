@@ -6,16 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 
-from conftest import write_obj, write_texture
+from conftest import write_texture
 from evalkit.errors import InputError
 from evalkit.scene import load_scene
 from evalkit.scene.builtin import FURNACE_ALBEDO, FURNACE_EMISSION, furnace_radiance
 from evalkit.scene.mitsuba_io import SPHERE_SEGMENTS
 from evalkit.scene.model import srgb_to_linear
-
-TRI = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
-
 
 def xml_scene(tmp_path, body: str, name: str = "scene.xml") -> str:
     path = tmp_path / name
@@ -59,7 +57,7 @@ def test_mitsuba_xml_with_obj_ply_sphere_textures_and_lights(mixed_xml, tmp_path
     assert {"floor", "plastic"} <= names
     floor = next(m for m in s.materials if m.name == "floor")
     # the bitmap comes back linear and in Mitsuba's orientation (texel row = v * H)
-    texels = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(tmp_path / "tex.png"), dtype=np.float64) / 255
+    texels = np.asarray(Image.open(tmp_path / "tex.png"), dtype=np.float64) / 255
     np.testing.assert_allclose(floor.texture, srgb_to_linear(texels), atol=2e-3)
     assert floor.twosided and not floor.approximated
     plastic = next(m for m in s.materials if m.name == "plastic")
@@ -120,10 +118,9 @@ def test_malformed_xml(tmp_path):
 def test_obj_with_mtl_texture(tmp_path):
     texels = write_texture(tmp_path / "t.png")
     (tmp_path / "m.mtl").write_text("newmtl painted\nKd 1 1 1\nmap_Kd t.png\n")
-    path = write_obj(tmp_path / "m.obj", [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [],
-                     extra="mtllib m.mtl\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl painted\n")
-    with open(path, "a") as f:
-        f.write("f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    path = tmp_path / "m.obj"
+    path.write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+                    "usemtl painted\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
     s = load_scene(path)
     (mat,) = s.materials
     np.testing.assert_allclose(mat.texture, srgb_to_linear(texels / 255.0), atol=1e-6)

@@ -102,7 +102,7 @@ def atrium() -> Scene:
         _textured("floor-tiles", _tile_texture(rng)),
         _textured("curtain", _stripe_texture()),
     ]
-    meshes = [Mesh("walls-and-slabs", *_merge_flat(flat), material=0)]
+    meshes = [Mesh("walls-and-slabs", *_merge(flat), material=0)]
     for key, material in (("stone", 0), ("column", 1), ("floor", 2), ("cloth", 3)):
         p, f, n, uv = _merge(parts[key])
         meshes.append(Mesh(key, p, f, material=material, normals=n, uvs=uv))
@@ -168,21 +168,12 @@ def _cloth(out: list, t0: float, t1: float, depth: float, top: float, length: fl
     out.append(surface(drape, *_CLOTH_SEGMENTS))
 
 
-def _merge(parts: list):
-    offset, faces = 0, []
-    for p, f, _, _ in parts:
-        faces.append(f + offset)
-        offset += len(p)
-    return (np.concatenate([p[0] for p in parts]), np.concatenate(faces),
-            np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts]))
-
-
-def _merge_flat(boxes: list):
-    offset, faces = 0, []
-    for p, f in boxes:
-        faces.append(f + offset)
-        offset += len(p)
-    return np.concatenate([b[0] for b in boxes]), np.concatenate(faces)
+def _merge(parts: list) -> tuple:
+    """Concatenate (positions, faces, ...) tuples into one, offsetting the face indices."""
+    offsets = np.cumsum([0] + [len(part[0]) for part in parts[:-1]])
+    merged = [np.concatenate(field) for field in zip(*parts)]
+    merged[1] = np.concatenate([part[1] + o for part, o in zip(parts, offsets)])
+    return tuple(merged)
 
 
 def _tile_texture(rng: np.random.Generator, size: int = 512, tiles: int = 8) -> np.ndarray:
