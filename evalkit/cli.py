@@ -54,6 +54,82 @@ def _scene_info(args) -> int:
     return 0
 
 
+def _bundles(args) -> int:
+    import os
+
+    from evalkit.bundleset import DirectionSet
+    from evalkit.scene import load_scene
+    from gpu_impl.bundles import BundleTracer, format_bytes
+    from gpu_impl.context import GLContext
+
+    scene = load_scene(args.scene)
+    directions = DirectionSet.make(args.directions, seed=args.seed, frame=args.frame, jitter=not args.no_jitter)
+    with GLContext() as gl:
+        try:
+            tracer = BundleTracer(gl, scene, args.method, directions=args.directions, resolution=args.resolution,
+                                  points=args.points, splat_scale=args.splat_scale, splat_radius=args.splat_radius,
+                                  node_budget=args.node_budget)
+        except ValueError as e:
+            raise InputError("evalkit bundles", str(e)) from None
+        stats = tracer.build(directions)
+        bundles = tracer.read()
+        tracer.release()
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    bundles.save(args.out)
+    summary = bundles.summary()
+    print(f"bundles     {args.method} on {scene.name}: K={args.directions} R={args.resolution}"
+          + (f" N={args.points} splat radius {tracer.splat_radius:.4g} (scale {tracer.splat_scale:.3g})" if args.method == "imperfect" else ""))
+    print(f"nodes       {stats['nodes']:,} ({stats['redundant_nodes']:,} redundant), longest list {stats['max_list_length']}, "
+          f"{summary['empty_lists']:,} of {bundles.list_count:,} lists empty")
+    print(f"memory      {format_bytes(stats['node_bytes'])} of nodes, {format_bytes(stats['gpu_bytes'])} on the GPU in all, "
+          f"{stats['overflow_reruns']} overflow re-run(s)")
+    passes = ", ".join(f"{k} {v:.1f}" if v is not None else f"{k} n/a" for k, v in stats["gpu_ms"].items())
+    print(f"gpu ms      {passes} ({stats['gpu_timing']}); wall {stats['wall_ms']:.1f} ms")
+    print(f"written     {args.out}")
+    if args.json:
+        print(json.dumps({"out": args.out, **summary}))
+    return 0
+
+
+def parse_bytes(text: str) -> int:
+    """A byte count: a plain integer or one with a unit (KiB, MiB, GiB, kB, MB, GB)."""
+    units = {"kib": 2**10, "mib": 2**20, "gib": 2**30, "kb": 10**3, "mb": 10**6, "gb": 10**9, "b": 1}
+    t = text.strip().lower()
+    for unit, size in units.items():
+        if t.endswith(unit):
+            number, scale = t[: -len(unit)], size
+            break
+    else:
+        number, scale = t, 1
+    try:
+        value = float(number) * scale
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a byte count (e.g. 1073741824, 512MiB, 1GiB)") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"'{text}' must be positive")
+    return int(value)
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"{value} must be positive and finite")
+    return value
+
+
 def _vec(v) -> str:
     return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
 
@@ -72,6 +148,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="a built-in name (cornell-box, atrium, furnace) or a .xml/.obj/.ply/.gltf/.glb path")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_scene_info)
+
+    from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE
+
+    p = sub.add_parser("bundles", help="build perfect or imperfect ray bundles on the GPU and save them as a BundleSet .npz")
+    p.add_argument("scene", help="a built-in name or a scene file")
+    p.add_argument("--method", choices=("perfect", "imperfect"), required=True)
+    p.add_argument("--directions", type=_positive_int, default=256, metavar="K", help="bundle directions (default 256)")
+    p.add_argument("--resolution", type=_positive_int, default=128, metavar="R", help="R x R lines per bundle (default 128)")
+    p.add_argument("--points", type=_positive_int, default=16384, metavar="N", help="imperfect: points per direction (default 16384)")
+    p.add_argument("--splat-scale", type=_positive_float, default=DEFAULT_SPLAT_SCALE, metavar="S",
+                   help=f"imperfect: splat radius in units of sqrt(A / (pi N)) (default {DEFAULT_SPLAT_SCALE})")
+    p.add_argument("--splat-radius", type=_positive_float, default=None, metavar="R", help="imperfect: absolute splat radius (overrides --splat-scale)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--frame", type=int, default=0, help="frame index: a new rotation (and jitter) of the direction set")
+    p.add_argument("--no-jitter", action="store_true", help="no sub-pixel jitter of the bundle grids")
+    p.add_argument("--node-budget", type=parse_bytes, default=DEFAULT_NODE_BUDGET, metavar="BYTES",
+                   help="the most node memory to use, e.g. 1GiB (default: 1 GiB, the poster's)")
+    p.add_argument("--out", required=True, metavar="FILE.npz")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(run=_bundles)
     return parser
 
 

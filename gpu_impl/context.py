@@ -11,9 +11,38 @@ index, from the ``device_index`` argument or the ``EVALKIT_GL_DEVICE`` variable 
 from __future__ import annotations
 
 import json
+import math
 import os
+import re
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+from evalkit.errors import InputError
 
 GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
+SHADER_DIR = Path(__file__).parent / "shaders"
+STAGES = {"VERTEX_SHADER": "vertex_shader", "FRAGMENT_SHADER": "fragment_shader", "COMPUTE_SHADER": "compute_shader"}
+
+# Storage-buffer binding points, the one table both the shaders (as BINDING_* defines) and the
+# Python side use.
+BINDINGS = {
+    "MATERIALS": 0, "TEXELS": 1, "TRIANGLES": 2, "POSITIONS": 3, "NORMALS": 4, "UVS": 5, "INDICES": 6,
+    "AREA_CDF": 7, "FRAMES": 8, "COUNTERS": 9, "HEADS": 10, "NEXT": 11, "NODE_DEPTH": 12, "NODE_PRIM": 13,
+    "NODE_NORMAL": 14, "NODE_ALBEDO": 15, "OFFSETS": 16, "SORTED_NODE": 17, "SORTED_DEPTH": 18, "POINTS": 19,
+    "SCAN_DATA": 20, "SCAN_SUMS": 21,
+}
+# Every program in shaders/ with each set of defines the code compiles it with (tests compile them all).
+SHADER_VARIANTS = {
+    "perfect_bundles": [{}, {"NULL_FRAGMENT": True}],
+    "imperfect_bundles": [{}, {"NULL_FRAGMENT": True}],
+    "splat_points": [{}],
+    "resolve_lists": [{"COUNT_LISTS": True}, {"SORT_LISTS": True}],
+    "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],
+}
+# The workgroup size of every 1-D compute pass, and the most workgroups along one dispatch axis.
+LOCAL_SIZE = 256
+MAX_GROUPS = 65535
 
 
 def _default_raster_threads() -> int:
@@ -28,7 +57,7 @@ class GLContext:
     """A headless EGL OpenGL 4.5 core context (moderngl), made once and reused.
 
     Parameters: ``device_index``: the EGL device (default: ``EVALKIT_GL_DEVICE``, else 0).
-    Raises RuntimeError with the driver's message when no such context can be made.
+    Raises `InputError` with the driver's message when no such context can be made.
     """
 
     def __init__(self, device_index: int | None = None):
@@ -39,7 +68,51 @@ class GLContext:
             env = os.environ.get("EVALKIT_GL_DEVICE", os.environ.get("GLCONTEXT_DEVICE_INDEX", "0"))
             device_index = int(env)
         self.device_index = device_index
-        self.ctx = moderngl.create_context(standalone=True, backend="egl", require=GL_REQUIRED, device_index=device_index)
+        try:
+            self.ctx = moderngl.create_context(standalone=True, backend="egl", require=GL_REQUIRED, device_index=device_index)
+        except Exception as e:  # glcontext and moderngl raise plain Exceptions with the driver's words
+            raise InputError(f"EGL device {device_index}", f"no OpenGL 4.5 context ({e}); `evalkit doctor` says what to install") from None
+        self._programs: dict = {}
+        for path in SHADER_DIR.glob("*.glsl"):
+            if not is_program(path.read_text()):
+                self.ctx.includes[path.name] = path.read_text()
+
+    @property
+    def is_llvmpipe(self) -> bool:
+        return "llvmpipe" in self.ctx.info["GL_RENDERER"]
+
+    @property
+    def max_storage_bytes(self) -> int:
+        """The largest storage buffer a shader may index. llvmpipe reports 128 MiB but indexes any
+        buffer it can allocate (tests/test_gl_context.py checks this), so there the limit is the
+        32-bit byte offset."""
+        return 2**32 - 1 if self.is_llvmpipe else int(self.ctx.info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"])
+
+    def program(self, name: str, **defines):
+        """The program in ``shaders/<name>.glsl`` (its stages selected by ``#if defined
+        VERTEX_SHADER`` guards), compiled once per set of ``defines`` and cached."""
+        key = (name, tuple(sorted(defines.items())))
+        if key not in self._programs:
+            text = (SHADER_DIR / f"{name}.glsl").read_text()
+            stages = shader_stages(text)
+            if not is_program(text) or not stages:
+                raise ValueError(f"shaders/{name}.glsl has no main() under a stage guard; it is an include")
+            sources = {STAGES[s]: _with_header(text, s, defines) for s in stages}
+            if "compute_shader" in sources:
+                self._programs[key] = self.ctx.compute_shader(sources["compute_shader"])
+            else:
+                self._programs[key] = self.ctx.program(**sources)
+        return self._programs[key]
+
+    def dispatch(self, shader, invocations: int) -> None:
+        """Run a compute shader over ``invocations`` 1-D work items (``linear_id()`` in the shader;
+        items past ``invocations`` must return early)."""
+        groups = max(1, math.ceil(invocations / LOCAL_SIZE))
+        gx = min(groups, MAX_GROUPS)
+        gy = math.ceil(groups / gx)
+        if "invocations" in shader:
+            shader["invocations"] = invocations
+        shader.run(gx, gy)
 
     @property
     def info(self) -> dict:
@@ -55,12 +128,74 @@ class GLContext:
 
     def release(self) -> None:
         self.ctx.release()
+        self._programs.clear()
 
     def __enter__(self) -> "GLContext":
         return self
 
     def __exit__(self, *exc) -> None:
         self.release()
+
+
+def is_program(text: str) -> bool:
+    """Program files define main(); the others are includes (``#include "common.glsl"``)."""
+    return re.search(r"^\s*void\s+main\s*\(", text, re.M) is not None
+
+
+def shader_stages(text: str) -> list[str]:
+    """The stages a .glsl file defines, from its ``#if defined X_SHADER`` guards."""
+    return [s for s in STAGES if re.search(rf"^\s*#\s*(el)?if\s+defined\s*\(?\s*{s}\b", text, re.M)]
+
+
+def _with_header(text: str, stage: str, defines: dict) -> str:
+    lines = ["#version 450 core", f"#define {stage}", f"#define LOCAL_SIZE {LOCAL_SIZE}"]
+    lines += [f"#define BINDING_{name} {index}" for name, index in BINDINGS.items()]
+    lines += [f"#define {k} {int(v) if isinstance(v, bool) else v}" for k, v in sorted(defines.items())]
+    return "\n".join(lines) + "\n#line 1\n" + text
+
+
+INVALID_QUERY = 2**32 - 1  # moderngl reads 32-bit results: a failed or saturated time query
+
+
+class PassTimer:
+    """GPU time per named pass, read once at the end so timing adds no round-trip between passes.
+
+    On a GPU it uses GL timer queries. llvmpipe's timer queries do not cover compute dispatches (a
+    13 s dispatch measured 1 ns), so there each pass ends in glFinish and is timed on the host:
+    on a CPU rasterizer that is the rasterizer's own time.
+    """
+
+    def __init__(self, gl: "GLContext"):
+        self.ctx = gl.ctx
+        self.host_timing = gl.is_llvmpipe
+        self.queries: list[tuple[str, object]] = []
+
+    @contextmanager
+    def measure(self, name: str):
+        if self.host_timing:
+            self.ctx.finish()
+            start = time.perf_counter()
+            yield
+            self.ctx.finish()
+            self.queries.append((name, (time.perf_counter() - start) * 1e9))
+            return
+        query = self.ctx.query(time=True)
+        with query:
+            yield
+        self.queries.append((name, query))
+
+    def milliseconds(self) -> dict[str, float | None]:
+        """Per pass name, the summed time; None where the driver gave no valid time."""
+        out: dict[str, float | None] = {}
+        for name, query in self.queries:
+            ns = query if isinstance(query, float) else query.elapsed
+            valid = ns != INVALID_QUERY and out.get(name, 0.0) is not None
+            out[name] = out.get(name, 0.0) + ns / 1e6 if valid else None
+        return out
+
+    @property
+    def method(self) -> str:
+        return "host time around glFinish (llvmpipe)" if self.host_timing else "GL timer queries"
 
 
 if __name__ == "__main__":  # the probe `evalkit doctor` runs in a child process

@@ -20,6 +20,15 @@ def mi():
     return mitsuba()
 
 
+@pytest.fixture(scope="session")
+def gl():
+    """One headless GL context for the whole session: making one is slow."""
+    from gpu_impl.context import GLContext
+
+    with GLContext() as context:
+        yield context
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)

@@ -53,6 +53,24 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
+def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup with repeat wrapping at uv (N, 2), Mitsuba's convention: texel (row, col)
+    has its centre at ((row + 0.5) / H, (col + 0.5) / W) in (v, u). Returns (N, 3) float64."""
+    h, w = texture.shape[:2]
+    x = np.asarray(uv[:, 0], dtype=np.float64) * w - 0.5
+    y = np.asarray(uv[:, 1], dtype=np.float64) * h - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    t = texture.astype(np.float64)
+
+    def at(yy, xx):
+        return t[np.mod(yy, h), np.mod(xx, w)]
+
+    return ((1 - fy) * ((1 - fx) * at(y0, x0) + fx * at(y0, x0 + 1))
+            + fy * ((1 - fx) * at(y0 + 1, x0) + fx * at(y0 + 1, x0 + 1)))
+
+
 @dataclass(frozen=True, eq=False)
 class Material:
     """A diffuse material, optionally emissive.
@@ -152,6 +170,27 @@ class SceneFeatures:
     approximated_bsdfs: tuple[str, ...]
 
 
+@dataclass(frozen=True, eq=False)
+class SceneArrays:
+    """All triangles of a scene in one indexed array set; a triangle's index here is its primitive id
+    everywhere (GL bundles, Embree, BundleSet.prim_id): meshes in order, faces in order.
+
+    positions (V, 3), normals (V, 3) (zero rows where the mesh has none), uvs (V, 2) float64;
+    faces (T, 3) int64; tri_material (T,) int64; tri_normal (T, 3) unit geometric normals
+    (counter-clockwise front); tri_smooth (T,) bool, whether the shading normal interpolates
+    ``normals`` (else it is ``tri_normal``); tri_area (T,) float64.
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    faces: np.ndarray
+    tri_material: np.ndarray
+    tri_normal: np.ndarray
+    tri_smooth: np.ndarray
+    tri_area: np.ndarray
+
+
 @dataclass(eq=False)
 class Scene:
     """A validated, recentred scene. Build one with `assemble`, not directly."""
@@ -181,6 +220,33 @@ class Scene:
         centre = 0.5 * (lo + hi)
         radius = max(float(np.linalg.norm(m.positions - centre, axis=1).max()) for m in self.meshes)
         return centre, radius
+
+    def arrays(self) -> SceneArrays:
+        """The scene's triangles as one `SceneArrays` (see there for the primitive ids)."""
+        positions, normals, uvs, faces, material, smooth = [], [], [], [], [], []
+        base = 0
+        for mesh in self.meshes:
+            p, f, n, uv = mesh.positions, mesh.faces, mesh.normals, mesh.uvs
+            if uv is None and self.materials[mesh.material].texture is not None:
+                # Mitsuba's uv on a mesh without texcoords is the barycentric (b1, b2): per-corner
+                # values, so the vertices cannot be shared.
+                p, f = p[f].reshape(-1, 3), np.arange(3 * len(f)).reshape(-1, 3)
+                n = None if n is None else n[mesh.faces].reshape(-1, 3)
+                uv = np.tile([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], (len(f), 1))
+            positions.append(p)
+            normals.append(np.zeros_like(p) if n is None else n)
+            uvs.append(np.zeros((len(p), 2)) if uv is None else uv)
+            faces.append(f + base)
+            material.append(np.full(len(f), mesh.material, dtype=np.int64))
+            smooth.append(np.full(len(f), n is not None))
+            base += len(p)
+        positions = np.concatenate(positions)
+        faces = np.concatenate(faces)
+        tri = positions[faces]
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        twice_area = np.linalg.norm(cross, axis=1)
+        return SceneArrays(positions, np.concatenate(normals), np.concatenate(uvs), faces, np.concatenate(material),
+                           cross / twice_area[:, None], np.concatenate(smooth), 0.5 * twice_area)
 
     def surface_area(self) -> float:
         return float(sum(m.triangle_areas().sum() for m in self.meshes))

@@ -1,0 +1,226 @@
+"""Direction sets and `BundleSet`, the one type every bundle builder produces.
+
+A ray bundle is a set of parallel lines: for direction ``d`` (unit) and its orthographic frame
+``(u, v)``, bundle pixel ``(i, j)`` of an R x R grid is the line through
+
+    o(i, j) = centre + s_i u + t_j v - radius d,   s_i = radius (2 (i + 0.5 + jitter_u) / R - 1)
+                                                   t_j = radius (2 (j + 0.5 + jitter_v) / R - 1)
+
+running along ``+d``. ``radius`` is the scene's bounding-sphere radius (padded by `FRAME_PADDING`),
+so every line crosses the whole scene and a node's ``depth`` (its distance from ``o`` along ``d``)
+lies in [0, 2 radius]. One list serves both ``+d`` and ``-d``.
+
+GL perfect bundles, GL imperfect bundles and Embree exact bundles are all `BundleSet`s, built from
+the same `DirectionSet`, so one comparison serves all of them. Lists are stored as CSR: list
+``(k * R + j) * R + i`` holds nodes ``offsets[l]:offsets[l + 1]``, sorted by depth, then by
+primitive id, then by the remaining fields, so equal inputs give equal arrays whatever order the
+nodes were produced in.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from evalkit.errors import InputError
+
+# The frame's radius is the bounding sphere's times this, so that round-off in the projection
+# never puts a vertex on the sphere outside its bundle's tile.
+FRAME_PADDING = 1.0 + 1e-6
+SPLAT_PRIM_ID = -1  # a node made by a point splat has no single triangle
+FORMAT_VERSION = 1
+
+
+def spherical_fibonacci(count: int) -> np.ndarray:
+    """``count`` unit vectors (count, 3) float64, spread evenly over the sphere."""
+    i = np.arange(count, dtype=np.float64) + 0.5
+    z = 1.0 - 2.0 * i / count
+    phi = i * math.pi * (3.0 - math.sqrt(5.0))  # the golden angle
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def orthonormal_frames(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Right-handed frames (u, v) with u x v = d for unit vectors d (K, 3), without a singularity
+    (Duff et al., "Building an orthonormal basis, revisited", JCGT 2017)."""
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    sign = np.where(z >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    u = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=1)
+    v = np.stack([b, sign + y * y * a, -y], axis=1)
+    return u, v
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A uniformly distributed 3x3 rotation (Shoemake's unit quaternion from three uniforms)."""
+    u1, u2, u3 = rng.random(3)
+    a, b = math.sqrt(1.0 - u1), math.sqrt(u1)
+    w, x, y, z = a * math.sin(2 * math.pi * u2), a * math.cos(2 * math.pi * u2), b * math.sin(2 * math.pi * u3), b * math.cos(2 * math.pi * u3)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+@dataclass(frozen=True, eq=False)
+class DirectionSet:
+    """K bundle directions for one frame: spherical Fibonacci points under a seeded random rotation,
+    each with its orthographic frame and a grid jitter in bundle pixels (|jitter| <= 0.5).
+
+    directions, axis_u, axis_v: (K, 3) float64, unit, right-handed (u x v = d).
+    jitter: (K, 2) float64, the shift of the grid along (u, v) in pixels.
+    """
+
+    directions: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    jitter: np.ndarray
+    seed: int
+    frame: int
+
+    @staticmethod
+    def make(count: int, seed: int = 0, frame: int = 0, jitter: bool = True) -> "DirectionSet":
+        """The frame's directions; the same (count, seed, frame, jitter) always gives the same set."""
+        if count < 1:
+            raise ValueError(f"a direction set needs at least one direction, got {count}")
+        rng = np.random.default_rng([seed, frame])
+        d = spherical_fibonacci(count) @ random_rotation(rng).T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        u, v = orthonormal_frames(d)
+        shift = rng.uniform(-0.5, 0.5, (count, 2)) if jitter else np.zeros((count, 2))
+        return DirectionSet(d, u, v, shift, int(seed), int(frame))
+
+    @property
+    def count(self) -> int:
+        return len(self.directions)
+
+
+@dataclass(eq=False)
+class BundleSet:
+    """K bundles of R x R parallel lines and every node found on them (see the module docstring).
+
+    Per node (M nodes in all): ``depth`` (M,) float32 along d from the line origin; ``normal``
+    (M, 3) float32, the unit shading normal; ``albedo`` (M, 3) float32 linear, textures sampled;
+    ``emission`` (M, 3) float32, the radiance the surface emits from its front side; ``prim_id`` (M,)
+    int32, the scene triangle index (meshes in order) or `SPLAT_PRIM_ID`; ``material`` (M,) int32.
+    ``offsets`` (K R R + 1,) int64. ``params`` and ``stats`` are JSON-ready provenance.
+    """
+
+    method: str
+    directions: DirectionSet
+    centre: np.ndarray
+    radius: float
+    resolution: int
+    offsets: np.ndarray
+    depth: np.ndarray
+    normal: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray
+    prim_id: np.ndarray
+    material: np.ndarray
+    params: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+    NODE_FIELDS = ("depth", "normal", "albedo", "emission", "prim_id", "material")
+
+    @property
+    def node_count(self) -> int:
+        return int(self.offsets[-1])
+
+    @property
+    def list_count(self) -> int:
+        return len(self.offsets) - 1
+
+    def list_lengths(self) -> np.ndarray:
+        return np.diff(self.offsets)
+
+    def node_lists(self) -> np.ndarray:
+        """The list index of every node, (M,) int64."""
+        return np.repeat(np.arange(self.list_count), self.list_lengths())
+
+    def pixel_size(self) -> float:
+        return 2.0 * self.radius / self.resolution
+
+    def line_origins(self, k: int) -> np.ndarray:
+        """Origins (R*R, 3) float64 of bundle k's lines, in list order (row j, then column i)."""
+        ds, R = self.directions, self.resolution
+        s = self.radius * (2.0 * (np.arange(R) + 0.5 + ds.jitter[k, 0]) / R - 1.0)
+        t = self.radius * (2.0 * (np.arange(R) + 0.5 + ds.jitter[k, 1]) / R - 1.0)
+        tt, ss = np.meshgrid(t, s, indexing="ij")
+        return (self.centre + ss.reshape(-1, 1) * ds.axis_u[k] + tt.reshape(-1, 1) * ds.axis_v[k]
+                - self.radius * ds.directions[k])
+
+    def save(self, path: str | os.PathLike) -> None:
+        ds = self.directions
+        meta = {"format_version": FORMAT_VERSION, "method": self.method, "radius": self.radius,
+                "resolution": self.resolution, "seed": ds.seed, "frame": ds.frame,
+                "params": self.params, "stats": self.stats}
+        np.savez(path, meta=np.array(json.dumps(meta)), centre=self.centre, directions=ds.directions,
+                 axis_u=ds.axis_u, axis_v=ds.axis_v, jitter=ds.jitter, offsets=self.offsets,
+                 **{name: getattr(self, name) for name in self.NODE_FIELDS})
+
+    @staticmethod
+    def load(path: str | os.PathLike) -> "BundleSet":
+        """Read a `save`d file; a missing, foreign or inconsistent file raises `InputError`."""
+        path = os.fspath(path)
+        if not os.path.exists(path):
+            raise InputError(path, "no such file")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {name: z[name] for name in z.files}
+        except Exception as e:  # zipfile, pickle and format errors alike: not a bundle file
+            raise InputError(path, f"not a BundleSet .npz file ({e})") from None
+        missing = {"meta", "centre", "directions", "axis_u", "axis_v", "jitter", "offsets", *BundleSet.NODE_FIELDS} - set(arrays)
+        if missing:
+            raise InputError(path, f"not a BundleSet file: missing {', '.join(sorted(missing))}")
+        meta = json.loads(str(arrays["meta"]))
+        if meta.get("format_version") != FORMAT_VERSION:
+            raise InputError(path, f"BundleSet format version {meta.get('format_version')} is not {FORMAT_VERSION}")
+        ds = DirectionSet(arrays["directions"], arrays["axis_u"], arrays["axis_v"], arrays["jitter"], meta["seed"], meta["frame"])
+        bundles = BundleSet(meta["method"], ds, arrays["centre"], float(meta["radius"]), int(meta["resolution"]),
+                            arrays["offsets"], *(arrays[name] for name in BundleSet.NODE_FIELDS),
+                            params=meta["params"], stats=meta["stats"])
+        problem = bundles.check()
+        if problem:
+            raise InputError(path, problem)
+        return bundles
+
+    def check(self) -> str | None:
+        """None when the set is well formed, else what is wrong (sizes, offsets, ordering, finiteness)."""
+        K, R = self.directions.count, self.resolution
+        if self.offsets.shape != (K * R * R + 1,):
+            return f"offsets has shape {self.offsets.shape}, expected ({K * R * R + 1},) for K={K}, R={R}"
+        if self.offsets[0] != 0 or np.any(np.diff(self.offsets) < 0):
+            return "offsets do not start at 0 and never decrease"
+        m = self.node_count
+        for name in self.NODE_FIELDS:
+            if len(getattr(self, name)) != m:
+                return f"{name} has {len(getattr(self, name))} entries for {m} nodes"
+        if not (np.isfinite(self.depth).all() and np.isfinite(self.normal).all() and np.isfinite(self.albedo).all()):
+            return "node depths, normals or albedos contain NaN or Inf"
+        same_list = self.node_lists()[1:] == self.node_lists()[:-1]
+        if np.any(same_list & (self.depth[1:] < self.depth[:-1])):
+            return "a list is not sorted by depth"
+        return None
+
+    def summary(self) -> dict:
+        """Counts and provenance, JSON-ready (as `evalkit bundles --json` prints them)."""
+        lengths = self.list_lengths()
+        return {
+            "method": self.method,
+            "directions": self.directions.count,
+            "resolution": self.resolution,
+            "seed": self.directions.seed,
+            "frame": self.directions.frame,
+            "nodes": self.node_count,
+            "empty_lists": int(np.count_nonzero(lengths == 0)),
+            "max_list_length": int(lengths.max()) if len(lengths) else 0,
+            "params": self.params,
+            "stats": self.stats,
+        }

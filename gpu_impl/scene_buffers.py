@@ -1,0 +1,89 @@
+"""A `Scene` uploaded to the GPU once, and shared by the bundle builders and the renderer."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evalkit.bundleset import FRAME_PADDING
+from evalkit.scene import Scene
+from gpu_impl.context import BINDINGS, GLContext
+
+# Bits of shaders/scene.glsl: Material.texture.w and Triangle.material_flags.
+MATERIAL_TEXTURED = 1
+MATERIAL_TWOSIDED = 2
+TRIANGLE_SMOOTH = 0x80000000
+
+
+class GpuScene:
+    """The scene's triangles, materials and textures in GPU buffers (shaders/scene.glsl).
+
+    Positions are uploaded as float32 relative to the bounding-sphere centre, where float32 keeps
+    the most precision; ``centre`` (float64, scene space) and ``radius`` (the padded frame radius)
+    place them back. ``arrays`` is the host copy the primitive ids refer to.
+    """
+
+    def __init__(self, gl: GLContext, scene: Scene):
+        self.gl = gl
+        self.scene = scene
+        self.arrays = a = scene.arrays()
+        centre, radius = scene.bounding_sphere()
+        self.centre = centre
+        self.radius = radius * FRAME_PADDING
+        self.triangle_count = len(a.faces)
+        ctx = gl.ctx
+
+        triangles = np.zeros(self.triangle_count, dtype=[("normal", "<f4", 3), ("material_flags", "<u4")])
+        triangles["normal"] = a.tri_normal
+        triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(a.tri_smooth, TRIANGLE_SMOOTH, 0).astype(np.uint32)
+
+        materials = np.zeros(len(scene.materials), dtype=[("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "<u4", 4)])
+        texels, first = [], 0
+        for i, m in enumerate(scene.materials):
+            materials["albedo"][i, :3] = m.albedo
+            materials["emission"][i, :3] = m.emission
+            flags = MATERIAL_TWOSIDED if m.twosided else 0
+            if m.texture is not None:
+                h, w = m.texture.shape[:2]
+                materials["texture"][i, :3] = (first, w, h)
+                flags |= MATERIAL_TEXTURED
+                texels.append(np.ascontiguousarray(m.texture, dtype=np.float32).reshape(-1))
+                first += h * w
+            materials["texture"][i, 3] = flags
+        texels = np.concatenate(texels) if texels else np.zeros(3, dtype=np.float32)
+
+        # Inclusive area CDF for area-weighted point sampling, summed in float64. Its last entry is
+        # exactly 1 so every u in [0, 1) finds a triangle. A triangle under float32's resolution
+        # of the CDF (about 6e-8 of the total area) is sampled in proportion to rounding, not area.
+        cdf = np.cumsum(a.tri_area) / a.tri_area.sum()
+        cdf[-1] = 1.0
+
+        self.buffers = {
+            "POSITIONS": ctx.buffer((a.positions - centre).astype(np.float32).tobytes()),
+            "NORMALS": ctx.buffer(a.normals.astype(np.float32).tobytes()),
+            "UVS": ctx.buffer(a.uvs.astype(np.float32).tobytes()),
+            "INDICES": ctx.buffer(a.faces.astype(np.uint32).tobytes()),
+            "TRIANGLES": ctx.buffer(triangles.tobytes()),
+            "MATERIALS": ctx.buffer(materials.tobytes()),
+            "TEXELS": ctx.buffer(texels.astype(np.float32).tobytes()),
+            "AREA_CDF": ctx.buffer(cdf.astype(np.float32).tobytes()),
+        }
+
+    @property
+    def nbytes(self) -> int:
+        return sum(b.size for b in self.buffers.values())
+
+    def bind(self) -> None:
+        """Bind every scene buffer at its storage binding (context.BINDINGS)."""
+        for name, buffer in self.buffers.items():
+            buffer.bind_to_storage_buffer(BINDINGS[name])
+
+    def vertex_array(self, program):
+        """The indexed triangle stream (positions only: shaders/perfect_bundles.glsl reads the rest from storage)."""
+        b = self.buffers
+        content = [(b["POSITIONS"], "3f", "in_position")]
+        return self.gl.ctx.vertex_array(program, content, index_buffer=b["INDICES"], index_element_size=4, skip_errors=True)
+
+    def release(self) -> None:
+        for buffer in self.buffers.values():
+            buffer.release()
+        self.buffers.clear()

@@ -1,0 +1,44 @@
+// Shared by every shader: invocation ids for 1-D compute passes, normal and colour packing, and
+// a counter-based random number generator.
+
+#if defined COMPUTE_SHADER
+// A 1-D work item index over a 2-D dispatch (GLContext.dispatch spreads large passes over y).
+uint linear_id() {
+    return (gl_GlobalInvocationID.y * gl_NumWorkGroups.x) * uint(LOCAL_SIZE) + gl_GlobalInvocationID.x;
+}
+#endif
+
+// Octahedral normal encoding in two snorm16 (Cigolle et al., JCGT 2014): under 1e-4 rad of error,
+// four bytes. evalkit decodes it with the same formula (gpu_impl/bundles.py: decode_normals).
+vec2 sign_not_zero(vec2 v) {
+    return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
+}
+
+uint encode_normal(vec3 n) {
+    n /= abs(n.x) + abs(n.y) + abs(n.z);
+    vec2 e = n.z >= 0.0 ? n.xy : (1.0 - abs(n.yx)) * sign_not_zero(n.xy);
+    return packSnorm2x16(e);
+}
+
+vec3 decode_normal(uint bits) {
+    vec2 e = unpackSnorm2x16(bits);
+    vec3 n = vec3(e, 1.0 - abs(e.x) - abs(e.y));
+    if (n.z < 0.0) n.xy = (1.0 - abs(n.yx)) * sign_not_zero(n.xy);
+    return normalize(n);
+}
+
+// pcg4d (Jarzynski and Olano, "Hash functions for GPU rendering", JCGT 2020): four independent
+// 32-bit values from four 32-bit keys, so each (item, direction, seed, frame) has its own stream
+// and results do not depend on the order work items run in.
+uvec4 pcg4d(uvec4 v) {
+    v = v * 1664525u + 1013904223u;
+    v.x += v.y * v.w; v.y += v.z * v.x; v.z += v.x * v.y; v.w += v.y * v.z;
+    v ^= v >> 16u;
+    v.x += v.y * v.w; v.y += v.z * v.x; v.z += v.x * v.y; v.w += v.y * v.z;
+    return v;
+}
+
+// A uniform float in [0, 1) from the top 24 bits (exactly representable, never 1.0).
+float unit_float(uint bits) {
+    return float(bits >> 8u) * (1.0 / 16777216.0);
+}

@@ -1,0 +1,77 @@
+// The scene as the GPU sees it (gpu_impl/scene_buffers.py uploads it): indexed triangles with
+// per-triangle records, and diffuse materials whose textures are sampled here, in the shader, with
+// Mitsuba's convention so GL and the references agree texel for texel.
+
+struct Material {
+    vec4 albedo;     // rgb; used when the material has no texture
+    vec4 emission;   // rgb radiance, front side only
+    uvec4 texture;   // first texel, width, height, flags (MATERIAL_*)
+};
+#define MATERIAL_TEXTURED 1u
+#define MATERIAL_TWOSIDED 2u
+
+struct Triangle {
+    float normal_x, normal_y, normal_z;  // unit geometric normal, counter-clockwise front
+    uint material_flags;                 // material index | TRIANGLE_SMOOTH
+};
+#define TRIANGLE_SMOOTH 0x80000000u
+#define TRIANGLE_MATERIAL 0x7FFFFFFFu
+
+layout(std430, binding = BINDING_MATERIALS) readonly buffer Materials { Material materials[]; };
+layout(std430, binding = BINDING_POSITIONS) readonly buffer Positions { float positions[]; };  // relative to the bundle centre
+layout(std430, binding = BINDING_NORMALS) readonly buffer Normals { float normals[]; };        // zero where a mesh has none
+layout(std430, binding = BINDING_UVS) readonly buffer Uvs { float uvs[]; };
+layout(std430, binding = BINDING_INDICES) readonly buffer Indices { uint indices[]; };
+layout(std430, binding = BINDING_TEXELS) readonly buffer Texels { float texels[]; };  // linear rgb
+layout(std430, binding = BINDING_TRIANGLES) readonly buffer Triangles { Triangle triangles[]; };
+
+uvec3 triangle_vertices(uint t) { return uvec3(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u]); }
+vec3 vertex_position(uint i) { return vec3(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]); }
+vec3 vertex_normal(uint i) { return vec3(normals[3u * i], normals[3u * i + 1u], normals[3u * i + 2u]); }
+vec2 vertex_uv(uint i) { return vec2(uvs[2u * i], uvs[2u * i + 1u]); }
+
+vec3 triangle_normal(uint t) {
+    return vec3(triangles[t].normal_x, triangles[t].normal_y, triangles[t].normal_z);
+}
+
+uint triangle_material(uint t) {
+    return triangles[t].material_flags & TRIANGLE_MATERIAL;
+}
+
+bool triangle_smooth(uint t) {
+    return (triangles[t].material_flags & TRIANGLE_SMOOTH) != 0u;
+}
+
+// The shading normal at barycentrics (b1, b2): interpolated vertex normals, or the geometric
+// normal for a mesh without them (as Mitsuba shades).
+vec3 shading_normal(uint t, uvec3 v, float b1, float b2) {
+    if (!triangle_smooth(t)) return triangle_normal(t);
+    vec3 n0 = vertex_normal(v.x);
+    return normalize(n0 + b1 * (vertex_normal(v.y) - n0) + b2 * (vertex_normal(v.z) - n0));
+}
+
+vec2 surface_uv(uvec3 v, float b1, float b2) {
+    vec2 uv0 = vertex_uv(v.x);
+    return uv0 + b1 * (vertex_uv(v.y) - uv0) + b2 * (vertex_uv(v.z) - uv0);
+}
+
+vec3 texel(uint first, uint width, int x, int y) {
+    uint i = 3u * (first + uint(y) * width + uint(x));
+    return vec3(texels[i], texels[i + 1u], texels[i + 2u]);
+}
+
+// Bilinear, repeat-wrapped lookup: texel (row, col) is centred on ((col + 0.5) / W, (row + 0.5) / H)
+// in (u, v), as Mitsuba's bitmap texture and evalkit.scene.model.sample_texture have it.
+vec3 material_albedo(uint m, vec2 uv) {
+    uvec4 tex = materials[m].texture;
+    if ((tex.w & MATERIAL_TEXTURED) == 0u) return materials[m].albedo.rgb;
+    ivec2 size = ivec2(tex.yz);
+    vec2 p = uv * vec2(size) - 0.5;
+    vec2 f = floor(p);
+    vec2 w = p - f;
+    ivec2 i0 = ivec2(f);
+    int x0 = ((i0.x % size.x) + size.x) % size.x, y0 = ((i0.y % size.y) + size.y) % size.y;
+    int x1 = (x0 + 1) % size.x, y1 = (y0 + 1) % size.y;
+    return mix(mix(texel(tex.x, tex.y, x0, y0), texel(tex.x, tex.y, x1, y0), w.x),
+               mix(texel(tex.x, tex.y, x0, y1), texel(tex.x, tex.y, x1, y1), w.x), w.y);
+}
