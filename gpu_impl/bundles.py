@@ -194,7 +194,6 @@ class BundleTracer:
         if directions.count != self.K:
             raise ValueError(f"this tracer was made for {self.K} directions, got {directions.count}")
         start = time.perf_counter()
-        ctx = self.gl.ctx
         timer = PassTimer(self.gl)
         self.buffers["FRAMES"].write(_frames(directions).tobytes())
         self.bind()

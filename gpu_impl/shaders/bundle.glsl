@@ -21,6 +21,7 @@ layout(std430, binding = BINDING_NODE_NORMAL) buffer NodeNormal { uint node_norm
 layout(std430, binding = BINDING_NODE_ALBEDO) buffer NodeAlbedo { uvec2 node_albedo[]; };
 
 #define NO_NODE 0xFFFFFFFFu
+#define NO_MATERIAL 0xFFFFFFFFu
 #define SPLAT_BIT 0x80000000u   // node_prim: a splat of triangle (prim & ~SPLAT_BIT)
 #define COUNTER_NODES 0         // nodes appended, including any past the capacity
 #define COUNTER_REDUNDANT 1
@@ -74,12 +75,12 @@ vec3 line_origin(int k, ivec2 pixel) {
 // Append a node to a list. The counter always counts, but a node is written (and linked) only
 // when its slot exists: linking first would corrupt the list. The host reads the counter and
 // re-runs the pass with a buffer that fits, so no node is ever lost.
-void append_node(uint list, float depth, uint prim, vec3 normal, vec3 albedo) {
+void append_node(uint list, float depth, uint prim, uint normal, vec3 albedo) {
     uint index = atomicAdd(counters[COUNTER_NODES], 1u);
     if (index >= capacity) return;
     node_depth[index] = depth;
     node_prim[index] = prim;
-    node_normal[index] = encode_normal(normal);
+    node_normal[index] = normal;
     node_albedo[index] = uvec2(packHalf2x16(albedo.rg), packHalf2x16(vec2(albedo.b, 0.0)));
     node_next[index] = atomicExchange(heads[list], index);
 }

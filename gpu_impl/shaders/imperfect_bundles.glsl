@@ -17,8 +17,13 @@ uniform float splat_radius;
 
 out vec2 v_disk;  // position in the splat in units of its radius: the cut-out keeps |v_disk| <= 1
 out vec2 v_uv;
-flat out vec3 v_normal;
-flat out uint v_triangle;
+// Everything else is constant over a splat and handed over flat, so a fragment reads no memory
+// except a texture's texels: llvmpipe runs a few hundred million splat fragments per frame.
+flat out vec3 v_depth_plane;      // depth at bundle pixel centre (x, y): dot(v_depth_plane, (1, x, y))
+flat out uint v_normal;           // encoded
+flat out vec3 v_albedo;           // of an untextured material
+flat out uint v_textured;         // the material when textured, else NO_MATERIAL
+flat out uint v_prim;
 flat out int v_direction;
 
 void main() {
@@ -45,31 +50,44 @@ void main() {
     float a = dot(e1, e1), b = dot(e1, e2), c = dot(e2, e2);
     vec2 beta = vec2(c * dot(q, e1) - b * dot(q, e2), a * dot(q, e2) - b * dot(q, e1)) / (a * c - b * b);
     v_uv = surface_uv(i, beta.x, beta.y);
-    v_normal = shading_normal(t, i, b1, b2);
-    v_triangle = t;
-    v_direction = int(splat / points_per_direction);
-    gl_Position = bundle_clip_position(v_direction, p);
+
+    int k = int(splat / points_per_direction);
+    BundleFrame f = frames[k];
+    // Where the line of bundle pixel centre (x, y) meets the splat's plane dot(n, p) = w: the
+    // line's origin is s u + t v - r d with s = r (2 (x + jitter_u) / R - 1) (bundle.glsl), so
+    // the depth (w - dot(n, origin)) / dot(n, d) is affine in (x, y). Exact to float32, where a
+    // depth interpolated between the corners would carry their snapping to the raster grid.
+    float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz), R = float(resolution);
+    v_depth_plane = vec3(dot(n, center) + radius * (nu * (1.0 - 2.0 * f.u.w / R) + nv * (1.0 - 2.0 * f.v.w / R) + nd),
+                         -2.0 * radius * nu / R, -2.0 * radius * nv / R) / nd;
+    v_normal = encode_normal(shading_normal(t, i, b1, b2));
+    uint m = triangle_material(t);
+    v_albedo = materials[m].albedo.rgb;
+    v_textured = (materials[m].texture.w & MATERIAL_TEXTURED) != 0u ? m : NO_MATERIAL;
+    v_prim = t | SPLAT_BIT;
+    v_direction = k;
+    gl_Position = bundle_clip_position(k, p);
 }
 
 #elif defined FRAGMENT_SHADER
 
 in vec2 v_disk;
 in vec2 v_uv;
-flat in vec3 v_normal;
-flat in uint v_triangle;
+flat in vec3 v_depth_plane;
+flat in uint v_normal;
+flat in vec3 v_albedo;
+flat in uint v_textured;
+flat in uint v_prim;
 flat in int v_direction;
 
 void main() {
 #if !defined NULL_FRAGMENT
     if (dot(v_disk, v_disk) > 1.0) return;  // the circular cut-out
-    int k = v_direction;
-    ivec2 pixel = fragment_pixel(k);
+    ivec2 pixel = fragment_pixel(v_direction);
     if (pixel.x < 0) return;
-    // The depth where the pixel's line meets the splat's plane (its triangle's), exact to float32
-    // rather than interpolated from snapped corners.
-    vec3 n = triangle_normal(v_triangle), d = frames[k].d.xyz;
-    float depth = dot(vertex_position(triangle_vertices(v_triangle).x) - line_origin(k, pixel), n) / dot(d, n);
-    append_node(pixel_list(k, pixel), depth, v_triangle | SPLAT_BIT, v_normal, material_albedo(triangle_material(v_triangle), v_uv));
+    float depth = dot(v_depth_plane, vec3(1.0, vec2(pixel) + 0.5));
+    vec3 albedo = v_textured == NO_MATERIAL ? v_albedo : material_albedo(v_textured, v_uv);
+    append_node(pixel_list(v_direction, pixel), depth, v_prim, v_normal, albedo);
 #endif
 }
 

@@ -45,7 +45,7 @@ void main() {
     float inv = 1.0 / dot(e1, pv);
     float b1 = dot(s, pv) * inv, b2 = dot(d, qv) * inv, depth = dot(e2, qv) * inv;
     vec3 albedo = material_albedo(triangle_material(prim), surface_uv(v, b1, b2));
-    append_node(pixel_list(k, pixel), depth, prim, shading_normal(prim, v, b1, b2), albedo);
+    append_node(pixel_list(k, pixel), depth, prim, encode_normal(shading_normal(prim, v, b1, b2)), albedo);
 #endif
 }
 
