@@ -164,7 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frame", type=int, default=0, help="frame index: a new rotation (and jitter) of the direction set")
     p.add_argument("--no-jitter", action="store_true", help="no sub-pixel jitter of the bundle grids")
     p.add_argument("--node-budget", type=parse_bytes, default=DEFAULT_NODE_BUDGET, metavar="BYTES",
-                   help="the most node memory to use, e.g. 1GiB (default: 1 GiB, the poster's)")
+                   help="the most node memory to use, e.g. 1GiB (default: 2 GiB; 32 bytes per node)")
     p.add_argument("--out", required=True, metavar="FILE.npz")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_bundles)

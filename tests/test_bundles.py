@@ -11,7 +11,7 @@ import pytest
 
 from bundle_oracle import agreement, exact_lists
 from conftest import run_evalkit
-from evalkit.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet
+from evalkit.bundleset import FRAME_PADDING, SPLAT_PRIM_ID, BundleSet, DirectionSet
 from evalkit.scene import Material, Mesh, assemble, load_scene
 from evalkit.scene.model import sample_texture
 from evalkit.scene.tessellate import box
@@ -177,6 +177,20 @@ def test_cli_builds_and_saves_bundles(tmp_path):
     assert set(stats["gpu_ms"]) == {"points", "lists", "resolve"}
     loaded = BundleSet.load(out)
     assert loaded.node_count == summary["nodes"] and loaded.params["seed"] == 4
+
+
+@pytest.mark.parametrize("name", ["cornell-box", "furnace", "atrium"])
+def test_every_builtin_scene_builds_both_ways(gl, name):
+    scene = load_scene(name)
+    # Cauchy-Crofton: lines through the bounding sphere cross its surfaces depth_complexity times on
+    # average, and each crossing yields splat_scale^2 splat nodes on average.
+    crossings = scene.features().depth_complexity
+    for method, per_crossing in (("perfect", 1.0), ("imperfect", 2.0**2)):
+        b = build(gl, scene, method, K=16, R=64, points=4096, splat_scale=2.0)
+        assert b.check() is None
+        assert b.params["scene"] == name and b.params["scene_hash"] == scene.content_hash()
+        lines = b.list_count * math.pi / 4 / FRAME_PADDING**2
+        assert b.node_count / lines == pytest.approx(crossings * per_crossing, rel=0.1), method
 
 
 def test_cli_reports_an_exceeded_budget_in_one_line(tmp_path):
