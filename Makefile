@@ -7,8 +7,8 @@ setup:
 demo: setup
 	.venv/bin/evalkit doctor
 	.venv/bin/evalkit scene info cornell-box
-	.venv/bin/evalkit bundles cornell-box --method perfect --out out/demo/perfect.npz
-	.venv/bin/evalkit bundles cornell-box --method imperfect --out out/demo/imperfect.npz
+	.venv/bin/evalkit bundles cornell-box --method perfect --directions 32 --out out/demo/perfect.npz
+	.venv/bin/evalkit bundles cornell-box --method imperfect --directions 32 --out out/demo/imperfect.npz
 
 test: setup
 	.venv/bin/python -m pytest -m "not slow" -q

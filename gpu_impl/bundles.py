@@ -105,6 +105,7 @@ class BundleTracer:
         }
         if method == "imperfect":
             self.buffers["POINTS"] = ctx.buffer(reserve=16 * self.K * self.N)
+            self.buffers["POINTS"].clear()  # triangle 0 for the warm-up draw, before any points exist
         self.capacity = 0
         self.sorted_capacity = 0
         self._scan_sums: list = []
@@ -115,7 +116,7 @@ class BundleTracer:
 
     def _warm_up(self, program, vao) -> None:
         """Draw one triangle with nothing to write to, so the driver compiles its shader variant
-        here and not inside the first timed pass (llvmpipe's first timer query around a
+        here and not inside the first timed pass (and llvmpipe's first timer query around a
         compiling draw reports an invalid 2^32 - 1 ns)."""
         self.bind()
         self._common_uniforms(program, capacity=0, direction_base=0)
