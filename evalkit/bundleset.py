@@ -204,7 +204,8 @@ class BundleSet:
                 return f"{name} has {len(getattr(self, name))} entries for {m} nodes"
         if not (np.isfinite(self.depth).all() and np.isfinite(self.normal).all() and np.isfinite(self.albedo).all()):
             return "node depths, normals or albedos contain NaN or Inf"
-        same_list = self.node_lists()[1:] == self.node_lists()[:-1]
+        lists = self.node_lists()
+        same_list = lists[1:] == lists[:-1]
         if np.any(same_list & (self.depth[1:] < self.depth[:-1])):
             return "a list is not sorted by depth"
         return None

@@ -112,6 +112,7 @@ class BundleTracer:
         self._grow(initial_capacity if initial_capacity is not None else self.predicted_nodes())
         self.directions: DirectionSet | None = None
         self.stats: dict = {}
+        self._null_fragment_vao = None  # the raw-raster baseline's, made on first use
         self._warm_up(self.program, self.vao)
 
     def _warm_up(self, program, vao) -> None:
@@ -286,10 +287,11 @@ class BundleTracer:
         ctx.memory_barrier()
 
     def _null_vao(self, program):
-        if getattr(self, "_null", None) is None:
-            self._null = self.scene.vertex_array(program) if self.method == "perfect" else self.gl.ctx.vertex_array(program, [])
-            self._warm_up(program, self._null)
-        return self._null
+        if self._null_fragment_vao is None:
+            ctx = self.gl.ctx
+            self._null_fragment_vao = self.scene.vertex_array(program) if self.method == "perfect" else ctx.vertex_array(program, [])
+            self._warm_up(program, self._null_fragment_vao)
+        return self._null_fragment_vao
 
     def raw_raster(self, directions: DirectionSet) -> float:
         """The raw-raster baseline: this build's geometry drawn with an empty fragment shader.
