@@ -80,14 +80,15 @@ class BundleTracer:
         self.scene = scene if isinstance(scene, GpuScene) else GpuScene(gl, scene)
         self.method = method
         self.K, self.R, self.N = directions, resolution, points
-        area = self.scene.arrays.tri_area.sum()
-        self.splat_scale = splat_scale if splat_radius is None else splat_radius / math.sqrt(area / (math.pi * points))
-        self.splat_radius = splat_radius if splat_radius is not None else splat_scale * math.sqrt(area / (math.pi * points))
+        # The radius at which N disks cover the scene's area once: the unit of splat_scale.
+        unit = math.sqrt(self.scene.arrays.tri_area.sum() / (math.pi * points))
+        self.splat_radius = splat_radius if splat_radius is not None else splat_scale * unit
+        self.splat_scale = self.splat_radius / unit
         if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
             raise ValueError(f"the splat radius must be positive and finite, got {self.splat_radius}")
         self.node_budget = int(node_budget)
         self.list_count = self.K * self.R * self.R
-        if self.K * self.R * self.R >= 2**32 - 1 or (method == "imperfect" and 3 * self.K * self.N >= 2**31):
+        if self.list_count >= 2**32 - 1 or (method == "imperfect" and 3 * self.K * self.N >= 2**31):
             raise ValueError(f"K={self.K}, R={self.R}, N={self.N} exceed the 32-bit list and vertex indices")
         self._layout(max_atlas_size)
         ctx = gl.ctx
@@ -144,9 +145,7 @@ class BundleTracer:
         surfaces a line through the bounding sphere crosses) and, for splats, the mean number of
         splats covering a surface point."""
         lines = self.list_count * math.pi / 4  # the lines that meet the sphere
-        overlap = 1.0
-        if self.method == "imperfect":
-            overlap = max(1.0, self.N * math.pi * self.splat_radius**2 / self.scene.arrays.tri_area.sum())
+        overlap = max(1.0, self.splat_scale**2) if self.method == "imperfect" else 1.0
         return int(lines * self.scene.scene.features().depth_complexity * overlap * 1.25) + 1024
 
     @property
@@ -274,7 +273,6 @@ class BundleTracer:
         vao = self.vao if not null_fragment else self._null_vao(program)
         self.buffers["HEADS"].clear(chunk=b"\xff\xff\xff\xff")
         self.buffers["COUNTERS"].clear()
-        self._common_uniforms(program)
         self.framebuffer.use()
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE | moderngl.BLEND)
         for base in range(0, self.K, self.directions_per_draw):
@@ -326,8 +324,7 @@ class BundleTracer:
         sums.bind_to_storage_buffer(BINDINGS["SCAN_SUMS"])
         scan = gl.program("prefix_sum", SCAN_BLOCKS=True)
         scan["count"] = count
-        gx = min(blocks, 65535)
-        scan.run(gx, math.ceil(blocks / gx))
+        gl.run_groups(scan, blocks)
         gl.ctx.memory_barrier()
         if blocks > 1:
             self._prefix_sum(sums, blocks, level + 1)

@@ -74,8 +74,9 @@ class GLContext:
             raise InputError(f"EGL device {device_index}", f"no OpenGL 4.5 context ({e}); `evalkit doctor` says what to install") from None
         self._programs: dict = {}
         for path in SHADER_DIR.glob("*.glsl"):
-            if not is_program(path.read_text()):
-                self.ctx.includes[path.name] = path.read_text()
+            text = path.read_text()
+            if not is_program(text):
+                self.ctx.includes[path.name] = text
 
     @property
     def is_llvmpipe(self) -> bool:
@@ -107,12 +108,14 @@ class GLContext:
     def dispatch(self, shader, invocations: int) -> None:
         """Run a compute shader over ``invocations`` 1-D work items (``linear_id()`` in the shader;
         items past ``invocations`` must return early)."""
-        groups = max(1, math.ceil(invocations / LOCAL_SIZE))
-        gx = min(groups, MAX_GROUPS)
-        gy = math.ceil(groups / gx)
         if "invocations" in shader:
             shader["invocations"] = invocations
-        shader.run(gx, gy)
+        self.run_groups(shader, math.ceil(invocations / LOCAL_SIZE))
+
+    def run_groups(self, shader, groups: int) -> None:
+        """Run ``groups`` workgroups, spread over y past the per-axis limit."""
+        gx = min(max(1, groups), MAX_GROUPS)
+        shader.run(gx, math.ceil(max(1, groups) / gx))
 
     @property
     def info(self) -> dict:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evalkit.bundleset import BundleSet, DirectionSet
+from evalkit.bundleset import BundleSet
 from evalkit.scene import Scene
 
 
@@ -62,6 +62,3 @@ def agreement(test: BundleSet, exact: list[list[np.ndarray]], depth_tolerance: f
     return {"exact_nodes": total, "matched": matched, "spurious": spurious,
             "agreement": matched / max(total, 1), "same_prim": same_prim / max(matched, 1)}
 
-
-def directions(count: int, seed: int = 0) -> DirectionSet:
-    return DirectionSet.make(count, seed=seed, frame=0, jitter=True)
