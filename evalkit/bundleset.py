@@ -101,6 +101,17 @@ class DirectionSet:
         return len(self.directions)
 
 
+def line_origins(directions: DirectionSet, k: int, centre: np.ndarray, radius: float, resolution: int) -> np.ndarray:
+    """Origins (R*R, 3) float64 of bundle k's lines, in list order (row j, then column i); see the
+    module docstring."""
+    R = resolution
+    s = radius * (2.0 * (np.arange(R) + 0.5 + directions.jitter[k, 0]) / R - 1.0)
+    t = radius * (2.0 * (np.arange(R) + 0.5 + directions.jitter[k, 1]) / R - 1.0)
+    tt, ss = np.meshgrid(t, s, indexing="ij")
+    return (centre + ss.reshape(-1, 1) * directions.axis_u[k] + tt.reshape(-1, 1) * directions.axis_v[k]
+            - radius * directions.directions[k])
+
+
 @dataclass(eq=False)
 class BundleSet:
     """K bundles of R x R parallel lines and every node found on them (see the module docstring).
@@ -149,12 +160,7 @@ class BundleSet:
 
     def line_origins(self, k: int) -> np.ndarray:
         """Origins (R*R, 3) float64 of bundle k's lines, in list order (row j, then column i)."""
-        ds, R = self.directions, self.resolution
-        s = self.radius * (2.0 * (np.arange(R) + 0.5 + ds.jitter[k, 0]) / R - 1.0)
-        t = self.radius * (2.0 * (np.arange(R) + 0.5 + ds.jitter[k, 1]) / R - 1.0)
-        tt, ss = np.meshgrid(t, s, indexing="ij")
-        return (self.centre + ss.reshape(-1, 1) * ds.axis_u[k] + tt.reshape(-1, 1) * ds.axis_v[k]
-                - self.radius * ds.directions[k])
+        return line_origins(self.directions, k, self.centre, self.radius, self.resolution)
 
     def save(self, path: str | os.PathLike) -> None:
         ds = self.directions

@@ -11,6 +11,8 @@ import json
 import sys
 import traceback
 
+import numpy as np
+
 from evalkit.errors import InputError
 
 
@@ -59,11 +61,39 @@ def _bundles(args) -> int:
 
     from evalkit.bundleset import DirectionSet
     from evalkit.scene import load_scene
-    from gpu_impl.bundles import BundleTracer, format_bytes
-    from gpu_impl.context import GLContext
 
     scene = load_scene(args.scene)
     directions = DirectionSet.make(args.directions, seed=args.seed, frame=args.frame, jitter=not args.no_jitter)
+    if args.method == "exact":
+        from references.embree import ExactTracer
+
+        bundles = ExactTracer(scene, threads=args.threads).bundles(directions, args.resolution)
+        stats = bundles.stats
+        detail = (f"{stats['casts']:,} Embree casts on {stats['threads']} thread(s), re-cast offset "
+                  f"{bundles.params['recast_epsilon']:.3g}, {bundles.params['coincidence_layers']} coincidence layer(s)")
+        timing = f"wall {1e3 * stats['wall_s']:.1f} ms, {stats['nodes'] / max(stats['wall_s'], 1e-9) / stats['threads'] / 1e6:.2f} M hits/s per thread"
+    else:
+        bundles, detail, timing = _gl_bundles(args, scene, directions)
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    bundles.save(args.out)
+    summary = bundles.summary()
+    print(f"bundles     {args.method} on {scene.name}: K={args.directions} R={args.resolution}"
+          + (f" N={args.points} splat radius {bundles.params['splat_radius']:.4g} (scale {bundles.params['splat_scale']:.3g})"
+             if args.method == "imperfect" else ""))
+    print(f"nodes       {bundles.node_count:,}, longest list {summary['max_list_length']}, "
+          f"{summary['empty_lists']:,} of {bundles.list_count:,} lists empty")
+    print(f"work        {detail}")
+    print(f"time        {timing}")
+    print(f"written     {args.out}")
+    if args.json:
+        print(json.dumps({"out": args.out, **summary}))
+    return 0
+
+
+def _gl_bundles(args, scene, directions):
+    from gpu_impl.bundles import BundleTracer, format_bytes
+    from gpu_impl.context import GLContext
+
     with GLContext() as gl:
         try:
             tracer = BundleTracer(gl, scene, args.method, directions=args.directions, resolution=args.resolution,
@@ -74,20 +104,38 @@ def _bundles(args) -> int:
         stats = tracer.build(directions)
         bundles = tracer.read()
         tracer.release()
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    bundles.save(args.out)
-    summary = bundles.summary()
-    print(f"bundles     {args.method} on {scene.name}: K={args.directions} R={args.resolution}"
-          + (f" N={args.points} splat radius {tracer.splat_radius:.4g} (scale {tracer.splat_scale:.3g})" if args.method == "imperfect" else ""))
-    print(f"nodes       {stats['nodes']:,} ({stats['redundant_nodes']:,} redundant), longest list {stats['max_list_length']}, "
-          f"{summary['empty_lists']:,} of {bundles.list_count:,} lists empty")
-    print(f"memory      {format_bytes(stats['node_bytes'])} of nodes, {format_bytes(stats['gpu_bytes'])} on the GPU in all, "
-          f"{stats['overflow_reruns']} overflow re-run(s)")
+    detail = (f"{stats['redundant_nodes']:,} redundant nodes, {format_bytes(stats['node_bytes'])} of nodes, "
+              f"{format_bytes(stats['gpu_bytes'])} on the GPU in all, {stats['overflow_reruns']} overflow re-run(s)")
     passes = ", ".join(f"{k} {v:.1f}" if v is not None else f"{k} n/a" for k, v in stats["gpu_ms"].items())
-    print(f"gpu ms      {passes} ({stats['gpu_timing']}); wall {stats['wall_ms']:.1f} ms")
-    print(f"written     {args.out}")
+    return bundles, detail, f"gpu ms {passes} ({stats['gpu_timing']}); wall {stats['wall_ms']:.1f} ms"
+
+
+def _compare_bundles(args) -> int:
+    from evalkit.bundleset import BundleSet
+    from evalkit.metrics.bundles import compare_bundles
+
+    test, exact = BundleSet.load(args.test), BundleSet.load(args.exact)
+    if exact.method != "exact":
+        print(f"evalkit: warning: {args.exact}: method is '{exact.method}', not 'exact'; it is used as the reference anyway",
+              file=sys.stderr)
+    try:
+        r = compare_bundles(test, exact, depth_tolerance=args.depth_tolerance)
+    except ValueError as e:
+        raise InputError(args.test, f"cannot be compared with {args.exact}: {e}") from None
+    per = r["per_direction"]
+    print(f"compare     {test.method} ({args.test}) against {exact.method} ({args.exact}): K={r['directions']} R={r['resolution']}")
+    print(f"tolerance   depth {r['depth_tolerance']:g} x radius = {r['depth_tolerance_absolute']:.4g} scene units")
+    print(f"nodes       exact {r['exact_nodes']:,}, test {r['test_nodes']:,}, matched {r['matched']:,}")
+    print(f"{'':12}{'aggregate':>12}{'best dir':>12}{'median dir':>12}{'worst dir':>12}")
+    for name in ("hole_rate", "spurious_rate", "redundant_rate"):
+        values = np.sort(per[name])
+        print(f"{name:12}{r[name]:12.4%}{values[0]:12.4%}{np.median(values):12.4%}{values[-1]:12.4%}")
+    e = r["depth_error"]
+    print(f"depth error mean {e['mean']:.3g}, rms {e['rms']:.3g}, p99 {e['p99']:.3g}, max {e['max']:.3g} (x radius); "
+          f"same primitive {r['same_prim_rate']:.4%}")
+    print(f"agreement   {r['agreement']:.4%} of exact nodes matched")
     if args.json:
-        print(json.dumps({"out": args.out, **summary}))
+        print(json.dumps(r))
     return 0
 
 
@@ -151,9 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE
 
-    p = sub.add_parser("bundles", help="build perfect or imperfect ray bundles on the GPU and save them as a BundleSet .npz")
+    p = sub.add_parser("bundles", help="build perfect or imperfect ray bundles on the GPU, or exact ones with Embree, and save a BundleSet .npz")
     p.add_argument("scene", help="a built-in name or a scene file")
-    p.add_argument("--method", choices=("perfect", "imperfect"), required=True)
+    p.add_argument("--method", choices=("perfect", "imperfect", "exact"), required=True)
     p.add_argument("--directions", type=_positive_int, default=256, metavar="K", help="bundle directions (default 256)")
     p.add_argument("--resolution", type=_positive_int, default=128, metavar="R", help="R x R lines per bundle (default 128)")
     p.add_argument("--points", type=_positive_int, default=16384, metavar="N", help="imperfect: points per direction (default 16384)")
@@ -165,9 +213,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-jitter", action="store_true", help="no sub-pixel jitter of the bundle grids")
     p.add_argument("--node-budget", type=parse_bytes, default=DEFAULT_NODE_BUDGET, metavar="BYTES",
                    help="the most node memory to use, e.g. 1GiB (default: 2 GiB; 32 bytes per node)")
+    p.add_argument("--threads", type=_positive_int, default=None, help="exact: Embree threads (default: every core)")
     p.add_argument("--out", required=True, metavar="FILE.npz")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_bundles)
+
+    from evalkit.metrics.bundles import DEFAULT_DEPTH_TOLERANCE
+
+    p = sub.add_parser("compare-bundles", help="hole, spurious and redundant rates and depth error of a BundleSet against the exact one")
+    p.add_argument("test", metavar="TEST.npz")
+    p.add_argument("exact", metavar="EXACT.npz")
+    p.add_argument("--depth-tolerance", type=_positive_float, default=DEFAULT_DEPTH_TOLERANCE, metavar="T",
+                   help=f"nodes within T x the frame radius are the same surface (default {DEFAULT_DEPTH_TOLERANCE:g})")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(run=_compare_bundles)
     return parser
 
 

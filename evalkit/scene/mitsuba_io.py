@@ -63,12 +63,17 @@ def from_mitsuba_scene(mi, mi_scene, name: str, source: str) -> Scene:
     materials: list[Material] = []
     material_index: dict[tuple, int] = {}
     meshes: list[Mesh] = []
-    for shape_no, shape in enumerate(mi_scene.shapes()):
+    shapes = [(shape, _shape_geometry(mi, shape, shape.class_name())) for shape in mi_scene.shapes()]
+    # Mitsuba merges meshes that share a BSDF, in an order that changes from run to run, so the
+    # shapes and their triangles are put in a canonical order: the content hash, primitive ids and
+    # reference store must not depend on thread timing.
+    shapes = [(shape, None if g is None else _canonical_order(*g)) for shape, g in shapes]
+    shapes.sort(key=lambda sg: (sg[0].id(), b"" if sg[1] is None else sg[1][0][sg[1][1][:1]].tobytes()))
+    for shape_no, (shape, geometry) in enumerate(shapes):
         shape_name = shape.id() or f"shape{shape_no}"
         kind = shape.class_name()
         if shape.interior_medium() is not None or shape.exterior_medium() is not None:
             warnings.append(f"shape '{shape_name}': participating media are not supported; the medium is ignored")
-        geometry = _shape_geometry(mi, shape, kind)
         if geometry is None:
             warnings.append(f"shape '{shape_name}': plugin {kind} is not supported; the shape is left out")
             continue
@@ -129,6 +134,19 @@ def _shape_geometry(mi, shape, kind):
         local = unit_sphere(SPHERE_SEGMENTS) if kind == "Sphere" else unit_disk(DISK_SEGMENTS)
         return _transform(local, to_world)
     return None
+
+
+def _canonical_order(positions, faces, normals, uvs):
+    """The mesh with its triangles sorted by their corner positions and its vertices in order of
+    first use (winding and corner order kept)."""
+    key = positions[faces].reshape(len(faces), 9)
+    faces = faces[np.lexsort(key.T[::-1])]
+    used, first = np.unique(faces.ravel(), return_index=True)
+    vertices = used[np.argsort(first)]
+    remap = np.empty(len(positions), np.int64)
+    remap[vertices] = np.arange(len(vertices))
+    pick = (lambda a: None if a is None else a[vertices])
+    return positions[vertices], remap[faces], pick(normals), pick(uvs)
 
 
 def _transform(local, to_world: np.ndarray):

@@ -1,0 +1,1 @@
+"""Metrics: bundles against exact bundles (`bundles`)."""
