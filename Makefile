@@ -1,5 +1,5 @@
 # The two commands of the README. Both install what is missing first (scripts/setup.sh).
-.PHONY: setup demo test test-slow
+.PHONY: setup demo test test-slow references
 
 setup:
 	@scripts/setup.sh
@@ -15,3 +15,10 @@ test: setup
 
 test-slow: setup
 	.venv/bin/python -m pytest -m slow -q
+
+# The small references committed for CI (references/store); about 10 minutes on 2 cores.
+CI_REFERENCES = cornell-box furnace
+references: setup
+	for scene in $(CI_REFERENCES); do for b in 1 3; do \
+	  .venv/bin/evalkit reference $$scene --bounces $$b --spp 16384 --width 128 --height 128 --out out/references/$$scene-b$$b || exit 1; \
+	done; done

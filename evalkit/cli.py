@@ -139,6 +139,36 @@ def _compare_bundles(args) -> int:
     return 0
 
 
+def _reference(args) -> int:
+    from pathlib import Path
+
+    from evalkit.scene import load_scene
+    from references.mitsuba import export_reference, reference
+
+    scene = load_scene(args.scene)
+    try:
+        ref = reference(scene, bounces=args.bounces, spp=args.spp, width=args.width, height=args.height, seed=args.seed,
+                        chunks=args.chunks, variant=args.variant, store=Path(args.store),
+                        progress=lambda line: print(f"progress    {line}", flush=True))
+    except ValueError as e:
+        raise InputError("evalkit reference", str(e)) from None
+    written = export_reference(ref, args.out)
+    m = ref.manifest
+    print(f"reference   {scene.name}: {m['bounces']} bounce(s), {m['width']}x{m['height']}, {m['spp']} spp in {m['chunks']} chunks, "
+          f"seed {m['seed']}, Mitsuba {m['mitsuba']} {m['variant']}")
+    how = "reused" if ref.reused else f"rendered in {m['render_s']:.1f} s"
+    print(f"store       {ref.path} ({how})")
+    for name in ("direct", "indirect", "total"):
+        img, var = ref.images[name], ref.variances[name]
+        print(f"{name:12}mean {img.mean():.6g}, mean std. error {np.sqrt(var).mean():.3g}")
+    for w in m["warnings"]:
+        print(f"warning     {w}")
+    print(f"written     {args.out}: {', '.join(p.name for p in written)}")
+    if args.json:
+        print(json.dumps({"out": str(args.out), "store": str(ref.path), "reused": ref.reused, **m}))
+    return 0
+
+
 def parse_bytes(text: str) -> int:
     """A byte count: a plain integer or one with a unit (KiB, MiB, GiB, kB, MB, GB)."""
     units = {"kib": 2**10, "mib": 2**20, "gib": 2**30, "kb": 10**3, "mb": 10**6, "gb": 10**9, "b": 1}
@@ -227,6 +257,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"nodes within T x the frame radius are the same surface (default {DEFAULT_DEPTH_TOLERANCE:g})")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_compare_bundles)
+
+    from references.mitsuba import DEFAULT_STORE
+
+    p = sub.add_parser("reference", help="Mitsuba 3 path-traced direct, indirect and total images with variances (stored, reused, resumable)")
+    p.add_argument("scene", help="a built-in name or a scene file")
+    p.add_argument("--bounces", type=int, default=1, metavar="B", help="indirect bounces (default 1)")
+    p.add_argument("--spp", type=_positive_int, default=1024, help="samples per pixel (default 1024)")
+    p.add_argument("--width", type=_positive_int, default=None, help="default: the scene camera's")
+    p.add_argument("--height", type=_positive_int, default=None, help="default: the scene camera's")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--chunks", type=_positive_int, default=None, help="spp chunks (progress, resume, variance; default min(32, spp))")
+    p.add_argument("--variant", default=None, help="Mitsuba variant (default: cuda_ad_rgb with a GPU, else llvm_ad_rgb, else scalar_rgb)")
+    p.add_argument("--store", default=str(DEFAULT_STORE), help=f"reference store (default {DEFAULT_STORE})")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(run=_reference)
     return parser
 
 

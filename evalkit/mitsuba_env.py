@@ -66,14 +66,29 @@ def llvm_usable() -> bool:
     return major is None or major >= MIN_LLVM_MAJOR
 
 
-def default_variant() -> str:
-    """``llvm_ad_rgb`` when a working LLVM is there, else ``scalar_rgb`` (no LLVM, about half the speed).
+def cuda_usable() -> bool:
+    """Whether an NVIDIA driver with CUDA is there (Dr.Jit's CUDA backend needs libcuda)."""
+    import ctypes
 
-    ``EVALKIT_MITSUBA_VARIANT`` overrides the choice (``cuda_ad_rgb`` on a GPU machine, say).
+    try:
+        ctypes.CDLL("libcuda.so.1")
+    except OSError:
+        return False
+    return True
+
+
+def default_variant() -> str:
+    """``cuda_ad_rgb`` where a GPU driver is there, else ``llvm_ad_rgb`` when a working LLVM is
+    there, else ``scalar_rgb`` (no LLVM, about half the speed). With the independent sampler the
+    same seed gives the same image on llvm and scalar (FIELD_NOTES.md).
+
+    ``EVALKIT_MITSUBA_VARIANT`` overrides the choice.
     """
     forced = os.environ.get("EVALKIT_MITSUBA_VARIANT")
     if forced:
         return forced
+    if cuda_usable():
+        return "cuda_ad_rgb"
     return "llvm_ad_rgb" if llvm_usable() else "scalar_rgb"
 
 

@@ -115,7 +115,6 @@ class ExactTracer:
         prim = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
         b = np.concatenate([p[2] for p in parts]) if parts else np.zeros((0, 2))
         hit = np.nonzero(prim >= 0)[0]
-        t[hit] = self._plane_depth(origins[hit] - self.centre, unit[hit], prim[hit], t[hit])
         n = len(origins)
         depth, point = np.full(n, np.inf), np.zeros((n, 3))
         depth[hit] = t[hit] / length[hit]
@@ -126,12 +125,16 @@ class ExactTracer:
         return Hits(depth, point, prim, normal, geometric, albedo, emission, material)
 
     def _cast(self, origins_local: np.ndarray, unit: np.ndarray, far: np.ndarray):
-        """The nearest hit over all layers: (t float64, prim int32, (b1, b2) float64) per ray."""
+        """The nearest hit over all layers: (t float64, prim int32, (b1, b2) float64) per ray, t
+        from the float64 plane depth, so coincident surfaces in two layers compare exactly."""
         t, prim = np.full(len(origins_local), np.inf), np.full(len(origins_local), -1, np.int32)
         bary = np.zeros((len(origins_local), 2))
         for layer in range(len(self._layers)):
-            lt, lp, u, v = self._cast_layer(layer, origins_local, unit, far)
-            closer = (lp >= 0) & (lt < t)  # float32 t against float64 is exact
+            embree_t, lp, u, v = self._cast_layer(layer, origins_local, unit, far)
+            hit = np.nonzero(lp >= 0)[0]
+            lt = np.full(len(lp), np.inf)
+            lt[hit] = self._plane_depth(origins_local[hit], unit[hit], lp[hit], embree_t[hit].astype(np.float64))
+            closer = lt < t
             t[closer], prim[closer], bary[closer] = lt[closer], lp[closer], np.stack([u, v], axis=1)[closer]
         return t, prim, bary
 

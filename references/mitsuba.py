@@ -1,0 +1,174 @@
+"""Mitsuba 3 path-traced references: direct, indirect (exactly B bounces) and total images, each
+with a per-pixel variance image, in a store keyed by the scene's content hash.
+
+How the images are made:
+
+- The scene is rendered through its Mitsuba export (`to_mitsuba_dict`: same camera, box pixel
+  filter, float32 film) with Mitsuba's own ``path`` integrator, Russian roulette off
+  (``rr_depth = max_depth``).
+- **direct** is ``max_depth = 2`` (emitters seen directly plus direct lighting), **total** is
+  ``max_depth = B + 2``, and **indirect = total - direct**, from two renders that share a seed.
+  Both renders draw the same random numbers for the first vertex, so every sample's direct part
+  cancels exactly and the difference is the B-bounce indirect estimate of the same paths. This
+  was chosen over a registered Python integrator because the reference is then Mitsuba's own
+  C++ integrator, untouched, so it cannot carry an integrator bug of ours.
+- **Variance.** The ``moment`` integrator records its moments in XYZ for RGB variants (checked with
+  3.9.1), and it cannot give the variance of a difference of two renders. So the spp are rendered
+  in C chunks with independent seeds, and the variance image is the variance of the pixel mean
+  from the spread of the chunk means (batch means, C - 1 degrees of freedom), per RGB channel,
+  for all three images alike.
+- Chunks also make long renders resumable: after each chunk the running sums go to
+  ``progress.npz`` in the entry's folder, and a rerun with the same parameters continues there.
+
+Store layout: ``STORE/<scene>-<hash16>/b<B>_<W>x<H>_spp<S>_seed<N>/`` with ``direct.exr``,
+``indirect.exr``, ``total.exr``, ``<image>_variance.exr`` and ``manifest.json``. The key holds every
+parameter that changes the images; the Mitsuba variant is recorded but not keyed (the same seed
+gives the same image on llvm and scalar).
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evalkit.errors import InputError
+from evalkit.exr import read_exr, write_exr
+from evalkit.scene import Scene
+
+DEFAULT_STORE = Path(__file__).resolve().parent / "store"
+IMAGES = ("direct", "indirect", "total")
+STORE_FORMAT = 1
+DEFAULT_CHUNKS = 32
+
+
+@dataclass
+class Reference:
+    """A stored reference: images and variances (H, W, 3) float32 by name, and its manifest."""
+
+    path: Path
+    images: dict[str, np.ndarray]
+    variances: dict[str, np.ndarray]
+    manifest: dict
+    reused: bool
+
+
+def store_entry(scene: Scene, bounces: int, spp: int, width: int, height: int, seed: int, store: Path = DEFAULT_STORE) -> Path:
+    """The store folder of one reference."""
+    return Path(store) / f"{scene.name}-{scene.content_hash()[:16]}" / f"b{bounces}_{width}x{height}_spp{spp}_seed{seed}"
+
+
+def chunk_seed(seed: int, chunk: int) -> int:
+    """An independent 32-bit Mitsuba seed per chunk."""
+    return int(np.random.SeedSequence([seed, chunk]).generate_state(1)[0])
+
+
+def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None = None, height: int | None = None,
+              seed: int = 0, chunks: int | None = None, variant: str | None = None, store: Path = DEFAULT_STORE,
+              progress=print) -> Reference:
+    """The stored reference with these parameters, rendered (or resumed) first if it is missing.
+
+    ``chunks`` (default ``min(32, spp)``) must divide ``spp``; ``progress`` gets one line per chunk.
+    """
+    width, height = int(width or scene.camera.width), int(height or scene.camera.height)
+    if bounces < 0 or spp < 2 or width < 1 or height < 1:
+        raise ValueError(f"need bounces >= 0, spp >= 2 and a positive size, got {bounces}, {spp}, {width}x{height}")
+    chunks = int(chunks or min(DEFAULT_CHUNKS, spp))
+    if chunks < 2 or spp % chunks:
+        raise ValueError(f"{chunks} chunks must be at least 2 and divide spp={spp} (the variance comes from the chunks)")
+    entry = store_entry(scene, bounces, spp, width, height, seed, store)
+    if (entry / "manifest.json").is_file():
+        return load_reference(entry, reused=True)
+
+    from evalkit.mitsuba_env import mitsuba
+    from evalkit.scene.mitsuba_io import to_mitsuba_dict
+
+    mi = mitsuba(variant)
+    mi_scene = mi.load_dict(to_mitsuba_dict(scene, mi, spp=spp // chunks, width=width, height=height))
+    integrators = {depth: mi.load_dict({"type": "path", "max_depth": depth, "rr_depth": depth}) for depth in (2, bounces + 2)}
+    entry.mkdir(parents=True, exist_ok=True)
+    state_path = entry / "progress.npz"
+    done, sums, squares = 0, np.zeros((3, height, width, 3)), np.zeros((3, height, width, 3))
+    if state_path.is_file():
+        with np.load(state_path) as z:
+            done, sums, squares = int(z["done"]), z["sums"], z["squares"]
+        progress(f"resuming {entry} at chunk {done + 1} of {chunks}")
+    start, resumed_at = time.perf_counter(), done
+    for chunk in range(done, chunks):
+        s = chunk_seed(seed, chunk)
+        direct = np.array(mi.render(mi_scene, integrator=integrators[2], seed=s), dtype=np.float64)[..., :3]
+        total = np.array(mi.render(mi_scene, integrator=integrators[bounces + 2], seed=s), dtype=np.float64)[..., :3]
+        means = np.stack([direct, total - direct, total])
+        sums += means
+        squares += means * means
+        done = chunk + 1
+        tmp = entry / "progress.tmp.npz"
+        np.savez(tmp, done=done, sums=sums, squares=squares)
+        os.replace(tmp, state_path)
+        elapsed = time.perf_counter() - start
+        per_chunk = elapsed / (done - resumed_at)
+        progress(f"chunk {done}/{chunks}: {spp // chunks} spp, {elapsed:.1f} s, about {per_chunk * (chunks - done):.0f} s left")
+
+    mean = sums / chunks
+    variance = np.maximum(squares - chunks * mean * mean, 0.0) / (chunks * (chunks - 1))
+    manifest = {
+        "store_format": STORE_FORMAT,
+        "scene": scene.name,
+        "scene_source": scene.source,
+        "scene_hash": scene.content_hash(),
+        "bounces": bounces,
+        "spp": spp,
+        "seed": seed,
+        "chunks": chunks,
+        "width": width,
+        "height": height,
+        "integrator": f"path, max_depth 2 (direct) and {bounces + 2} (total), rr_depth = max_depth; indirect = total - direct",
+        "variance": "variance of the pixel mean from the spread of the chunk means (batch means), per RGB channel",
+        "mitsuba": mi.__version__,
+        "variant": mi.variant(),
+        "evalkit": importlib.metadata.version("raybundle-evalkit"),
+        "warnings": list(scene.warnings),
+        "render_s": round(time.perf_counter() - start, 3),
+        "files": {},
+    }
+    for i, name in enumerate(IMAGES):
+        for suffix, image in (("", mean[i]), ("_variance", variance[i])):
+            file = f"{name}{suffix}.exr"
+            write_exr(entry / file, image, {**{k: v for k, v in manifest.items() if k != "files"}, "image": name + suffix})
+            manifest["files"][name + suffix] = file
+    (entry / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    state_path.unlink()
+    return load_reference(entry, reused=False)
+
+
+def load_reference(entry: str | os.PathLike, reused: bool = True) -> Reference:
+    """A stored reference folder (or one copied out of the store)."""
+    entry = Path(entry)
+    manifest_path = entry / "manifest.json"
+    if not manifest_path.is_file():
+        raise InputError(str(entry), "no manifest.json: not a reference folder")
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except ValueError as e:
+        raise InputError(str(manifest_path), f"malformed JSON: {e}") from None
+    if manifest.get("store_format") != STORE_FORMAT:
+        raise InputError(str(manifest_path), f"reference store format {manifest.get('store_format')} is not {STORE_FORMAT}")
+    images = {name: read_exr(entry / manifest["files"][name])[0] for name in IMAGES}
+    variances = {name: read_exr(entry / manifest["files"][name + "_variance"])[0] for name in IMAGES}
+    return Reference(entry, images, variances, manifest, reused)
+
+
+def export_reference(ref: Reference, out: str | os.PathLike) -> list[Path]:
+    """Copy a reference's files and manifest into ``out``; returns the written paths."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for file in [*ref.manifest["files"].values(), "manifest.json"]:
+        written.append(Path(shutil.copy2(ref.path / file, out / file)))
+    return written
