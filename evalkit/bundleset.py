@@ -112,6 +112,16 @@ def line_origins(directions: DirectionSet, k: int, centre: np.ndarray, radius: f
             - radius * directions.directions[k])
 
 
+def bundle_params(scene, method: str, directions: DirectionSet, resolution: int) -> dict:
+    """The provenance every builder records in `BundleSet.params` (builders add their own)."""
+    import importlib.metadata
+
+    return {"evalkit": importlib.metadata.version("raybundle-evalkit"), "scene": scene.name,
+            "scene_hash": scene.content_hash(), "method": method, "directions": directions.count,
+            "resolution": int(resolution), "seed": directions.seed, "frame": directions.frame,
+            "jitter": bool(np.any(directions.jitter != 0))}
+
+
 @dataclass(eq=False)
 class BundleSet:
     """K bundles of R x R parallel lines and every node found on them (see the module docstring).

@@ -126,10 +126,10 @@ def _compare_bundles(args) -> int:
     print(f"compare     {test.method} ({args.test}) against {exact.method} ({args.exact}): K={r['directions']} R={r['resolution']}")
     print(f"tolerance   depth {r['depth_tolerance']:g} x radius = {r['depth_tolerance_absolute']:.4g} scene units")
     print(f"nodes       exact {r['exact_nodes']:,}, test {r['test_nodes']:,}, matched {r['matched']:,}")
-    print(f"{'':12}{'aggregate':>12}{'best dir':>12}{'median dir':>12}{'worst dir':>12}")
+    print(f"{'':16}{'aggregate':>12}{'best dir':>12}{'median dir':>12}{'worst dir':>12}")
     for name in ("hole_rate", "spurious_rate", "redundant_rate"):
         values = np.sort(per[name])
-        print(f"{name:12}{r[name]:12.4%}{values[0]:12.4%}{np.median(values):12.4%}{values[-1]:12.4%}")
+        print(f"{name:16}{r[name]:12.4%}{values[0]:12.4%}{np.median(values):12.4%}{values[-1]:12.4%}")
     e = r["depth_error"]
     print(f"depth error mean {e['mean']:.3g}, rms {e['rms']:.3g}, p99 {e['p99']:.3g}, max {e['max']:.3g} (x radius); "
           f"same primitive {r['same_prim_rate']:.4%}")
@@ -143,7 +143,7 @@ def _reference(args) -> int:
     from pathlib import Path
 
     from evalkit.scene import load_scene
-    from references.mitsuba import export_reference, reference
+    from references.mitsuba import IMAGES, export_reference, reference
 
     scene = load_scene(args.scene)
     try:
@@ -158,7 +158,7 @@ def _reference(args) -> int:
           f"seed {m['seed']}, Mitsuba {m['mitsuba']} {m['variant']}")
     how = "reused" if ref.reused else f"rendered in {m['render_s']:.1f} s"
     print(f"store       {ref.path} ({how})")
-    for name in ("direct", "indirect", "total"):
+    for name in IMAGES:
         img, var = ref.images[name], ref.variances[name]
         print(f"{name:12}mean {img.mean():.6g}, mean std. error {np.sqrt(var).mean():.3g}")
     for w in m["warnings"]:

@@ -16,14 +16,13 @@ which keeps each node's direct radiance in an array parallel to ``SORTED_NODE`` 
 
 from __future__ import annotations
 
-import importlib.metadata
 import math
 import time
 
 import moderngl
 import numpy as np
 
-from evalkit.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet
+from evalkit.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, bundle_params
 from evalkit.errors import InputError
 from evalkit.scene import Scene
 from gpu_impl.context import BINDINGS, LOCAL_SIZE, GLContext, PassTimer
@@ -357,12 +356,7 @@ class BundleTracer:
         emission = np.array([m.emission for m in materials], dtype=np.float32).reshape(-1, 3)[material]
         albedo = np.ascontiguousarray(column("NODE_ALBEDO", 2)).view(np.float16)[:, :3].astype(np.float32)
         ds = self.directions
-        params = {
-            "evalkit": importlib.metadata.version("raybundle-evalkit"),
-            "scene": self.scene.scene.name, "scene_hash": self.scene.scene.content_hash(), "method": self.method,
-            "directions": self.K, "resolution": self.R, "seed": ds.seed, "frame": ds.frame,
-            "jitter": bool(np.any(ds.jitter != 0)), "node_budget": self.node_budget, "gl": self.gl.info,
-        }
+        params = {**bundle_params(self.scene.scene, self.method, ds, self.R), "node_budget": self.node_budget, "gl": self.gl.info}
         if self.method == "imperfect":
             params.update(points=self.N, splat_scale=self.splat_scale, splat_radius=self.splat_radius)
         return BundleSet(

@@ -18,7 +18,7 @@ exact to float64 round-off, not to Embree's float32 ``t``.
 
 Embree runs in robust (watertight) mode, so a line through a shared edge or vertex is never lost
 between the triangles that share it. ``run()`` releases the GIL, so directions are traced on a
-thread pool, one direction per task.
+thread pool, a few directions per task.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evalkit.bundleset import FRAME_PADDING, BundleSet, DirectionSet, line_origins
+from evalkit.bundleset import FRAME_PADDING, BundleSet, DirectionSet, bundle_params, line_origins
 from evalkit.scene import Scene
 from evalkit.scene.model import sample_texture
 
@@ -48,7 +48,7 @@ class Hits:
 
     depth (N,) along the ray or line; point (N, 3); prim_id (N,) int32 (-1: no hit); normal (N, 3)
     unit shading normal; geometric_normal (N, 3) unit, counter-clockwise front; albedo (N, 3),
-    textures sampled; emission (N, 3); material (N,) int32 (-1: no hit); uv (N, 2) surface uvs.
+    textures sampled; emission (N, 3); material (N,) int32 (-1: no hit).
     """
 
     depth: np.ndarray
@@ -77,6 +77,7 @@ class ExactTracer:
         self.epsilon = RECAST_ULPS * 2.0 * self.radius * 2.0**-23
         self.threads = max(1, threads or os.cpu_count() or 1)
         local = a.positions - centre
+        local32 = local.astype(np.float32)
         # Embree reports one of two coincident triangles and the re-cast steps past the other, so
         # coincident triangles go to separate Embree scenes (layers) and each layer is traced alone.
         self.coincident_pairs = coincident_pairs(local, a.faces, a.tri_normal, self.epsilon)
@@ -85,12 +86,12 @@ class ExactTracer:
         for i in range(int(layer.max()) + 1 if len(layer) else 0):
             ids = np.nonzero(layer == i)[0].astype(np.int32)
             embree = rtcore_scene.EmbreeScene(robust=True)
-            mesh_construction.TriangleMesh(embree, local.astype(np.float32), a.faces[ids].astype(np.int32))
+            mesh_construction.TriangleMesh(embree, local32, a.faces[ids].astype(np.int32))
             corners = local[a.faces[ids]].reshape(-1, 3)
             pad = 2.0 * self.epsilon
             self._layers.append((embree, ids, corners.min(axis=0) - pad, corners.max(axis=0) + pad))
         # n . (p0 - centre): plane depths are computed from centre-relative origins.
-        self._plane_offset = np.einsum("ij,ij->i", a.tri_normal, a.positions[a.faces[:, 0]] - centre)
+        self._plane_offset = np.einsum("ij,ij->i", a.tri_normal, local[a.faces[:, 0]])
         self._emission = np.array([m.emission for m in scene.materials], dtype=np.float64).reshape(-1, 3)
         self._albedo = np.array([m.albedo for m in scene.materials], dtype=np.float64).reshape(-1, 3)
         self._textured = [i for i, m in enumerate(scene.materials) if m.texture is not None]
@@ -111,9 +112,7 @@ class ExactTracer:
         chunks = np.array_split(np.arange(len(origins)), self.threads)
         with ThreadPoolExecutor(self.threads) as pool:
             parts = list(pool.map(lambda idx: self._cast(origins[idx] - self.centre, unit[idx], far[idx]), chunks))
-        t = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
-        prim = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
-        b = np.concatenate([p[2] for p in parts]) if parts else np.zeros((0, 2))
+        t, prim, b = (np.concatenate(x) for x in zip(*parts))
         hit = np.nonzero(prim >= 0)[0]
         n = len(origins)
         depth, point = np.full(n, np.inf), np.zeros((n, 3))
@@ -196,10 +195,7 @@ class ExactTracer:
         list_count = directions.count * resolution**2
         offsets = np.zeros(list_count + 1, np.int64)
         np.cumsum(np.bincount(nodes.pop("list"), minlength=list_count), out=offsets[1:])
-        params = {"evalkit": importlib.metadata.version("raybundle-evalkit"), "embreex": importlib.metadata.version("embreex"),
-                  "scene": self.scene.name, "scene_hash": self.scene.content_hash(), "method": "exact",
-                  "directions": directions.count, "resolution": int(resolution), "seed": directions.seed,
-                  "frame": directions.frame, "jitter": bool(np.any(directions.jitter != 0)),
+        params = {**bundle_params(self.scene, "exact", directions, resolution), "embreex": importlib.metadata.version("embreex"),
                   "recast_epsilon": self.epsilon, "recast_ulps": RECAST_ULPS, "threads": self.threads,
                   "coincidence_layers": len(self._layers), "coincident_pairs": len(self.coincident_pairs)}
         lengths = np.diff(offsets)
@@ -339,7 +335,3 @@ def coincidence_layers(pairs: np.ndarray, triangle_count: int) -> np.ndarray:
         layer[t] = next(i for i in range(len(taken) + 1) if i not in taken)
     return layer
 
-
-def exact_bundles(scene: Scene, directions: DirectionSet, resolution: int, threads: int | None = None) -> BundleSet:
-    """`ExactTracer(scene).bundles(directions, resolution)`."""
-    return ExactTracer(scene, threads).bundles(directions, resolution)

@@ -59,9 +59,10 @@ class Reference:
     reused: bool
 
 
-def store_entry(scene: Scene, bounces: int, spp: int, width: int, height: int, seed: int, store: Path = DEFAULT_STORE) -> Path:
+def store_entry(scene_name: str, scene_hash: str, bounces: int, spp: int, width: int, height: int, seed: int,
+                store: Path = DEFAULT_STORE) -> Path:
     """The store folder of one reference."""
-    return Path(store) / f"{scene.name}-{scene.content_hash()[:16]}" / f"b{bounces}_{width}x{height}_spp{spp}_seed{seed}"
+    return Path(store) / f"{scene_name}-{scene_hash[:16]}" / f"b{bounces}_{width}x{height}_spp{spp}_seed{seed}"
 
 
 def chunk_seed(seed: int, chunk: int) -> int:
@@ -82,7 +83,8 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
     chunks = int(chunks or min(DEFAULT_CHUNKS, spp))
     if chunks < 2 or spp % chunks:
         raise ValueError(f"{chunks} chunks must be at least 2 and divide spp={spp} (the variance comes from the chunks)")
-    entry = store_entry(scene, bounces, spp, width, height, seed, store)
+    scene_hash = scene.content_hash()
+    entry = store_entry(scene.name, scene_hash, bounces, spp, width, height, seed, store)
     if (entry / "manifest.json").is_file():
         return load_reference(entry, reused=True)
 
@@ -97,8 +99,11 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
     done, sums, squares = 0, np.zeros((3, height, width, 3)), np.zeros((3, height, width, 3))
     if state_path.is_file():
         with np.load(state_path) as z:
-            done, sums, squares = int(z["done"]), z["sums"], z["squares"]
-        progress(f"resuming {entry} at chunk {done + 1} of {chunks}")
+            if int(z["chunks"]) == chunks:  # chunk seeds and sizes follow the chunk count
+                done, sums, squares = int(z["done"]), z["sums"], z["squares"]
+                progress(f"resuming {entry} at chunk {done + 1} of {chunks}")
+            else:
+                progress(f"starting {entry} again: the saved progress is for {int(z['chunks'])} chunks, not {chunks}")
     start, resumed_at = time.perf_counter(), done
     for chunk in range(done, chunks):
         s = chunk_seed(seed, chunk)
@@ -109,7 +114,7 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
         squares += means * means
         done = chunk + 1
         tmp = entry / "progress.tmp.npz"
-        np.savez(tmp, done=done, sums=sums, squares=squares)
+        np.savez(tmp, done=done, chunks=chunks, sums=sums, squares=squares)
         os.replace(tmp, state_path)
         elapsed = time.perf_counter() - start
         per_chunk = elapsed / (done - resumed_at)
@@ -121,7 +126,7 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
         "store_format": STORE_FORMAT,
         "scene": scene.name,
         "scene_source": scene.source,
-        "scene_hash": scene.content_hash(),
+        "scene_hash": scene_hash,
         "bounces": bounces,
         "spp": spp,
         "seed": seed,

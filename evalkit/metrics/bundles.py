@@ -87,7 +87,7 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
     redundant_node[ok[~is_match]] = True
     matched_per_cluster = np.minimum(np.bincount(t_cluster, minlength=len(multiplicity)), multiplicity)
     hole_per_cluster = multiplicity - matched_per_cluster
-    depth_error = error[matched_test]
+    relative_error = error[matched_test] / exact.radius if len(matched_test) else np.zeros(1)
     # A matched perfect node should come from one of its cluster's triangles.
     prim_span = int(max(exact.prim_id.max(initial=0), test.prim_id.max(initial=0))) + 2
     e_pairs = cluster * prim_span + (exact.prim_id + 1)
@@ -125,11 +125,11 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
         "spurious_rate": spurious / max(n_test, 1),
         "redundant_rate": redundant / max(n_test, 1),
         "same_prim_rate": float(same_prim.mean()) if len(same_prim) else 1.0,
-        "depth_error": {  # of matched exact nodes, in units of the frame radius
-            "mean": float(depth_error.mean() / exact.radius) if len(depth_error) else 0.0,
-            "rms": float(np.sqrt(np.mean(depth_error**2)) / exact.radius) if len(depth_error) else 0.0,
-            "p99": float(np.quantile(depth_error, 0.99) / exact.radius) if len(depth_error) else 0.0,
-            "max": float(depth_error.max() / exact.radius) if len(depth_error) else 0.0,
+        "depth_error": {  # of matched test nodes, in units of the frame radius
+            "mean": float(relative_error.mean()),
+            "rms": float(np.sqrt(np.mean(relative_error**2))),
+            "p99": float(np.quantile(relative_error, 0.99)),
+            "max": float(relative_error.max()),
         },
         "per_direction": {
             "exact_nodes": exact_k.tolist(),
