@@ -9,6 +9,8 @@ demo: setup
 	.venv/bin/evalkit scene info cornell-box
 	.venv/bin/evalkit bundles cornell-box --method perfect --directions 32 --out out/demo/perfect.npz
 	.venv/bin/evalkit bundles cornell-box --method imperfect --directions 32 --out out/demo/imperfect.npz
+	.venv/bin/evalkit render cornell-box --method perfect --bounces 3 --directions 32 --frames 8 --width 128 --height 128 --out out/demo/render-perfect
+	.venv/bin/evalkit render cornell-box --method imperfect --bounces 3 --directions 32 --frames 8 --width 128 --height 128 --out out/demo/render-imperfect
 
 test: setup
 	.venv/bin/python -m pytest -m "not slow" -q

@@ -145,7 +145,7 @@ def _reference(args) -> int:
     from evalkit.scene import load_scene
     from references.mitsuba import IMAGES, export_reference, reference
 
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene).at(args.time)
     try:
         ref = reference(scene, bounces=args.bounces, spp=args.spp, width=args.width, height=args.height, seed=args.seed,
                         chunks=args.chunks, variant=args.variant, store=Path(args.store),
@@ -166,6 +166,45 @@ def _reference(args) -> int:
     print(f"written     {args.out}: {', '.join(p.name for p in written)}")
     if args.json:
         print(json.dumps({"out": str(args.out), "store": str(ref.path), "reused": ref.reused, **m}))
+    return 0
+
+
+def _render(args) -> int:
+    from evalkit.scene import load_scene
+    from gpu_impl.bundles import format_bytes
+    from gpu_impl.context import GLContext
+    from gpu_impl.renderer import IMAGES, Renderer, RenderSettings, apply_preset, write_render
+
+    scene = load_scene(args.scene)
+    names = ("method", "bounces", "directions", "resolution", "points", "splat_scale", "width", "height", "supersampling",
+             "spp", "frames", "seed", "time", "time_step", "self_hit_bias", "shadow_map_size", "shadow_filter", "node_budget")
+    settings = apply_preset(RenderSettings(), args.preset, **{name: getattr(args, name) for name in names})
+    with GLContext() as gl:
+        try:
+            renderer = Renderer(gl, scene, settings)
+        except ValueError as e:
+            raise InputError("evalkit render", str(e)) from None
+        result = renderer.render(progress=lambda line: print(f"progress    {line}", flush=True))
+        renderer.release()
+    written = write_render(result, args.out)
+    p, t = result.params, result.timings
+    print(f"render      {settings.method} bundles on {scene.name}: {p['width']}x{p['height']} (supersampling {settings.supersampling}), "
+          f"{settings.bounces} bounce(s), K={settings.directions} R={settings.resolution}"
+          + (f" N={settings.points}" if settings.method == "imperfect" else "")
+          + f", {settings.frames} frame(s), {p['paths_per_pixel']} paths per pixel, seed {settings.seed}")
+    print(f"memory      {result.stats['nodes_median']:,} nodes per frame (median), {format_bytes(result.stats['gpu_bytes'])} on the GPU")
+    print(f"time        per frame, median ms ({t['method']}):")
+    for name, ms in t["median_ms"].items():
+        print(f"  {name:22}{'n/a' if ms is None else f'{ms:10.2f}'}")
+    print(f"wall        {t['wall_s']:.2f} s")
+    for name in IMAGES:
+        print(f"{name:12}mean {_vec(result.images[name].reshape(-1, 3).mean(axis=0))}")
+    for w in result.warnings:
+        print(f"warning     {w}")
+    print(f"written     {args.out}: {', '.join(path.name for path in written)}")
+    if args.json:
+        print(json.dumps({"out": str(args.out), "timings_ms": t["median_ms"], "wall_s": t["wall_s"], "stats": result.stats,
+                          "params": result.params, "warnings": result.warnings}))
     return 0
 
 
@@ -223,7 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     scene = sub.add_parser("scene", help="scene commands").add_subparsers(dest="scene_command", required=True)
     p = scene.add_parser("info", help="triangles, bounds, materials, lights, features and warnings of a scene")
-    p.add_argument("scene", help="a built-in name (cornell-box, atrium, furnace) or a .xml/.obj/.ply/.gltf/.glb path")
+    p.add_argument("scene", help="a built-in name (cornell-box, furnace, atrium, atrium-animated) or a .xml/.obj/.ply/.gltf/.glb path")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_scene_info)
 
@@ -258,6 +297,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_compare_bundles)
 
+    from gpu_impl.renderer import PRESETS, RenderSettings
+
+    d = RenderSettings()
+    p = sub.add_parser("render", help="render direct, indirect and total images with eye paths over perfect or imperfect bundles")
+    p.add_argument("scene", help="a built-in name or a scene file")
+    p.add_argument("--method", choices=("perfect", "imperfect"), required=True)
+    p.add_argument("--bounces", type=int, default=None, metavar="B", help=f"indirect bounces on top of direct (default {d.bounces})")
+    p.add_argument("--directions", type=_positive_int, default=None, metavar="K", help=f"bundle directions per frame (default {d.directions})")
+    p.add_argument("--resolution", type=_positive_int, default=None, metavar="R", help=f"R x R lines per bundle (default {d.resolution})")
+    p.add_argument("--points", type=_positive_int, default=None, metavar="N", help=f"imperfect: points per direction (default {d.points})")
+    p.add_argument("--splat-scale", type=_positive_float, default=None, metavar="S", help=f"imperfect: splat radius in units of sqrt(A / (pi N)) (default {d.splat_scale})")
+    p.add_argument("--width", type=_positive_int, default=None, help="default: the scene camera's")
+    p.add_argument("--height", type=_positive_int, default=None, help="default: the scene camera's")
+    p.add_argument("--supersampling", type=_positive_int, default=None, metavar="S", help=f"S x S G-buffer samples per pixel (default {d.supersampling})")
+    p.add_argument("--spp", type=_positive_int, default=None, help=f"eye paths per G-buffer sample per frame (default {d.spp})")
+    p.add_argument("--frames", type=_positive_int, default=None, metavar="F", help=f"frames to accumulate, each with new directions (default {d.frames})")
+    p.add_argument("--seed", type=int, default=None, help=f"(default {d.seed})")
+    p.add_argument("--time", type=float, default=None, metavar="T", help="animated scenes: the time (s) of the first frame (default 0)")
+    p.add_argument("--time-step", type=float, default=None, metavar="DT",
+                   help="animated scenes: seconds between frames (default 0: every frame at --time, accumulating)")
+    p.add_argument("--self-hit-bias", type=float, default=None, metavar="E", help=f"nodes within E bundle pixels beyond a vertex are skipped (default {d.self_hit_bias})")
+    p.add_argument("--shadow-map-size", type=_positive_int, default=None, metavar="S", help=f"texels per shadow map side (default {d.shadow_map_size})")
+    p.add_argument("--shadow-filter", type=_positive_int, default=None, metavar="F", help=f"PCF kernel of F x F bilinear taps (default {d.shadow_filter})")
+    p.add_argument("--node-budget", type=parse_bytes, default=None, metavar="BYTES", help="the most bundle node memory to use (default 2 GiB)")
+    p.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                   help="paper: the poster's 1920x1024, 2x2 supersampling, K=256, R=128, N=16384 (explicit options override it)")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(run=_render)
+
     from references.mitsuba import DEFAULT_STORE
 
     p = sub.add_parser("reference", help="Mitsuba 3 path-traced direct, indirect and total images with variances (stored, reused, resumable)")
@@ -267,6 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=_positive_int, default=None, help="default: the scene camera's")
     p.add_argument("--height", type=_positive_int, default=None, help="default: the scene camera's")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--time", type=float, default=0.0, help="animated scenes: the time (s) to pose the scene at (default 0)")
     p.add_argument("--chunks", type=_positive_int, default=None, help="spp chunks (progress, resume, variance; default min(32, spp))")
     p.add_argument("--variant", default=None, help="Mitsuba variant (default: cuda_ad_rgb with a GPU, else llvm_ad_rgb, else scalar_rgb)")
     p.add_argument("--store", default=str(DEFAULT_STORE), help=f"reference store (default {DEFAULT_STORE})")

@@ -22,19 +22,15 @@ class GpuScene:
     place them back. ``arrays`` is the host copy the primitive ids refer to.
     """
 
-    def __init__(self, gl: GLContext, scene: Scene):
+    def __init__(self, gl: GLContext, scene: Scene, sphere: tuple[np.ndarray, float] | None = None):
         self.gl = gl
         self.scene = scene
         self.arrays = a = scene.arrays()
-        centre, radius = scene.bounding_sphere()
-        self.centre = centre
+        centre, radius = sphere if sphere is not None else scene.bounding_sphere()
+        self.centre = np.asarray(centre, dtype=np.float64)
         self.radius = radius * FRAME_PADDING
         self.triangle_count = len(a.faces)
         ctx = gl.ctx
-
-        triangles = np.zeros(self.triangle_count, dtype=[("normal", "<f4", 3), ("material_flags", "<u4")])
-        triangles["normal"] = a.tri_normal
-        triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(a.tri_smooth, TRIANGLE_SMOOTH, 0).astype(np.uint32)
 
         materials = np.zeros(len(scene.materials), dtype=[("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "<u4", 4)])
         texels, first = [], 0
@@ -58,15 +54,35 @@ class GpuScene:
         cdf[-1] = 1.0
 
         self.buffers = {
-            "POSITIONS": ctx.buffer((a.positions - centre).astype(np.float32).tobytes()),
-            "NORMALS": ctx.buffer(a.normals.astype(np.float32).tobytes()),
+            **{name: ctx.buffer(data) for name, data in self._geometry(a).items()},
             "UVS": ctx.buffer(a.uvs.astype(np.float32).tobytes()),
             "INDICES": ctx.buffer(a.faces.astype(np.uint32).tobytes()),
-            "TRIANGLES": ctx.buffer(triangles.tobytes()),
             "MATERIALS": ctx.buffer(materials.tobytes()),
             "TEXELS": ctx.buffer(texels.astype(np.float32).tobytes()),
             "AREA_CDF": ctx.buffer(cdf.astype(np.float32).tobytes()),
         }
+
+    def _geometry(self, a) -> dict[str, bytes]:
+        """The buffers that move with the geometry: positions, vertex normals, triangle records."""
+        triangles = np.zeros(len(a.faces), dtype=[("normal", "<f4", 3), ("material_flags", "<u4")])
+        triangles["normal"] = a.tri_normal
+        triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(a.tri_smooth, TRIANGLE_SMOOTH, 0).astype(np.uint32)
+        return {"POSITIONS": (a.positions - self.centre).astype(np.float32).tobytes(),
+                "NORMALS": a.normals.astype(np.float32).tobytes(), "TRIANGLES": triangles.tobytes()}
+
+    def pose(self, scene: Scene) -> None:
+        """Upload ``scene``, the same scene posed at another time (rigid motion: same triangles,
+        materials and areas). It must stay inside this scene's bundle frame."""
+        a = scene.arrays()
+        if len(a.faces) != self.triangle_count:
+            raise ValueError(f"a posed scene must have the same {self.triangle_count} triangles, got {len(a.faces)}")
+        reach = float(np.linalg.norm(a.positions - self.centre, axis=1).max())
+        if reach > self.radius:
+            raise ValueError(f"{scene.name}: the moving geometry reaches {reach:.6g} from the bundle centre, "
+                             f"outside the frame radius {self.radius:.6g}")
+        for name, data in self._geometry(a).items():
+            self.buffers[name].write(data)
+        self.scene, self.arrays = scene, a
 
     @property
     def nbytes(self) -> int:

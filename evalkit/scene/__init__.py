@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from evalkit.errors import InputError
-from evalkit.scene.model import Camera, Light, Material, Mesh, Scene, SceneFeatures, assemble
+from evalkit.scene.model import Camera, Light, Material, Mesh, Motion, Scene, SceneFeatures, assemble
 
 MITSUBA_EXTENSIONS = (".xml",)
 MESH_EXTENSIONS = (".obj", ".ply", ".gltf", ".glb")
@@ -38,4 +38,4 @@ def load_scene(spec: str | os.PathLike) -> Scene:
     raise InputError(spec, f"unsupported file type '{ext}' (expected {', '.join(MITSUBA_EXTENSIONS + MESH_EXTENSIONS)})")
 
 
-__all__ = ["Camera", "Light", "Material", "Mesh", "Scene", "SceneFeatures", "assemble", "builtin_names", "load_scene"]
+__all__ = ["Camera", "Light", "Material", "Mesh", "Motion", "Scene", "SceneFeatures", "assemble", "builtin_names", "load_scene"]

@@ -3,6 +3,8 @@
 - ``cornell-box`` is ``mi.cornell_box()`` itself, read through the Mitsuba importer.
 - ``furnace`` is a closed cube of one diffuse, emissive material seen from inside. Every surface
   has the same outgoing radiance, so each bounce adds a known amount (`furnace_radiance`).
+- ``atrium-animated`` is ``atrium`` with a ball circling the courtyard (`Motion`), the poster's
+  animated scene; render it at a ``time``, or with a time step per frame.
 - ``atrium`` is procedural and Sponza-like: two storeys of column arcades with arches around an
   open courtyard, hanging cloth, textured floor and cloth, a sun and a point light. It has over
   250k triangles, because the cost gap between perfect and imperfect bundles only shows on large
@@ -15,8 +17,8 @@ import math
 
 import numpy as np
 
-from evalkit.scene.model import Camera, Light, Material, Mesh, Scene, assemble, look_at, srgb_to_linear
-from evalkit.scene.tessellate import box, surface
+from evalkit.scene.model import Camera, Light, Material, Mesh, Motion, Scene, assemble, look_at, srgb_to_linear
+from evalkit.scene.tessellate import box, surface, unit_sphere
 
 FURNACE_ALBEDO = 0.5
 FURNACE_EMISSION = 1.0
@@ -57,9 +59,13 @@ _SHORT_COLUMNS = np.linspace(-_HALF_WIDTH, _HALF_WIDTH, 5)
 _COLUMN_SEGMENTS = (48, 24)  # around, along
 _ARCH_SEGMENTS = 48
 _CLOTH_SEGMENTS = (112, 72)  # down, across
+# atrium-animated: a ball rolling around the courtyard, one turn in 12 s.
+_BALL_RADIUS, _BALL_ORBIT, _BALL_DEGREES_PER_SECOND = 0.8, 3.5, 30.0
 
 
-def atrium() -> Scene:
+def atrium(animated: bool = False) -> Scene:
+    """The atrium; ``animated`` adds the poster's moving object: a blue ball circling the
+    courtyard (``atrium-animated``)."""
     parts: dict[str, list] = {"stone": [], "column": [], "floor": [], "cloth": []}
     flat: list = []  # boxes: flat-shaded stone
     for storey in range(2):
@@ -106,6 +112,12 @@ def atrium() -> Scene:
     for key, material in (("stone", 0), ("column", 1), ("floor", 2), ("cloth", 3)):
         p, f, n, uv = _merge(parts[key])
         meshes.append(Mesh(key, p, f, material=material, normals=n, uvs=uv))
+    if animated:
+        materials.append(Material("ball", albedo=(0.15, 0.3, 0.65), twosided=False))
+        p, f, n, uv = unit_sphere((64, 32))
+        centre = np.array([_BALL_ORBIT, _BALL_RADIUS + 0.05, 0.0])
+        meshes.append(Mesh("ball", p * _BALL_RADIUS + centre, f, material=len(materials) - 1, normals=n, uvs=uv,
+                           motion=Motion(pivot=(0.0, 0.0, 0.0), axis=(0.0, 1.0, 0.0), degrees_per_second=_BALL_DEGREES_PER_SECOND)))
     sun = np.array([0.35, -1.0, 0.25])
     lights = [
         Light("directional", (6.0, 5.6, 5.0), direction=sun / np.linalg.norm(sun)),
@@ -113,7 +125,12 @@ def atrium() -> Scene:
     ]
     camera = Camera(look_at([-8.5, 1.7, -1.5], [6.0, 4.6, 1.5], [0, 1, 0]), fov=75.0, fov_axis="x", width=960, height=512,
                     near_clip=0.01, far_clip=100.0)
-    return assemble("atrium", "atrium", meshes, materials, lights, camera)
+    name = "atrium-animated" if animated else "atrium"
+    return assemble(name, name, meshes, materials, lights, camera)
+
+
+def atrium_animated() -> Scene:
+    return atrium(animated=True)
 
 
 def _textured(name: str, texture: np.ndarray) -> Material:
@@ -198,4 +215,4 @@ def _stripe_texture(size: int = 256) -> np.ndarray:
     return srgb_to_linear(img).astype(np.float32)
 
 
-BUILTIN_SCENES = {"cornell-box": cornell_box, "furnace": furnace, "atrium": atrium}
+BUILTIN_SCENES = {"cornell-box": cornell_box, "furnace": furnace, "atrium": atrium, "atrium-animated": atrium_animated}

@@ -93,6 +93,32 @@ class Material:
         return max(self.emission) > 0.0
 
 
+@dataclass(frozen=True)
+class Motion:
+    """A rigid motion over time: at time t (seconds) a point x moves to
+    ``pivot + R(axis, degrees_per_second * t) (x - pivot) + velocity * t``."""
+
+    pivot: tuple[float, float, float]
+    axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    degrees_per_second: float = 0.0
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def rotation(self, time: float) -> np.ndarray:
+        a = np.asarray(self.axis, dtype=np.float64)
+        a = a / np.linalg.norm(a)
+        angle = math.radians(self.degrees_per_second * time)
+        k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+        return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)  # Rodrigues
+
+    def apply(self, mesh: "Mesh", time: float) -> "Mesh":
+        """The mesh posed at ``time``, without a motion (a static snapshot)."""
+        r = self.rotation(time)
+        pivot = np.asarray(self.pivot, dtype=np.float64)
+        positions = (mesh.positions - pivot) @ r.T + pivot + np.asarray(self.velocity, dtype=np.float64) * time
+        normals = None if mesh.normals is None else mesh.normals @ r.T
+        return replace(mesh, positions=positions, normals=normals, motion=None)
+
+
 @dataclass(frozen=True, eq=False)
 class Mesh:
     """One triangle mesh with a single material.
@@ -108,6 +134,7 @@ class Mesh:
     material: int
     normals: np.ndarray | None = None
     uvs: np.ndarray | None = None
+    motion: Motion | None = None  # rigid animation; None for static geometry
 
     def triangle_areas(self) -> np.ndarray:
         p = self.positions[self.faces]
@@ -248,6 +275,16 @@ class Scene:
         return SceneArrays(positions, np.concatenate(normals), np.concatenate(uvs), faces, np.concatenate(material),
                            cross / twice_area[:, None], np.concatenate(smooth), 0.5 * twice_area)
 
+    @property
+    def animated(self) -> bool:
+        return any(m.motion is not None for m in self.meshes)
+
+    def at(self, time: float) -> "Scene":
+        """The scene posed at ``time`` (seconds) as a static scene; itself when nothing moves."""
+        if not self.animated:
+            return self
+        return replace(self, meshes=[m if m.motion is None else m.motion.apply(m, time) for m in self.meshes])
+
     def surface_area(self) -> float:
         return float(sum(m.triangle_areas().sum() for m in self.meshes))
 
@@ -291,6 +328,8 @@ class Scene:
         put(self.origin)
         for m in self.meshes:
             put(m.positions, m.faces.astype(np.int64), m.normals, m.uvs, m.material)
+            if m.motion is not None:  # static scenes keep the hashes their stored references have
+                put(m.motion)
         for mat in self.materials:
             put(mat.albedo, mat.texture, mat.emission, mat.twosided)
         for light in self.lights:
@@ -445,7 +484,9 @@ def assemble(
         warnings.append("no camera in the input; a default camera framing the scene is used")
     _validate_camera(source, camera)
 
-    recentred = [replace(m, positions=m.positions - origin) for m in clean]
+    recentred = [replace(m, positions=m.positions - origin,
+                         motion=None if m.motion is None else replace(m.motion, pivot=tuple(np.asarray(m.motion.pivot) - origin)))
+                 for m in clean]
     moved_lights = [replace(light, position=None if light.position is None else light.position - origin) for light in lights]
     cam_to_world = camera.to_world.copy()
     cam_to_world[:3, 3] -= origin
@@ -499,7 +540,7 @@ def _validate_mesh(source: str, mesh: Mesh, n_materials: int) -> Mesh:
             raise InputError(source, f"{where}: uvs have shape {uvs.shape}, expected ({p.shape[0]}, 2)")
         if not np.isfinite(uvs).all():
             raise InputError(source, f"{where}: uvs contain NaN or Inf")
-    return Mesh(mesh.name, p, f.astype(np.int64), mesh.material, normals, uvs)
+    return Mesh(mesh.name, p, f.astype(np.int64), mesh.material, normals, uvs, mesh.motion)
 
 
 def _unit_normals(source: str, mesh: Mesh) -> Mesh:
@@ -524,7 +565,7 @@ def _subset_faces(mesh: Mesh, keep: np.ndarray) -> Mesh:
     faces = mesh.faces[keep]
     used, inverse = np.unique(faces, return_inverse=True)
     pick = (lambda a: None if a is None else a[used])
-    return Mesh(mesh.name, mesh.positions[used], inverse.reshape(-1, 3), mesh.material, pick(mesh.normals), pick(mesh.uvs))
+    return Mesh(mesh.name, mesh.positions[used], inverse.reshape(-1, 3), mesh.material, pick(mesh.normals), pick(mesh.uvs), mesh.motion)
 
 
 def _validate_light(source: str, light: Light) -> None:

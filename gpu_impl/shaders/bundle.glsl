@@ -4,6 +4,9 @@
 // A node is stored as structure-of-arrays (one buffer per field): the eye-path lookup's binary
 // search then reads only depths, and no single buffer grows past a driver's storage block limit
 // as quickly. List building costs 24 bytes per node, the sorted CSR index 8 more.
+//
+// The eye-path passes define BUNDLE_LOOKUP: they read the sorted lists and the node fields, and
+// leave out the list-building buffers (a compute shader may use at most 16 storage blocks).
 
 struct BundleFrame {
     vec4 u;  // xyz: axis u, w: grid jitter along u in pixels
@@ -12,13 +15,20 @@ struct BundleFrame {
 };
 
 layout(std430, binding = BINDING_FRAMES) readonly buffer Frames { BundleFrame frames[]; };
+layout(std430, binding = BINDING_NODE_PRIM) buffer NodePrim { uint node_prim[]; };
+layout(std430, binding = BINDING_NODE_NORMAL) buffer NodeNormal { uint node_normal[]; };
+layout(std430, binding = BINDING_NODE_ALBEDO) buffer NodeAlbedo { uvec2 node_albedo[]; };
+#if defined BUNDLE_LOOKUP
+// The sorted CSR (resolve_lists.glsl): list l holds sorted_node[offsets[l] .. offsets[l + 1]).
+layout(std430, binding = BINDING_OFFSETS) readonly buffer Offsets { uint offsets[]; };
+layout(std430, binding = BINDING_SORTED_NODE) readonly buffer SortedNode { uint sorted_node[]; };
+layout(std430, binding = BINDING_SORTED_DEPTH) readonly buffer SortedDepth { float sorted_depth[]; };
+#else
 layout(std430, binding = BINDING_COUNTERS) buffer Counters { uint counters[]; };
 layout(std430, binding = BINDING_HEADS) buffer Heads { uint heads[]; };
 layout(std430, binding = BINDING_NEXT) buffer Next { uint node_next[]; };
 layout(std430, binding = BINDING_NODE_DEPTH) buffer NodeDepth { float node_depth[]; };
-layout(std430, binding = BINDING_NODE_PRIM) buffer NodePrim { uint node_prim[]; };
-layout(std430, binding = BINDING_NODE_NORMAL) buffer NodeNormal { uint node_normal[]; };
-layout(std430, binding = BINDING_NODE_ALBEDO) buffer NodeAlbedo { uvec2 node_albedo[]; };
+#endif
 
 #define NO_NODE 0xFFFFFFFFu
 #define NO_MATERIAL 0xFFFFFFFFu
@@ -60,6 +70,8 @@ ivec2 fragment_pixel(int k) {
     return pixel;
 }
 
+#endif
+
 uint pixel_list(int k, ivec2 pixel) {
     return uint((k * resolution + pixel.y) * resolution + pixel.x);
 }
@@ -70,8 +82,12 @@ vec3 line_origin(int k, ivec2 pixel) {
     vec2 st = ((vec2(pixel) + 0.5 + vec2(f.u.w, f.v.w)) / float(resolution) * 2.0 - 1.0) * radius;
     return st.x * f.u.xyz + st.y * f.v.xyz - radius * f.d.xyz;
 }
-#endif
 
+vec3 unpack_albedo(uvec2 bits) {
+    return vec3(unpackHalf2x16(bits.x), unpackHalf2x16(bits.y).x);
+}
+
+#if !defined BUNDLE_LOOKUP
 // Append a node to a list. The counter always counts, but a node is written (and linked) only
 // when its slot exists: linking first would corrupt the list. The host reads the counter and
 // re-runs the pass with a buffer that fits, so no node is ever lost.
@@ -84,3 +100,4 @@ void append_node(uint list, float depth, uint prim, uint normal, vec3 albedo) {
     node_albedo[index] = uvec2(packHalf2x16(albedo.rg), packHalf2x16(vec2(albedo.b, 0.0)));
     node_next[index] = atomicExchange(heads[list], index);
 }
+#endif

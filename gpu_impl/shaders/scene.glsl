@@ -18,17 +18,7 @@ struct Triangle {
 #define TRIANGLE_MATERIAL 0x7FFFFFFFu
 
 layout(std430, binding = BINDING_MATERIALS) readonly buffer Materials { Material materials[]; };
-layout(std430, binding = BINDING_POSITIONS) readonly buffer Positions { float positions[]; };  // relative to the bundle centre
-layout(std430, binding = BINDING_NORMALS) readonly buffer Normals { float normals[]; };        // zero where a mesh has none
-layout(std430, binding = BINDING_UVS) readonly buffer Uvs { float uvs[]; };
-layout(std430, binding = BINDING_INDICES) readonly buffer Indices { uint indices[]; };
-layout(std430, binding = BINDING_TEXELS) readonly buffer Texels { float texels[]; };  // linear rgb
 layout(std430, binding = BINDING_TRIANGLES) readonly buffer Triangles { Triangle triangles[]; };
-
-uvec3 triangle_vertices(uint t) { return uvec3(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u]); }
-vec3 vertex_position(uint i) { return vec3(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]); }
-vec3 vertex_normal(uint i) { return vec3(normals[3u * i], normals[3u * i + 1u], normals[3u * i + 2u]); }
-vec2 vertex_uv(uint i) { return vec2(uvs[2u * i], uvs[2u * i + 1u]); }
 
 vec3 triangle_normal(uint t) {
     return vec3(triangles[t].normal_x, triangles[t].normal_y, triangles[t].normal_z);
@@ -41,6 +31,24 @@ uint triangle_material(uint t) {
 bool triangle_smooth(uint t) {
     return (triangles[t].material_flags & TRIANGLE_SMOOTH) != 0u;
 }
+
+bool material_twosided(uint m) {
+    return (materials[m].texture.w & MATERIAL_TWOSIDED) != 0u;
+}
+
+// SCENE_MATERIALS_ONLY leaves out the vertex and texel buffers, for passes that need only the
+// per-triangle records (a compute shader may use at most 16 storage blocks).
+#if !defined SCENE_MATERIALS_ONLY
+layout(std430, binding = BINDING_POSITIONS) readonly buffer Positions { float positions[]; };  // relative to the bundle centre
+layout(std430, binding = BINDING_NORMALS) readonly buffer Normals { float normals[]; };        // zero where a mesh has none
+layout(std430, binding = BINDING_UVS) readonly buffer Uvs { float uvs[]; };
+layout(std430, binding = BINDING_INDICES) readonly buffer Indices { uint indices[]; };
+layout(std430, binding = BINDING_TEXELS) readonly buffer Texels { float texels[]; };  // linear rgb
+
+uvec3 triangle_vertices(uint t) { return uvec3(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u]); }
+vec3 vertex_position(uint i) { return vec3(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]); }
+vec3 vertex_normal(uint i) { return vec3(normals[3u * i], normals[3u * i + 1u], normals[3u * i + 2u]); }
+vec2 vertex_uv(uint i) { return vec2(uvs[2u * i], uvs[2u * i + 1u]); }
 
 // The shading normal at barycentrics (b1, b2): interpolated vertex normals, or the geometric
 // normal for a mesh without them (as Mitsuba shades).
@@ -75,3 +83,4 @@ vec3 material_albedo(uint m, vec2 uv) {
     return mix(mix(texel(tex.x, tex.y, x0, y0), texel(tex.x, tex.y, x1, y0), w.x),
                mix(texel(tex.x, tex.y, x0, y1), texel(tex.x, tex.y, x1, y1), w.x), w.y);
 }
+#endif

@@ -1,0 +1,406 @@
+"""The multi-bounce eye-path renderer over ray bundles (shaders/eye_paths.glsl).
+
+One frame is: a new `DirectionSet` (a fresh random rotation and grid jitter), its perfect or
+imperfect bundles (`BundleTracer`), shadow maps (once for a static scene), the direct light every
+bundle node reflects, the G-buffer with direct light at its samples, one pass per bounce, and the
+resolve into images. Frames accumulate, so the images converge as frames grow; a seed fixes every
+random choice, and a render is bitwise repeatable.
+
+Images are split by bounce count as Mitsuba's path integrator's ``max_depth`` splits them: direct
+(max_depth 2: emission seen directly, and light after one reflection, from shadow-mapped lights
+and from emitters and the environment reached through the bundles) and indirect (max_depth B + 2
+minus max_depth 2), so they compare with `references.mitsuba.reference` images directly.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import math
+import os
+import statistics
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import moderngl
+import numpy as np
+
+from evalkit.bundleset import DirectionSet
+from evalkit.exr import write_exr
+from evalkit.scene import Scene
+from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE, BundleTracer
+from gpu_impl.context import BINDINGS, GLContext, PassTimer
+from gpu_impl.lights import ShadowLights
+from gpu_impl.scene_buffers import GpuScene
+
+IMAGES = ("direct", "indirect", "total")
+ATLAS_UNIT, GBUFFER_UNIT = 0, 1  # texture units
+
+# The poster's configuration (ARCHITECTURE.md); --bounces picks 1 or 3.
+PRESETS = {
+    "paper": {"width": 1920, "height": 1024, "supersampling": 2, "resolution": 128, "directions": 256, "points": 16384},
+}
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Everything that changes a render.
+
+    ``spp`` is eye paths per G-buffer sample per frame, so a pixel averages
+    ``supersampling^2 * spp * frames`` paths. ``width``/``height`` default to the scene camera's.
+    ``self_hit_bias`` is in bundle pixels (see shaders/eye_paths.glsl, BOUNCE); the shadow biases
+    are in shadow-map texels (shaders/lights.glsl).
+    """
+
+    method: str = "perfect"
+    bounces: int = 1
+    directions: int = 256
+    resolution: int = 128
+    points: int = 16384
+    splat_scale: float = DEFAULT_SPLAT_SCALE
+    width: int | None = None
+    height: int | None = None
+    supersampling: int = 1
+    spp: int = 1
+    frames: int = 1
+    seed: int = 0
+    time: float = 0.0
+    time_step: float = 0.0
+    self_hit_bias: float = 0.25
+    shadow_map_size: int = 1024
+    shadow_filter: int = 1
+    shadow_bias: float = 1.0
+    shadow_slope_bias: float = 2.0
+    node_budget: int = DEFAULT_NODE_BUDGET
+
+    def validate(self) -> None:
+        """Raises ValueError naming the first setting out of range."""
+        for name in ("directions", "resolution", "points", "supersampling", "spp", "frames", "shadow_map_size", "shadow_filter"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.bounces < 0:
+            raise ValueError(f"bounces must be at least 0, got {self.bounces}")
+        for name in ("width", "height"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        for name in ("time", "time_step"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
+        for name in ("self_hit_bias", "shadow_bias", "shadow_slope_bias"):
+            value = getattr(self, name)
+            if not (value >= 0 and math.isfinite(value)):
+                raise ValueError(f"{name} must be non-negative and finite, got {value}")
+
+
+@dataclass
+class RenderResult:
+    """Images (H, W, 3) float32, the per-pass timings, statistics and the parameters (provenance)."""
+
+    images: dict[str, np.ndarray]
+    timings: dict
+    stats: dict
+    params: dict
+    warnings: list[str] = field(default_factory=list)
+
+
+class Renderer:
+    """Renders one scene with one set of `RenderSettings` on one GL context."""
+
+    def __init__(self, gl: GLContext, scene: Scene, settings: RenderSettings):
+        settings.validate()
+        self.gl, self.scene, self.settings = gl, scene, settings
+        cam = scene.camera
+        self.width, self.height = int(settings.width or cam.width), int(settings.height or cam.height)
+        s = settings.supersampling
+        self.gbuffer_size = (self.width * s, self.height * s)
+        self.paths = self.gbuffer_size[0] * self.gbuffer_size[1] * settings.spp
+        if self.paths >= 2**32 // 2:
+            raise ValueError(f"{self.paths:,} eye paths per frame exceed the 32-bit path index")
+        # An animated scene is posed at time + f * time_step in frame f, inside one bundle frame
+        # that holds every pose.
+        self.times = [settings.time + f * settings.time_step for f in range(settings.frames)]
+        self.moving = scene.animated and settings.time_step != 0.0
+        first = scene.at(self.times[0])
+        self.gpu_scene = GpuScene(gl, first, sphere=enclosing_sphere([scene.at(t) for t in self.times]) if self.moving else None)
+        self.tracer = BundleTracer(gl, self.gpu_scene, settings.method, directions=settings.directions,
+                                   resolution=settings.resolution, points=settings.points,
+                                   splat_scale=settings.splat_scale, node_budget=settings.node_budget)
+        self.lights = ShadowLights(gl, self.gpu_scene, settings.shadow_map_size, settings.shadow_bias,
+                                   settings.shadow_slope_bias, settings.shadow_filter)
+        features = scene.features()
+        # Shader variants from the scene's features: no shadow-map lookups without such lights, no
+        # environment lookups without one, a node's back-side radiance only with two-sided materials.
+        self.defines = {**self.lights.defines(), "NODE_SIDES": 2 if features.twosided else 1}
+        # The last bounce pass only collects emission and environment light; without either it adds nothing.
+        self.steps = settings.bounces + (1 if features.emitters or features.environment else 0)
+        ctx = gl.ctx
+        self.gbuffer = ctx.texture(self.gbuffer_size, 1, dtype="u4")
+        self.gbuffer.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.gbuffer_depth = ctx.depth_renderbuffer(self.gbuffer_size)
+        self.gbuffer_fbo = ctx.framebuffer([self.gbuffer], self.gbuffer_depth)
+        self.gbuffer_program = gl.program("gbuffer")
+        self.gbuffer_vao = self.gpu_scene.vertex_array(self.gbuffer_program)
+        d = self.defines
+        self.programs = {
+            "primary": gl.program("primary", SHADOW_LIGHTS=d["SHADOW_LIGHTS"], ENVIRONMENT=d["ENVIRONMENT"]),
+            "eye_paths": gl.program("eye_paths", **d),
+            "resolve_images": gl.program("resolve_images"),
+        }
+        if d["SHADOW_LIGHTS"]:
+            self.programs["node_radiance"] = gl.program("node_radiance", SHADOW_LIGHTS=1, NODE_SIDES=d["NODE_SIDES"])
+        self.buffers = {
+            "PATHS": ctx.buffer(reserve=48 * self.paths),  # shaders/paths.glsl: Path
+            "PATH_SUMS": ctx.buffer(reserve=32 * self.paths),  # and PathSums
+            "IMAGES": ctx.buffer(reserve=2 * 16 * self.width * self.height),
+            "NODE_RADIANCE": ctx.buffer(reserve=4),
+        }
+        self.radiance_capacity = 0
+
+    # -- one frame -----------------------------------------------------------------------
+
+    def render(self, progress=None) -> RenderResult:
+        """All frames; ``progress`` (optional) gets one line per frame."""
+        st = self.settings
+        start = time.perf_counter()
+        self.buffers["PATH_SUMS"].clear()
+        frames, bundle_stats = [], []
+        for f in range(st.frames):
+            timer = PassTimer(self.gl)
+            if self.moving and f > 0:
+                self.gpu_scene.pose(self.scene.at(self.times[f]))
+            stats = self.tracer.build(DirectionSet.make(st.directions, seed=st.seed, frame=f, jitter=True))
+            bundle_stats.append(stats)
+            self._frame(f, timer, shadow_maps=f == 0 or self.moving)
+            passes = {"bundles": _sum_ms(stats["gpu_ms"].values()), **{f"bundles.{k}": v for k, v in stats["gpu_ms"].items()},
+                      **timer.milliseconds()}
+            frames.append(passes)
+            if progress is not None:
+                progress(f"frame {f + 1}/{st.frames}: {stats['nodes']:,} nodes, "
+                         f"{_sum_ms(v for k, v in passes.items() if '.' not in k):.1f} ms")
+        images = self._read_images()
+        wall = time.perf_counter() - start
+        timings = {
+            "method": PassTimer(self.gl).method,
+            "median_ms": {name: _median([fr.get(name) for fr in frames]) for name in frames[0]},
+            "frames_ms": frames,
+            "wall_s": wall,
+        }
+        # A frame's time: every pass, but static scenes render their shadow maps once, not per frame.
+        once = set() if self.moving else {"shadow_maps"}
+        timings["median_ms"]["frame"] = _median([_sum_ms(v for k, v in fr.items() if "." not in k and k not in once)
+                                                 for fr in frames])
+        nodes = [s["nodes"] for s in bundle_stats]
+        stats = {
+            "nodes_median": int(np.median(nodes)), "nodes_max": int(max(nodes)),
+            "overflow_reruns": sum(s["overflow_reruns"] for s in bundle_stats),
+            "max_list_length": max(s["max_list_length"] for s in bundle_stats),
+            "paths_per_frame": self.paths, "bounce_passes": self.steps,
+            "gpu_bytes": self.gpu_bytes,
+        }
+        return RenderResult(images, timings, stats, self.params(), list(self.scene.warnings))
+
+    def _frame(self, frame: int, timer: PassTimer, shadow_maps: bool) -> None:
+        st = self.settings
+        gl = self.gl
+        self._grow_radiance(self.tracer.stats["nodes"])
+        if shadow_maps:
+            with timer.measure("shadow_maps"):
+                self.lights.render_shadow_maps()
+        self._bind()
+        if self.defines["SHADOW_LIGHTS"]:
+            with timer.measure("node_direct"):
+                program = self._program("node_radiance")
+                gl.dispatch(program, self.tracer.list_count)
+                gl.ctx.memory_barrier()
+        with timer.measure("gbuffer"):
+            self._gbuffer(frame)
+        for j in range(1, self.steps + 1):
+            with timer.measure(f"bounce_{j}"):
+                program = self._program("eye_paths")
+                program["bounce"] = j
+                program["bounces"] = st.bounces
+                program["direction_count"] = st.directions
+                program["seed"] = st.seed & 0xFFFFFFFF
+                program["frame"] = frame & 0xFFFFFFFF
+                program["self_hit_bias"] = st.self_hit_bias
+                gl.dispatch(program, self.paths)
+                gl.ctx.memory_barrier()
+        with timer.measure("resolve"):
+            program = self._program("resolve_images")
+            program["image_size"] = (self.width, self.height)
+            program["supersampling"] = st.supersampling
+            program["paths_per_sample"] = st.spp
+            program["sample_weight"] = 1.0 / (st.supersampling**2 * st.spp * (frame + 1))
+            gl.dispatch(program, self.width * self.height)
+            gl.ctx.memory_barrier()
+
+    def _gbuffer(self, frame: int) -> None:
+        """Rasterize the camera view (this frame's sub-pixel jitter), then the PRIMARY pass."""
+        st = self.settings
+        ctx = self.gl.ctx
+        subpixel = np.random.default_rng([st.seed, frame, 1]).random(2)
+        cam = camera_frame(self.scene, self.gpu_scene.centre, self.width, self.height)
+        self.gbuffer_fbo.use()
+        self.gbuffer_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        self.gbuffer_program["to_clip"] = tuple(gbuffer_projection(cam, self.gbuffer_size, subpixel).T.ravel())
+        self.gbuffer_vao.render(moderngl.TRIANGLES)
+        ctx.disable(moderngl.DEPTH_TEST)
+        self._bind()
+        program = self._program("primary")
+        self.gbuffer.use(GBUFFER_UNIT)
+        program["gbuffer"] = GBUFFER_UNIT
+        program["gbuffer_size"] = self.gbuffer_size
+        program["paths_per_sample"] = st.spp
+        program["camera_origin"] = tuple(cam["origin"])
+        program["camera_to_world"] = tuple(cam["to_world"].T.ravel())
+        program["tan_half_fov"] = tuple(cam["tan_half"])
+        program["subpixel"] = tuple(subpixel)
+        self.gl.dispatch(program, self.paths)
+        ctx.memory_barrier()
+
+    def _program(self, name: str):
+        program = self.programs[name]
+        for uniform, value in (("radius", self.gpu_scene.radius), ("resolution", self.settings.resolution)):
+            if uniform in program:
+                program[uniform] = value
+        self.lights.bind(program, ATLAS_UNIT)
+        return program
+
+    def _bind(self) -> None:
+        self.tracer.bind()
+        for name, buffer in self.buffers.items():
+            buffer.bind_to_storage_buffer(BINDINGS[name])
+
+    def _grow_radiance(self, nodes: int) -> None:
+        if not self.defines["SHADOW_LIGHTS"] or nodes <= self.radiance_capacity:
+            return
+        nodes = max(nodes, int(nodes * 1.125))  # room for the next frame's slightly different count
+        self.buffers["NODE_RADIANCE"].release()
+        self.buffers["NODE_RADIANCE"] = self.gl.ctx.buffer(reserve=12 * self.defines["NODE_SIDES"] * nodes)
+        self.radiance_capacity = nodes
+
+    def _read_images(self) -> dict[str, np.ndarray]:
+        raw = np.frombuffer(self.buffers["IMAGES"].read(), dtype=np.float32).reshape(2, self.height, self.width, 4)
+        direct, indirect = raw[0, ..., :3].copy(), raw[1, ..., :3].copy()
+        return {"direct": direct, "indirect": indirect, "total": direct + indirect}
+
+    # -- provenance ----------------------------------------------------------------------
+
+    def params(self) -> dict:
+        st = self.settings
+        p = {
+            "evalkit": importlib.metadata.version("raybundle-evalkit"),
+            "scene": self.scene.name,
+            "scene_source": self.scene.source,
+            "scene_hash": self.scene.content_hash(),
+            "posed_scene_hash": self.scene.at(st.time).content_hash() if self.scene.animated else None,
+            **asdict(st),
+            "width": self.width,
+            "height": self.height,
+            "splat_radius": self.tracer.splat_radius if st.method == "imperfect" else None,
+            "paths_per_pixel": st.supersampling**2 * st.spp * st.frames,
+            "shader_variant": self.defines,
+            "gl": self.gl.info,
+        }
+        if st.method != "imperfect":
+            for key in ("points", "splat_scale", "splat_radius"):
+                p.pop(key)
+        return p
+
+    @property
+    def gpu_bytes(self) -> int:
+        own = sum(b.size for b in self.buffers.values())
+        gbuffer = self.gbuffer_size[0] * self.gbuffer_size[1] * 8
+        return own + gbuffer + self.tracer.gpu_bytes + self.lights.nbytes
+
+    def release(self) -> None:
+        for buffer in self.buffers.values():
+            buffer.release()
+        self.buffers.clear()
+        self.gbuffer_vao.release()
+        self.gbuffer_fbo.release()
+        self.gbuffer.release()
+        self.gbuffer_depth.release()
+        self.lights.release()
+        self.tracer.release()
+        self.gpu_scene.release()
+
+
+# -- camera ---------------------------------------------------------------------------------
+
+def camera_frame(scene: Scene, centre: np.ndarray, width: int, height: int) -> dict:
+    """The camera relative to the bundle centre: origin, to_world (3x3, Mitsuba's camera space:
+    +x left, +y up, +z forward), tan of the half field of view along x and y, near and far."""
+    cam = scene.camera
+    aspect = width / height
+    t = math.tan(math.radians(cam.fov) / 2.0)
+    tan_half = (t, t / aspect) if cam.fov_axis == "x" else (t * aspect, t)
+    return {"origin": cam.to_world[:3, 3] - centre, "to_world": cam.to_world[:3, :3], "tan_half": tan_half,
+            "near": cam.near_clip, "far": cam.far_clip}
+
+
+def enclosing_sphere(scenes: list[Scene]) -> tuple[np.ndarray, float]:
+    """A sphere around every pose of an animated scene (centred on the union of their bounds)."""
+    lo = np.min([s.bounds()[0] for s in scenes], axis=0)
+    hi = np.max([s.bounds()[1] for s in scenes], axis=0)
+    centre = 0.5 * (lo + hi)
+    return centre, max(float(np.linalg.norm(m.positions - centre, axis=1).max()) for s in scenes for m in s.meshes)
+
+
+def gbuffer_projection(cam: dict, size: tuple[int, int], subpixel: np.ndarray) -> np.ndarray:
+    """Clip-space matrix of positions relative to the bundle centre, for a G-buffer of ``size``
+    whose pixel (x, y) (y from the image's top) covers film position ((x, y) + subpixel) / size
+    at its centre, where eye_paths.glsl (PRIMARY) sends that sample's camera ray."""
+    to_camera = np.linalg.inv(np.block([[cam["to_world"], cam["origin"][:, None]], [np.zeros((1, 3)), np.ones((1, 1))]]))
+    tx, ty = cam["tan_half"]
+    w, h = size
+    n, f = cam["near"], cam["far"]
+    # film u = 1/2 - x / (2 z tan_x) and v = 1/2 - y / (2 z tan_y); the rasterizer samples pixel
+    # centres, so pixel x's centre x + 1/2 must sit at u w = x + subpixel_x.
+    proj = np.array([
+        [-1.0 / tx, 0.0, (1.0 - 2.0 * subpixel[0]) / w, 0.0],
+        [0.0, -1.0 / ty, (1.0 - 2.0 * subpixel[1]) / h, 0.0],
+        [0.0, 0.0, (f + n) / (f - n), -2.0 * f * n / (f - n)],
+        [0.0, 0.0, 1.0, 0.0],
+    ])
+    return proj @ to_camera
+
+
+# -- output ---------------------------------------------------------------------------------
+
+def write_render(result: RenderResult, out: str | os.PathLike) -> list[Path]:
+    """direct.exr, indirect.exr and total.exr (float32, provenance in the header) and
+    timings.json (timings, statistics, parameters and warnings) in ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    provenance = {**result.params, "warnings": result.warnings}
+    for name in IMAGES:
+        path = out / f"{name}.exr"
+        write_exr(path, result.images[name], {**provenance, "image": name})
+        written.append(path)
+    path = out / "timings.json"
+    path.write_text(json.dumps({"timings": result.timings, "stats": result.stats, "params": result.params,
+                                "warnings": result.warnings}, indent=2) + "\n")
+    written.append(path)
+    return written
+
+
+def apply_preset(settings: RenderSettings, preset: str | None, **explicit) -> RenderSettings:
+    """``settings`` with the preset's values, then the ``explicit`` (non-None) ones on top."""
+    values = dict(PRESETS[preset]) if preset else {}
+    values.update({k: v for k, v in explicit.items() if v is not None})
+    return replace(settings, **values)
+
+
+def _median(values) -> float | None:
+    values = [v for v in values if v is not None]
+    return statistics.median(values) if values else None
+
+
+def _sum_ms(values) -> float | None:
+    values = list(values)
+    return None if any(v is None for v in values) else float(sum(values))

@@ -1,0 +1,43 @@
+// The environment that escaped paths see (gpu_impl/lights.py): a constant radiance or a lat-long
+// map, in Mitsuba's units and orientation. Compiled per scene: with ENVIRONMENT_NONE nothing here
+// exists.
+
+#define ENVIRONMENT_NONE 0
+#define ENVIRONMENT_CONSTANT 1
+#define ENVIRONMENT_MAP 2
+
+#if ENVIRONMENT == ENVIRONMENT_MAP
+layout(std430, binding = BINDING_ENVMAP) readonly buffer Envmap { float envmap[]; };  // (H, W, 3) linear rgb
+uniform ivec2 envmap_size;        // W, H
+uniform mat3 environment_to_local;
+#endif
+#if ENVIRONMENT != ENVIRONMENT_NONE
+uniform vec3 environment_radiance;  // the constant's radiance, or the map's scale
+
+#if ENVIRONMENT == ENVIRONMENT_MAP
+vec3 envmap_texel(int x, int y) {
+    int i = 3 * (y * envmap_size.x + x);
+    return vec3(envmap[i], envmap[i + 1], envmap[i + 2]);
+}
+#endif
+
+// The radiance arriving along -dir from the environment (dir: the direction a path leaves in).
+// The lat-long map uses Mitsuba's orientation, u = atan2(x, -z) / (2 pi), v = acos(y) / pi in
+// the map's local frame, with texel centres at ((i + 0.5) / W, (j + 0.5) / H), bilinear,
+// wrapped in u and clamped in v.
+vec3 environment(vec3 dir) {
+#if ENVIRONMENT == ENVIRONMENT_CONSTANT
+    return environment_radiance;
+#else
+    vec3 v = normalize(environment_to_local * dir);
+    vec2 uv = vec2(atan(v.x, -v.z) * (0.5 / 3.141592653589793), acos(clamp(v.y, -1.0, 1.0)) / 3.141592653589793);
+    uv.x -= floor(uv.x);
+    vec2 p = uv * vec2(envmap_size) - 0.5;
+    vec2 f = floor(p), w = p - f;
+    int x0 = (int(f.x) % envmap_size.x + envmap_size.x) % envmap_size.x, x1 = (x0 + 1) % envmap_size.x;
+    int y0 = clamp(int(f.y), 0, envmap_size.y - 1), y1 = clamp(int(f.y) + 1, 0, envmap_size.y - 1);
+    vec3 c = mix(mix(envmap_texel(x0, y0), envmap_texel(x1, y0), w.x), mix(envmap_texel(x0, y1), envmap_texel(x1, y1), w.x), w.y);
+    return environment_radiance * c;
+#endif
+}
+#endif

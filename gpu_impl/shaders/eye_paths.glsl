@@ -1,0 +1,127 @@
+// One bounce of every eye path (paths.glsl says how bounces are counted). A path at a diffuse
+// vertex scatters into a uniformly chosen bundle of the frame: its direction d or -d, whichever
+// lies in the hemisphere of the shading normal, is a uniform hemisphere sample (pdf 1 / (2 pi)),
+// so the throughput gains albedo / pi * cos / pdf = 2 albedo cos. The next vertex is the nearest
+// node beyond the vertex on the bundle line through it, found by binary search of the sorted
+// list: no ray is traced and no visibility is tested.
+
+#define BUNDLE_LOOKUP
+#define SCENE_MATERIALS_ONLY
+#include "common.glsl"
+#include "scene.glsl"
+#include "bundle.glsl"
+#include "environment.glsl"
+#include "paths.glsl"
+
+#if defined COMPUTE_SHADER
+
+layout(local_size_x = LOCAL_SIZE) in;
+
+uniform uint invocations;       // G-buffer samples x paths_per_sample
+
+uniform int bounce;             // j: this pass takes every path from vertex j - 1 to vertex j
+uniform int bounces;            // B
+uniform int direction_count;    // K
+uniform uint seed;
+uniform uint frame;
+uniform float self_hit_bias;    // in bundle pixels, see below
+
+vec3 node_radiance_at(uint index, uint side) {
+    uint i = radiance_index(index, side);
+    return vec3(node_radiance[i], node_radiance[i + 1u], node_radiance[i + 2u]);
+}
+
+void main() {
+    uint id = linear_id();
+    if (id >= invocations) return;
+    Path path = paths[id];
+    if (path.alive == 0u) return;
+    vec3 n = decode_normal(path.normal);
+    uint r = pcg4d(uvec4(id, uint(bounce), seed, frame)).x;
+    int k = min(int(unit_float(r) * float(direction_count)), direction_count - 1);
+    BundleFrame f = frames[k];
+    float c = dot(f.d.xyz, n);
+    bool forward = c >= 0.0;                  // follow +d, else -d
+    vec3 omega = forward ? f.d.xyz : -f.d.xyz;
+    float cos_theta = abs(c);
+    vec3 throughput = path.throughput * (2.0 * cos_theta) * path.albedo;
+
+    // The vertex's line. Lines pass up to a bundle pixel h = 2 radius / R beside the vertex. Of
+    // the lines around it, the one taken is the nearest whose offset from the vertex points to
+    // the side of its tangent plane the path leaves to (the geometric normal's side, per grid
+    // axis). A line offset below the plane would cross it ahead of the vertex and, near a concave
+    // edge (a wall meeting the floor), could pass outside the edge and miss the wall: light lost
+    // in O(h) of every such edge, 4 % of a closed furnace's indirect light at R = 64.
+    vec3 ng = decode_normal(path.geometric);
+    float cg = dot(ng, f.d.xyz);
+    // With a shading normal, omega may point below the geometric surface: the path would enter it.
+    bool leaves = forward ? cg > 0.0 : cg < 0.0;
+    float R = float(resolution);
+    vec2 grid = (vec2(dot(path.position, f.u.xyz), dot(path.position, f.v.xyz)) / radius * 0.5 + 0.5) * R - vec2(f.u.w, f.v.w) - 0.5;
+    vec2 above = vec2(dot(ng, f.u.xyz), dot(ng, f.v.xyz));
+    ivec2 pixel = ivec2(above.x >= 0.0 ? ceil(grid.x) : floor(grid.x), above.y >= 0.0 ? ceil(grid.y) : floor(grid.y));
+    pixel = clamp(pixel, ivec2(0), ivec2(resolution - 1));
+    uint list = pixel_list(k, pixel);
+    vec3 origin = line_origin(k, pixel);
+
+    // Nodes up to the vertex's depth along the line are behind it; so are those up to where the
+    // line crosses the vertex's tangent plane, should it cross ahead (only at the grid's border,
+    // where no line above the plane is left). A further self-hit bias of self_hit_bias h skips
+    // surfaces that curve within a bundle pixel of the vertex and covers float32 depths;
+    // occluders nearer than that to the vertex are missed.
+    float depth = dot(path.position - origin, f.d.xyz);
+    float crossing = depth + dot(ng, path.position - (origin + depth * f.d.xyz)) / (leaves ? cg : 1.0);
+    float bias = self_hit_bias * 2.0 * radius / R;
+    float bound = forward ? max(depth, crossing) + bias : min(depth, crossing) - bias;
+
+    // The nearest node beyond the bound along omega: a binary search of the sorted depths.
+    uint first = offsets[list], last = offsets[list + 1u];
+    uint lo = first, hi = last;
+    while (lo < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (forward ? sorted_depth[mid] <= bound : sorted_depth[mid] < bound) lo = mid + 1u; else hi = mid;
+    }
+    uint hit = forward ? (lo < last ? lo : NO_NODE) : (lo > first ? lo - 1u : NO_NODE);
+
+    vec3 emitted = vec3(0.0);   // bounce j - 1
+    vec3 reflected = vec3(0.0); // bounce j
+    bool alive = bounce <= bounces && any(greaterThan(throughput, vec3(0.0)));
+    if (!leaves) {
+        alive = false;
+    } else if (hit == NO_NODE) {
+#if ENVIRONMENT != ENVIRONMENT_NONE
+        emitted = throughput * environment(omega);
+#endif
+        alive = false;
+    } else {
+        uint node = sorted_node[hit];
+        vec3 nn = decode_normal(node_normal[node]);
+        uint triangle = node_prim[node] & ~SPLAT_BIT;
+        uint m = triangle_material(triangle);
+        bool front = dot(nn, omega) < 0.0;
+        if (front) {
+            emitted = throughput * materials[m].emission.rgb;
+        } else if (!material_twosided(m)) {
+            alive = false;  // the back of a one-sided surface blocks the path
+        } else {
+            nn = -nn;
+        }
+        if (alive) {
+#if SHADOW_LIGHTS
+            reflected = throughput * node_radiance_at(hit, front ? 0u : 1u);
+#endif
+            path.position = origin + sorted_depth[hit] * f.d.xyz;
+            path.normal = encode_normal(nn);
+            vec3 g = triangle_normal(triangle);  // a splat lies in its triangle's plane too
+            path.geometric = encode_normal(dot(g, omega) < 0.0 ? g : -g);
+            path.albedo = unpack_albedo(node_albedo[node]);
+        }
+    }
+    if (bounce == 1) sums[id].direct.rgb += emitted; else sums[id].indirect.rgb += emitted;
+    sums[id].indirect.rgb += reflected;
+    path.throughput = throughput;
+    path.alive = alive ? 1u : 0u;
+    paths[id] = path;
+}
+
+#endif

@@ -1,0 +1,44 @@
+// Multi-bounce eye paths over ray bundles (Tokuyoshi and Ogaki): every bounce picks one of the
+// frame's K bundles at random and follows its line to the next surface, so no ray is ever traced.
+// The passes of one frame (gpu_impl/renderer.py), each its own program:
+//
+//   node_radiance.glsl   direct light reflected by every bundle node (shadow maps), in CSR order;
+//   primary.glsl         the G-buffer samples: exact camera-ray hits, emission seen directly and
+//                        direct light, and the first path vertex;
+//   eye_paths.glsl       one bounce of every path (run once per bounce);
+//   resolve_images.glsl  the per-path sums averaged into the direct and indirect images.
+//
+// Bounces are counted as Mitsuba's path integrator counts them (max_depth), so the images compare
+// with its references: at path vertex j (the G-buffer sample is vertex 0), shadow-mapped light
+// counts as bounce j, and emission or the environment reached at vertex j as bounce j - 1. Bounce
+// 0 is the direct image; bounces 1..B are the indirect image.
+
+#define INV_PI 0.3183098861837907
+
+// One path per G-buffer sample and path index, advanced in place bounce by bounce.
+struct Path {
+    vec3 position;    // the current vertex, relative to the bundle centre
+    uint normal;      // its shading normal (encode_normal), turned to the side the path is on
+    vec3 throughput;
+    uint alive;       // 0 once the path has ended
+    vec3 albedo;      // of the current vertex
+    uint geometric;   // its geometric normal (encode_normal), on the same side
+};
+// Per path, the radiance summed over frames: bounce 0, and bounces 1..B.
+struct PathSums {
+    vec4 direct;
+    vec4 indirect;
+};
+
+layout(std430, binding = BINDING_PATHS) buffer Paths { Path paths[]; };
+layout(std430, binding = BINDING_PATH_SUMS) buffer Sums { PathSums sums[]; };
+
+#if defined BUNDLE_LOOKUP
+// Per node in CSR order, NODE_SIDES rgb triples: the direct light the node's front (and, for a
+// two-sided material, its back) reflects. Absent without shadow-mapped lights.
+layout(std430, binding = BINDING_NODE_RADIANCE) buffer NodeRadiance { float node_radiance[]; };
+
+uint radiance_index(uint node, uint side) {
+    return 3u * (node * uint(NODE_SIDES) + side);
+}
+#endif

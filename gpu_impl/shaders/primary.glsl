@@ -1,0 +1,67 @@
+// The G-buffer samples (gbuffer.glsl stored the visible triangle of each): the camera ray of each
+// sample meets its triangle exactly, giving position, shading normal and textured albedo; emission
+// seen directly and shadow-mapped direct light go to the direct image, the environment where no
+// surface is seen, and the hit becomes the first vertex of the sample's eye paths.
+
+#include "common.glsl"
+#include "scene.glsl"
+#include "lights.glsl"
+#include "environment.glsl"
+#include "paths.glsl"
+
+#if defined COMPUTE_SHADER
+
+layout(local_size_x = LOCAL_SIZE) in;
+
+uniform uint invocations;       // G-buffer samples x paths_per_sample
+uniform usampler2D gbuffer;     // primitive id + 1 per sample
+uniform ivec2 gbuffer_size;     // W s x H s
+uniform uint paths_per_sample;
+uniform vec3 camera_origin;     // relative to the bundle centre
+uniform mat3 camera_to_world;   // Mitsuba's camera space: +x left, +y up, +z forward
+uniform vec2 tan_half_fov;      // along x and y
+uniform vec2 subpixel;          // this frame's sample position inside each G-buffer pixel, in [0, 1)^2
+
+void main() {
+    uint id = linear_id();
+    if (id >= invocations) return;
+    uint s = id / paths_per_sample;
+    ivec2 xy = ivec2(s % uint(gbuffer_size.x), s / uint(gbuffer_size.x));
+    vec2 film = (vec2(xy) + subpixel) / vec2(gbuffer_size);  // (0, 0) is the image's top left
+    vec3 dir = normalize(camera_to_world * vec3((1.0 - 2.0 * film.x) * tan_half_fov.x, (1.0 - 2.0 * film.y) * tan_half_fov.y, 1.0));
+    uint visible = texelFetch(gbuffer, xy, 0).r;
+    Path path = Path(vec3(0.0), 0u, vec3(0.0), 0u, vec3(0.0), 0u);
+    vec3 direct = vec3(0.0);
+    if (visible == 0u) {
+#if ENVIRONMENT != ENVIRONMENT_NONE
+        direct = environment(dir);
+#endif
+    } else {
+        uint t = visible - 1u;
+        uvec3 v = triangle_vertices(t);
+        vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;
+        // Moller-Trumbore: the camera ray meets the triangle's plane at depth, barycentrics (b1, b2).
+        vec3 so = camera_origin - p0, pv = cross(dir, e2), qv = cross(so, e1);
+        float inv = 1.0 / dot(e1, pv);
+        float b1 = dot(so, pv) * inv, b2 = dot(dir, qv) * inv, depth = dot(e2, qv) * inv;
+        vec3 n = shading_normal(t, v, b1, b2);
+        uint m = triangle_material(t);
+        bool front = dot(n, dir) < 0.0;
+        if (front || material_twosided(m)) {
+            if (front) direct = materials[m].emission.rgb;  // emitters emit from their front only
+            else n = -n;
+            vec3 albedo = material_albedo(m, surface_uv(v, b1, b2));
+#if SHADOW_LIGHTS
+            direct += albedo * INV_PI * light_irradiance(camera_origin + depth * dir, n);
+#endif
+            vec3 g = triangle_normal(t);
+            path = Path(camera_origin + depth * dir, encode_normal(n), vec3(1.0), 1u, albedo,
+                        encode_normal(dot(g, dir) < 0.0 ? g : -g));
+        }
+        // else: the back of a one-sided surface, black as in Mitsuba; the path ends.
+    }
+    sums[id].direct.rgb += direct;
+    paths[id] = path;
+}
+
+#endif

@@ -1,0 +1,207 @@
+"""The eye-path renderer: analytic furnace values, convergence to the committed Mitsuba references,
+shadow-mapped direct light against Mitsuba, bounce accounting, determinism and the CLI.
+
+Every threshold here was measured with the command in its comment, then given a margin; the
+measured values are in the issue's closing note.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import relmse, run_evalkit
+from evalkit.exr import read_exr
+from evalkit.scene import Light, Material, Mesh, assemble, load_scene
+from evalkit.scene.builtin import furnace_radiance
+from evalkit.scene.model import Camera, look_at
+from evalkit.scene.tessellate import box
+from gpu_impl.renderer import Renderer, RenderSettings
+from references.mitsuba import DEFAULT_STORE, load_reference, reference, store_entry
+
+
+def render(gl, scene, **settings):
+    renderer = Renderer(gl, scene, RenderSettings(**settings))
+    try:
+        return renderer.render()
+    finally:
+        renderer.release()
+
+
+def block_mean(image: np.ndarray, b: int) -> np.ndarray:
+    h, w, _ = image.shape
+    return image.reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))
+
+
+# -- furnace: every surface emits 1 and reflects 0.5, so bounce j adds 0.5^j exactly --------------
+
+# Measured (seed 0, 32x32, K=16, R=256, 64 frames): direct 1.4979 (-0.14 %), indirect B=1 0.24902
+# (-0.39 %), B=3 0.43521 (-0.52 %). Perfect bundles lose light only where a bundle line, up to a
+# pixel beside the vertex, passes outside a concave edge of the cube: O(1/R) (4 % at R=64 for
+# B=3). The issue's target is 1 %.
+FURNACE_TOLERANCE = 0.01
+
+
+@pytest.mark.parametrize("bounces", [1, 3])
+def test_furnace_matches_the_analytic_radiance(gl, bounces):
+    result = render(gl, load_scene("furnace"), bounces=bounces, directions=16, resolution=256, frames=64, width=32, height=32)
+    direct, indirect = result.images["direct"].mean(), result.images["indirect"].mean()
+    assert direct == pytest.approx(furnace_radiance(2), rel=FURNACE_TOLERANCE)
+    assert indirect == pytest.approx(furnace_radiance(bounces + 2) - furnace_radiance(2), rel=FURNACE_TOLERANCE)
+    assert np.allclose(result.images["total"], result.images["direct"] + result.images["indirect"])
+
+
+def test_furnace_bias_falls_as_the_bundle_resolution_grows(gl):
+    exact = furnace_radiance(5) - furnace_radiance(2)
+    errors = [exact - render(gl, load_scene("furnace"), bounces=3, directions=16, resolution=R, frames=32, width=16,
+                             height=16).images["indirect"].mean() for R in (32, 128)]
+    assert errors[0] > 0 and errors[1] < 0.5 * errors[0]
+
+
+# -- cornell-box against the committed Mitsuba references (128x128, 16384 spp) --------------------
+
+def cornell_reference(bounces):
+    scene = load_scene("cornell-box")
+    return scene, load_reference(store_entry(scene.name, scene.content_hash(), bounces, 16384, 128, 128, 0, DEFAULT_STORE))
+
+
+# Noise dominates these images: per-pixel relMSE falls as 1 / paths. Measured (seed 0, B=3, K=32,
+# R=256, spp 16, 128x128; the command is the test itself): 8 frames, indirect relMSE 0.329; 32
+# frames 0.0855 (3.85x lower). Averaged over 8x8 blocks at 32 frames: direct 0.0091, indirect 0.0052,
+# still mostly noise (8 frames: 0.045, 0.0099). The threshold is the larger measured value plus 60 %.
+CORNELL_BLOCK_RELMSE = 0.015
+
+
+def test_cornell_box_converges_to_the_mitsuba_reference(gl):
+    scene, ref = cornell_reference(3)
+    errors = {}
+    for frames in (8, 32):
+        result = render(gl, scene, bounces=3, directions=32, resolution=256, spp=16, frames=frames, width=128, height=128)
+        errors[frames] = relmse(result.images["indirect"], ref.images["indirect"])
+    # Noise falls as 1 / frames: 4x the frames must at least halve the error.
+    assert errors[32] < 0.5 * errors[8]
+    for name in ("direct", "indirect"):
+        assert relmse(block_mean(result.images[name], 8), block_mean(ref.images[name], 8)) <= CORNELL_BLOCK_RELMSE, name
+
+
+@pytest.mark.slow
+def test_cornell_box_indirect_relmse_reaches_one_percent(gl):
+    # The issue's aim. Measured (seed 0): 6144 paths per pixel (spp 64, 96 frames) give indirect
+    # relMSE 0.0148 (means 0.0634 vs 0.0633 red); the error is noise, falling as 1 / paths, so
+    # 12288 paths (192 frames) should give about 0.0074.
+    scene, ref = cornell_reference(3)
+    result = render(gl, scene, bounces=3, directions=32, resolution=256, spp=64, frames=192, width=128, height=128)
+    assert relmse(result.images["indirect"], ref.images["indirect"]) <= 0.01
+
+
+# -- shadow-mapped lights against Mitsuba --------------------------------------------------------
+
+def lit_stage(*lights: Light):
+    """A floor with a box on it, lit by ``lights``, seen from above at an angle."""
+    floor = np.array([[-2.0, 0, -2], [2, 0, -2], [2, 0, 2], [-2, 0, 2]])
+    meshes = [Mesh("floor", floor, np.array([[0, 2, 1], [0, 3, 2]]), 0),
+              Mesh("box", *box(np.array([-0.5, 0.0, -0.5]), np.array([0.5, 1.0, 0.5])), 1)]
+    materials = [Material("floor", albedo=(0.7, 0.7, 0.7)), Material("box", albedo=(0.8, 0.3, 0.2))]
+    camera = Camera(look_at([0.0, 4.0, 4.5], [0.0, 0.3, 0.0], [0, 1, 0]), fov=45.0, fov_axis="x", width=64, height=64)
+    return assemble("stage", "stage", meshes, materials, list(lights), camera)
+
+
+SUN = Light("directional", (3.0, 3.0, 3.0), direction=np.array([0.4, -1.0, 0.3]) / np.linalg.norm([0.4, -1.0, 0.3]))
+LAMP = Light("point", (8.0, 7.0, 6.0), position=np.array([-1.5, 2.5, 1.0]))
+SPOT = Light("spot", (20.0, 20.0, 20.0), position=np.array([1.5, 3.0, 1.5]),
+             direction=np.array([-0.4, -1.0, -0.4]) / np.linalg.norm([-0.4, -1.0, -0.4]), cutoff_angle=35.0, beam_width=25.0)
+
+# Measured relMSE of the direct image against Mitsuba's (1024 spp, 64x64, 16 frames, shadow maps
+# 1024^2): directional 9.8e-4, point 1.1e-4, spot 1.6e-4 (Mitsuba's own noise: 4e-5 or less).
+# What is left is shadow-map aliasing and bias at shadow edges. Threshold: 3x the worst.
+DIRECT_RELMSE = 0.003
+
+
+@pytest.mark.parametrize("light", [SUN, LAMP, SPOT], ids=["directional", "point", "spot"])
+def test_shadow_mapped_direct_light_matches_mitsuba(gl, tmp_path, light):
+    scene = lit_stage(light)
+    ref = reference(scene, bounces=0, spp=1024, width=64, height=64, store=tmp_path, progress=lambda line: None)
+    result = render(gl, scene, bounces=0, directions=4, resolution=32, frames=16, width=64, height=64)
+    assert ref.images["direct"].mean() > 0.02
+    assert relmse(result.images["direct"], ref.images["direct"]) <= DIRECT_RELMSE
+    assert not result.images["indirect"].any()  # bounces=0: no indirect light at all
+
+
+def test_bounce_accounting_matches_mitsubas_max_depth(gl, tmp_path):
+    # Light from the point lamp reflected once more (B = 1) lands in indirect, as in Mitsuba's
+    # max_depth 3 minus max_depth 2. Measured (seed 0): direct mean 0.05836 vs 0.05831 (+0.1 %),
+    # indirect 0.001632 vs 0.001653 (-1.3 %).
+    scene = lit_stage(LAMP)
+    ref = reference(scene, bounces=1, spp=256, width=64, height=64, store=tmp_path, progress=lambda line: None)
+    result = render(gl, scene, bounces=1, directions=32, resolution=128, frames=16, spp=4, width=64, height=64)
+    assert result.images["direct"].mean() == pytest.approx(ref.images["direct"].mean(), rel=0.01)
+    assert result.images["indirect"].mean() == pytest.approx(ref.images["indirect"].mean(), rel=0.04)
+
+
+# -- determinism, outputs and the CLI ------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["perfect", "imperfect"])
+def test_same_seed_same_image_and_a_new_seed_changes_it(gl, method):
+    scene = load_scene("cornell-box")
+    kw = dict(method=method, bounces=2, directions=8, resolution=32, points=4096, frames=2, width=32, height=32)
+    a, b, c = render(gl, scene, **kw), render(gl, scene, **kw), render(gl, scene, seed=1, **kw)
+    for name in ("direct", "indirect"):
+        assert np.array_equal(a.images[name], b.images[name])
+        assert not np.array_equal(a.images[name], c.images[name])
+        assert np.isfinite(a.images[name]).all() and (a.images[name] >= 0).all()
+
+
+def test_imperfect_bundles_render_the_furnace_close_to_its_value(gl):
+    # Holes let paths escape, so imperfect bundles lose light; at the default splat scale the loss
+    # stays small. Measured (seed 0, 16x16, K=16, R=128, N=16384, 16 frames): direct 1.4954
+    # (-0.3 %), indirect 0.2438 (-2.5 %).
+    result = render(gl, load_scene("furnace"), method="imperfect", bounces=1, directions=16, resolution=128, points=16384,
+                    frames=16, width=16, height=16)
+    assert result.images["direct"].mean() == pytest.approx(furnace_radiance(2), rel=0.02)
+    assert result.images["indirect"].mean() == pytest.approx(furnace_radiance(3) - furnace_radiance(2), rel=0.05)
+
+
+@pytest.mark.parametrize("name", ["cornell-box", "furnace", "atrium"])
+def test_cli_renders_every_builtin_scene_both_ways(tmp_path, name):
+    for method in ("perfect", "imperfect"):
+        out = tmp_path / method
+        r = run_evalkit("render", name, "--method", method, "--width", "24", "--height", "16", "--directions", "4",
+                        "--resolution", "32", "--points", "1024", "--bounces", "1", "--frames", "2", "--out", str(out), "--json")
+        assert r.returncode == 0, r.stderr
+        summary = json.loads(r.stdout.strip().splitlines()[-1])
+        assert summary["params"]["method"] == method and summary["timings_ms"]["bundles"] > 0
+        for image in ("direct", "indirect", "total"):
+            rgb, provenance = read_exr(out / f"{image}.exr")
+            assert rgb.shape == (16, 24, 3) and np.isfinite(rgb).all() and (rgb >= 0).all()
+            assert provenance["scene_hash"] == summary["params"]["scene_hash"] and provenance["image"] == image
+        timings = json.loads((out / "timings.json").read_text())
+        assert {"bundles", "gbuffer", "bounce_1", "resolve"} <= set(timings["timings"]["median_ms"])
+
+
+def test_cli_preset_and_bad_settings(tmp_path):
+    r = run_evalkit("render", "furnace", "--method", "perfect", "--preset", "paper", "--width", "16", "--height", "8",
+                    "--resolution", "16", "--directions", "2", "--points", "64", "--out", str(tmp_path / "p"), "--json")
+    assert r.returncode == 0, r.stderr
+    params = json.loads(r.stdout.strip().splitlines()[-1])["params"]
+    assert params["supersampling"] == 2 and params["width"] == 16  # the preset, with explicit options on top
+    r = run_evalkit("render", "furnace", "--method", "perfect", "--bounces", "-1", "--out", str(tmp_path / "q"))
+    assert r.returncode == 2 and "bounces" in r.stderr and "Traceback" not in r.stderr
+
+
+# -- animation ------------------------------------------------------------------------------------
+
+def test_animated_scene_moves_rigidly_and_renders_each_pose(gl):
+    scene = load_scene("atrium-animated")
+    assert scene.animated and not scene.at(3.0).animated
+    ball0, ball3 = scene.at(0.0).meshes[-1], scene.at(3.0).meshes[-1]
+    assert np.allclose(ball0.triangle_areas(), ball3.triangle_areas())  # rigid: areas (and point sampling) unchanged
+    assert not np.allclose(ball0.positions, ball3.positions)
+    assert scene.at(0.0).content_hash() != scene.at(3.0).content_hash()
+    kw = dict(method="imperfect", bounces=1, directions=4, resolution=32, points=2048, frames=1, width=24, height=16)
+    at3 = render(gl, scene, time=3.0, **kw)
+    assert np.array_equal(at3.images["total"], render(gl, scene.at(3.0), **kw).images["total"])
+    assert not np.array_equal(at3.images["total"], render(gl, scene, time=0.0, **kw).images["total"])
+    moving = render(gl, scene, time=0.0, time_step=1.5, **{**kw, "frames": 3})  # a new pose every frame
+    assert np.isfinite(moving.images["total"]).all() and moving.images["total"].mean() > 0
