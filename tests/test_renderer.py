@@ -89,8 +89,9 @@ def test_cornell_box_converges_to_the_mitsuba_reference(gl):
 @pytest.mark.slow
 def test_cornell_box_indirect_relmse_reaches_one_percent(gl):
     # The aim. Measured (seed 0): 6144 paths per pixel (spp 64, 96 frames) give indirect
-    # relMSE 0.0148 (means 0.0634 vs 0.0633 red); the error is noise, falling as 1 / paths, so
-    # 12288 paths (192 frames) should give about 0.0074.
+    # relMSE 0.0148 (means 0.0634 vs 0.0633 red); 12288 paths (192 frames, this test) gave 0.0118:
+    # NOT yet within the aim. Paths of a frame share its 32 directions, so the error falls slower
+    # than 1 / paths. This test stays failing until more directions per frame (or less bias) get there.
     scene, ref = cornell_reference(3)
     result = render(gl, scene, bounces=3, directions=32, resolution=256, spp=64, frames=192, width=128, height=128)
     assert relmse(result.images["indirect"], ref.images["indirect"]) <= 0.01
