@@ -25,7 +25,7 @@ import numpy as np
 from evalkit.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, bundle_params
 from evalkit.errors import InputError
 from evalkit.scene import Scene
-from gpu_impl.context import BINDINGS, LOCAL_SIZE, GLContext, PassTimer
+from gpu_impl.context import BINDINGS, LOCAL_SIZE, GLContext, PassTimer, set_uniforms
 from gpu_impl.scene_buffers import GpuScene
 
 METHODS = ("perfect", "imperfect")
@@ -252,9 +252,7 @@ class BundleTracer:
         values = {"radius": self.scene.radius, "resolution": self.R, "tiles_per_row": self.tiles_per_row,
                   "atlas_size": self.atlas_size, "capacity": self.capacity, "points_per_direction": self.N,
                   "splat_radius": self.splat_radius, **overrides}
-        for name, value in values.items():
-            if name in program:
-                program[name] = value
+        set_uniforms(program, values)
 
     def _sample_points(self, directions: DirectionSet) -> None:
         shader = self.gl.program("splat_points")

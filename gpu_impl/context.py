@@ -148,6 +148,13 @@ class GLContext:
         self.release()
 
 
+def set_uniforms(program, values: dict) -> None:
+    """Set each uniform ``program`` has; those a shader variant compiled away are skipped."""
+    for name, value in values.items():
+        if name in program:
+            program[name] = value
+
+
 def is_program(text: str) -> bool:
     """Program files define main(); the others are includes (``#include "common.glsl"``)."""
     return re.search(r"^\s*void\s+main\s*\(", text, re.M) is not None

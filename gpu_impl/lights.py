@@ -16,11 +16,11 @@ import moderngl
 import numpy as np
 
 from evalkit.scene.model import Light
-from gpu_impl.context import BINDINGS, GLContext
+from gpu_impl.context import BINDINGS, GLContext, set_uniforms
 from gpu_impl.scene_buffers import GpuScene
 
 SHADOW_KINDS = {"point": 0.0, "spot": 1.0, "directional": 2.0}  # shaders/lights.glsl: LIGHT_*
-ENVIRONMENTS = {None: 0, "constant": 1, "envmap": 2}  # shaders/lights.glsl: ENVIRONMENT_*
+ENVIRONMENTS = {None: 0, "constant": 1, "envmap": 2}  # shaders/environment.glsl: ENVIRONMENT_*
 # A spot light whose cone half-angle is within this of 90 degrees cannot use one perspective view.
 MAX_SPOT_VIEW_DEGREES = 60.0
 CUBE_FACES = ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1))  # lights.glsl: shadow_view_of
@@ -102,6 +102,8 @@ class ShadowLights:
             self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
             self.depth = ctx.depth_renderbuffer(self.atlas.size)
             self.framebuffer = ctx.framebuffer([self.atlas], self.depth)
+            self.program = gl.program("shadow_maps")
+            self.vao = scene.vertex_array(self.program)
         if self.environment is not None and self.environment.kind == "envmap":
             self.buffers["ENVMAP"] = ctx.buffer(np.ascontiguousarray(self.environment.envmap, dtype=np.float32).tobytes())
 
@@ -145,8 +147,6 @@ class ShadowLights:
         if self.framebuffer is None:
             return
         ctx = self.gl.ctx
-        program = self.gl.program("shadow_maps")
-        vao = self.scene.vertex_array(program)
         self.scene.bind()
         self.buffers["SHADOW_VIEWS"].bind_to_storage_buffer(BINDINGS["SHADOW_VIEWS"])
         self.framebuffer.use()
@@ -157,23 +157,24 @@ class ShadowLights:
         cols = self.atlas.size[0] // s
         for i in range(len(self.views)):
             self.framebuffer.viewport = ((i % cols) * s, (i // cols) * s, s, s)
-            program["view_index"] = i
-            vao.render(moderngl.TRIANGLES)
+            self.program["view_index"] = i
+            self.vao.render(moderngl.TRIANGLES)
         ctx.disable(moderngl.DEPTH_TEST)
-        vao.release()
 
     def defines(self) -> dict:
         return {"SHADOW_LIGHTS": int(self.count > 0), "ENVIRONMENT": ENVIRONMENTS[None if self.environment is None else self.environment.kind]}
 
-    def bind(self, program, atlas_unit: int) -> None:
-        """Bind the buffers and set ``program``'s lighting uniforms (those it uses)."""
+    def bind(self, atlas_unit: int) -> None:
+        """Bind the light buffers and the shadow atlas (at texture unit ``atlas_unit``)."""
         for name, buffer in self.buffers.items():
             buffer.bind_to_storage_buffer(BINDINGS[name])
-        values = {"light_count": self.count, "shadow_bias": self.bias, "shadow_slope_bias": self.slope_bias,
-                  "shadow_filter": self.filter}
         if self.atlas is not None:
             self.atlas.use(atlas_unit)
-            values["shadow_atlas"] = atlas_unit
+
+    def set_uniforms(self, program, atlas_unit: int) -> None:
+        """Set ``program``'s lighting and environment uniforms (those it has); they never change."""
+        values = {"light_count": self.count, "shadow_bias": self.bias, "shadow_slope_bias": self.slope_bias,
+                  "shadow_filter": self.filter, "shadow_atlas": atlas_unit}
         env = self.environment
         if env is not None:
             values["environment_radiance"] = tuple(env.intensity)  # the radiance, or the map's scale
@@ -181,9 +182,7 @@ class ShadowLights:
                 values["envmap_size"] = (env.envmap.shape[1], env.envmap.shape[0])
                 to_local = np.linalg.inv(np.asarray(env.to_world, dtype=np.float64)[:3, :3])
                 values["environment_to_local"] = tuple(to_local.T.ravel())  # column-major
-        for name, value in values.items():
-            if name in program:
-                program[name] = value
+        set_uniforms(program, values)
 
     @property
     def nbytes(self) -> int:
@@ -195,6 +194,7 @@ class ShadowLights:
             buffer.release()
         self.buffers.clear()
         if self.framebuffer is not None:
+            self.vao.release()
             self.framebuffer.release()
             self.atlas.release()
             self.depth.release()

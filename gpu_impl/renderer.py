@@ -29,8 +29,8 @@ import numpy as np
 from evalkit.bundleset import DirectionSet
 from evalkit.exr import write_exr
 from evalkit.scene import Scene
-from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE, BundleTracer
-from gpu_impl.context import BINDINGS, GLContext, PassTimer
+from gpu_impl.bundles import CAPACITY_SLACK, DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE, BundleTracer
+from gpu_impl.context import BINDINGS, GLContext, PassTimer, set_uniforms
 from gpu_impl.lights import ShadowLights
 from gpu_impl.scene_buffers import GpuScene
 
@@ -156,6 +156,20 @@ class Renderer:
             "NODE_RADIANCE": ctx.buffer(reserve=4),
         }
         self.radiance_capacity = 0
+        self._posed_at = self.times[0]  # the pose on the GPU
+        self.camera = camera_frame(scene, self.gpu_scene.centre, self.width, self.height)
+        # Uniforms that stay the same for every frame, set once.
+        fixed = {
+            "radius": self.gpu_scene.radius, "resolution": settings.resolution, "bounces": settings.bounces,
+            "direction_count": settings.directions, "seed": settings.seed & 0xFFFFFFFF,
+            "self_hit_bias": settings.self_hit_bias, "image_size": (self.width, self.height), "supersampling": s,
+            "paths_per_sample": settings.spp, "gbuffer": GBUFFER_UNIT, "gbuffer_size": self.gbuffer_size,
+            "camera_origin": tuple(self.camera["origin"]), "camera_to_world": tuple(self.camera["to_world"].T.ravel()),
+            "tan_half_fov": tuple(self.camera["tan_half"]),
+        }
+        for program in self.programs.values():
+            set_uniforms(program, fixed)
+            self.lights.set_uniforms(program, ATLAS_UNIT)
 
     # -- one frame -----------------------------------------------------------------------
 
@@ -167,8 +181,9 @@ class Renderer:
         frames, bundle_stats = [], []
         for f in range(st.frames):
             timer = PassTimer(self.gl)
-            if self.moving and f > 0:
+            if self.moving and (f > 0 or self._posed_at != self.times[0]):
                 self.gpu_scene.pose(self.scene.at(self.times[f]))
+            self._posed_at = self.times[f]
             stats = self.tracer.build(DirectionSet.make(st.directions, seed=st.seed, frame=f, jitter=True))
             bundle_stats.append(stats)
             self._frame(f, timer, shadow_maps=f == 0 or self.moving)
@@ -181,7 +196,7 @@ class Renderer:
         images = self._read_images()
         wall = time.perf_counter() - start
         timings = {
-            "method": PassTimer(self.gl).method,
+            "method": timer.method,
             "median_ms": {name: _median([fr.get(name) for fr in frames]) for name in frames[0]},
             "frames_ms": frames,
             "wall_s": wall,
@@ -210,27 +225,19 @@ class Renderer:
         self._bind()
         if self.defines["SHADOW_LIGHTS"]:
             with timer.measure("node_direct"):
-                program = self._program("node_radiance")
-                gl.dispatch(program, self.tracer.list_count)
+                gl.dispatch(self.programs["node_radiance"], self.tracer.list_count)
                 gl.ctx.memory_barrier()
         with timer.measure("gbuffer"):
             self._gbuffer(frame)
         for j in range(1, self.steps + 1):
             with timer.measure(f"bounce_{j}"):
-                program = self._program("eye_paths")
+                program = self.programs["eye_paths"]
                 program["bounce"] = j
-                program["bounces"] = st.bounces
-                program["direction_count"] = st.directions
-                program["seed"] = st.seed & 0xFFFFFFFF
                 program["frame"] = frame & 0xFFFFFFFF
-                program["self_hit_bias"] = st.self_hit_bias
                 gl.dispatch(program, self.paths)
                 gl.ctx.memory_barrier()
         with timer.measure("resolve"):
-            program = self._program("resolve_images")
-            program["image_size"] = (self.width, self.height)
-            program["supersampling"] = st.supersampling
-            program["paths_per_sample"] = st.spp
+            program = self.programs["resolve_images"]
             program["sample_weight"] = 1.0 / (st.supersampling**2 * st.spp * (frame + 1))
             gl.dispatch(program, self.width * self.height)
             gl.ctx.memory_barrier()
@@ -240,44 +247,30 @@ class Renderer:
         st = self.settings
         ctx = self.gl.ctx
         subpixel = np.random.default_rng([st.seed, frame, 1]).random(2)
-        cam = camera_frame(self.scene, self.gpu_scene.centre, self.width, self.height)
         self.gbuffer_fbo.use()
         self.gbuffer_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        self.gbuffer_program["to_clip"] = tuple(gbuffer_projection(cam, self.gbuffer_size, subpixel).T.ravel())
+        self.gbuffer_program["to_clip"] = tuple(gbuffer_projection(self.camera, self.gbuffer_size, subpixel).T.ravel())
         self.gbuffer_vao.render(moderngl.TRIANGLES)
         ctx.disable(moderngl.DEPTH_TEST)
-        self._bind()
-        program = self._program("primary")
-        self.gbuffer.use(GBUFFER_UNIT)
-        program["gbuffer"] = GBUFFER_UNIT
-        program["gbuffer_size"] = self.gbuffer_size
-        program["paths_per_sample"] = st.spp
-        program["camera_origin"] = tuple(cam["origin"])
-        program["camera_to_world"] = tuple(cam["to_world"].T.ravel())
-        program["tan_half_fov"] = tuple(cam["tan_half"])
+        program = self.programs["primary"]
         program["subpixel"] = tuple(subpixel)
         self.gl.dispatch(program, self.paths)
         ctx.memory_barrier()
 
-    def _program(self, name: str):
-        program = self.programs[name]
-        for uniform, value in (("radius", self.gpu_scene.radius), ("resolution", self.settings.resolution)):
-            if uniform in program:
-                program[uniform] = value
-        self.lights.bind(program, ATLAS_UNIT)
-        return program
-
     def _bind(self) -> None:
+        """Every buffer and texture the frame's compute passes read, at their bindings."""
         self.tracer.bind()
         for name, buffer in self.buffers.items():
             buffer.bind_to_storage_buffer(BINDINGS[name])
+        self.lights.bind(ATLAS_UNIT)
+        self.gbuffer.use(GBUFFER_UNIT)
 
     def _grow_radiance(self, nodes: int) -> None:
         if not self.defines["SHADOW_LIGHTS"] or nodes <= self.radiance_capacity:
             return
-        nodes = max(nodes, int(nodes * 1.125))  # room for the next frame's slightly different count
+        nodes = int(nodes * CAPACITY_SLACK)  # room for the next frame's slightly different count
         self.buffers["NODE_RADIANCE"].release()
         self.buffers["NODE_RADIANCE"] = self.gl.ctx.buffer(reserve=12 * self.defines["NODE_SIDES"] * nodes)
         self.radiance_capacity = nodes
