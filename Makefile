@@ -1,16 +1,11 @@
 # The two commands of the README. Both install what is missing first (scripts/setup.sh).
-.PHONY: setup demo test test-slow references
+.PHONY: setup demo test test-slow references studies fuzz check
 
 setup:
 	@scripts/setup.sh
 
 demo: setup
-	.venv/bin/evalkit doctor
-	.venv/bin/evalkit scene info cornell-box
-	.venv/bin/evalkit bundles cornell-box --method perfect --directions 32 --out out/demo/perfect.npz
-	.venv/bin/evalkit bundles cornell-box --method imperfect --directions 32 --out out/demo/imperfect.npz
-	.venv/bin/evalkit render cornell-box --method perfect --bounces 3 --directions 32 --frames 8 --width 128 --height 128 --out out/demo/render-perfect
-	.venv/bin/evalkit render cornell-box --method imperfect --bounces 3 --directions 32 --frames 8 --width 128 --height 128 --out out/demo/render-imperfect
+	.venv/bin/evalkit demo --out out/demo
 
 test: setup
 	.venv/bin/python -m pytest -m "not slow" -q
@@ -24,3 +19,16 @@ references: setup
 	for scene in $(CI_REFERENCES); do for b in 1 3; do \
 	  .venv/bin/evalkit reference $$scene --bounces $$b --spp 16384 --width 128 --height 128 --out out/references/$$scene-b$$b || exit 1; \
 	done; done
+
+# The shipped studies (studies/*.toml), each into out/studies/<name>/ with its report; resumable.
+STUDIES = hole_vs_splat error_vs_time directions poster_table
+studies: setup
+	for study in $(STUDIES); do .venv/bin/evalkit study studies/$$study.toml || exit 1; done
+
+# Fuzz the importers with fresh random examples, many more than CI's derandomized few.
+fuzz: setup
+	HYPOTHESIS_PROFILE=fuzz FUZZ_EXAMPLES=2000 .venv/bin/python -m pytest -q tests/test_fuzz_importers.py
+
+# The declared accuracy thresholds (evalkit/thresholds.toml): table, out/check/junit.xml, exit 1 on a regression.
+check: setup
+	.venv/bin/evalkit check

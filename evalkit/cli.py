@@ -178,7 +178,8 @@ def _render(args) -> int:
     scene = load_scene(args.scene)
     names = ("method", "bounces", "directions", "resolution", "points", "splat_scale", "width", "height", "supersampling",
              "spp", "frames", "seed", "time", "time_step", "self_hit_bias", "shadow_map_size", "shadow_filter", "node_budget")
-    settings = apply_preset(RenderSettings(), args.preset, **{name: getattr(args, name) for name in names})
+    settings = apply_preset(RenderSettings(), args.preset, **{name: getattr(args, name) for name in names},
+                            rotate_directions=False if args.fixed_directions else None)
     with GLContext() as gl:
         try:
             renderer = Renderer(gl, scene, settings)
@@ -206,6 +207,98 @@ def _render(args) -> int:
         print(json.dumps({"out": str(args.out), "timings_ms": t["median_ms"], "wall_s": t["wall_s"], "stats": result.stats,
                           "params": result.params, "warnings": result.warnings}))
     return 0
+
+
+def _compare(args) -> int:
+    from pathlib import Path
+
+    from evalkit.exr import read_exr, write_exr
+    from evalkit.metrics.images import compare_images
+
+    test, test_meta = read_exr(args.test)
+    ref, _ = read_exr(args.ref)
+    metrics = compare_images(test, ref, args.metrics, args.test, args.ref, relmse_eps=args.relmse_eps,
+                             smape_eps=args.smape_eps, flip_ppd=args.flip_ppd, exposure=args.exposure)
+    print(f"compare     {args.test} against {args.ref} ({test.shape[1]}x{test.shape[0]})")
+    for m in metrics.values():
+        params = ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in m.params.items())
+        print(f"{m.name:12}{m.value:12.6g}   {params}")
+    if args.maps:
+        from evalkit.report import error_map_png
+
+        out = Path(args.maps)
+        out.mkdir(parents=True, exist_ok=True)
+        for m in metrics.values():
+            provenance = {"metric": m.name, "test": args.test, "reference": args.ref, "value": m.value, **m.params}
+            write_exr(out / f"{m.name}.exr", np.repeat(m.map[..., None], 3, axis=2).astype(np.float32), provenance)
+            vmax = error_map_png(m.map, out / f"{m.name}.png")
+            print(f"map         {out / (m.name + '.exr')} and .png (magma, 0..{vmax:.3g})")
+    if args.json:
+        print(json.dumps({name: {"value": m.value, "params": m.params} for name, m in metrics.items()}))
+    return 0
+
+
+def _study(args) -> int:
+    from evalkit.study import load_study, run_study
+
+    study = load_study(args.study)
+    out = args.out or f"out/studies/{study.name}"
+    rows = run_study(study, out, workers=args.workers, executor=args.executor, scheduler=args.scheduler,
+                     command="evalkit " + " ".join(sys.argv[1:]))
+    ok = sum(r["status"] == "ok" for r in rows)
+    print(f"study       {study.name}: {ok} of {len(rows)} runs ok")
+    print(f"results     {out}/results.csv")
+    print(f"report      {out}/report.html")
+    return 0 if ok == len(rows) else 1
+
+
+def _demo(args) -> int:
+    from pathlib import Path
+
+    from evalkit.study import load_study, run_study
+
+    study = load_study(Path(__file__).with_name("demo.toml"))
+    rows = run_study(study, args.out, command="evalkit " + " ".join(sys.argv[1:]))
+    columns = [("method", "{}"), ("indirect_relmse", "{:.4g}"), ("indirect_flip", "{:.4g}"), ("total_relmse", "{:.4g}"),
+               ("total_delta_e2000", "{:.3g}"), ("hole_rate", "{:.3%}"), ("redundant_rate", "{:.1%}"),
+               ("next_hit_error_rate", "{:.2%}"), ("wall_s", "{:.1f}")]
+    print(" ".join(f"{name:>20}" for name, _ in columns))
+    for r in rows:
+        print(" ".join(f"{fmt.format(r[name]) if r.get(name) is not None else '-':>20}" for name, fmt in columns))
+    print(f"report      {Path(args.out).resolve() / 'report.html'}")
+    return 0 if all(r["status"] == "ok" for r in rows) else 1
+
+
+def _check(args) -> int:
+    from pathlib import Path
+
+    from evalkit.check import calibrate, evaluate, junit_xml, load_thresholds
+
+    cases = load_thresholds(args.thresholds)
+    if args.case:
+        unknown = set(args.case) - {c.name for c in cases}
+        if unknown:
+            raise InputError(args.thresholds, f"no case named {', '.join(sorted(unknown))}")
+        cases = [c for c in cases if c.name in args.case]
+    if args.calibrate:
+        lo, _, hi = args.calibrate.partition("-")
+        seeds = list(range(int(lo), int(hi or lo) + 1))
+        print(f"{'case':40}{'mean':>12}{'std':>12}{'min':>12}{'max':>12}  per seed")
+        for case in cases:
+            c = calibrate(case, seeds, Path(args.out) / "calibration")
+            print(f"{case.name:40}{c['mean']:12.6g}{c['std']:12.4g}{c['min']:12.6g}{c['max']:12.6g}  "
+                  + ", ".join(f"{v:.6g}" for v in c["values"]), flush=True)
+        return 0
+    outcomes = []
+    print(f"{'case':40}{'result':>8}  value against threshold")
+    for case in cases:
+        o = evaluate(case, args.out)
+        outcomes.append(o)
+        print(f"{case.name:40}{'pass' if o.passed else 'FAIL':>8}  {o.message}" + ("" if o.passed else f" (see {o.folder})"), flush=True)
+    junit_xml(outcomes, args.junit or Path(args.out) / "junit.xml")
+    failed = sum(not o.passed for o in outcomes)
+    print(f"check       {len(outcomes) - failed} of {len(outcomes)} cases pass; JUnit XML in {args.junit or Path(args.out) / 'junit.xml'}")
+    return 1 if failed else 0
 
 
 def parse_bytes(text: str) -> int:
@@ -321,11 +414,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shadow-map-size", type=_positive_int, default=None, metavar="S", help=f"texels per shadow map side (default {d.shadow_map_size})")
     p.add_argument("--shadow-filter", type=_positive_int, default=None, metavar="F", help=f"PCF kernel of F x F bilinear taps (default {d.shadow_filter})")
     p.add_argument("--node-budget", type=parse_bytes, default=None, metavar="BYTES", help="the most bundle node memory to use (default 2 GiB)")
+    p.add_argument("--fixed-directions", action="store_true",
+                   help="every frame along frame 0's directions: a static scene builds its bundles once (faster, correlated)")
     p.add_argument("--preset", choices=sorted(PRESETS), default=None,
                    help="paper: the poster's 1920x1024, 2x2 supersampling, K=256, R=128, N=16384 (explicit options override it)")
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_render)
+
+    from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON
+
+    p = sub.add_parser("compare", help="MSE, relMSE, SMAPE, FLIP and Delta E 2000 of a test image against a reference, with error maps")
+    p.add_argument("test", metavar="TEST.exr")
+    p.add_argument("ref", metavar="REF.exr")
+    p.add_argument("--metrics", nargs="+", choices=METRICS, default=list(METRICS))
+    p.add_argument("--relmse-eps", type=_positive_float, default=RELMSE_EPSILON, help=f"relMSE epsilon (default {RELMSE_EPSILON})")
+    p.add_argument("--smape-eps", type=_positive_float, default=SMAPE_EPSILON, help=f"SMAPE epsilon (default {SMAPE_EPSILON})")
+    p.add_argument("--flip-ppd", type=_positive_float, default=FLIP_PPD, help=f"FLIP pixels per degree (default {FLIP_PPD:g})")
+    p.add_argument("--exposure", type=float, default=DELTA_E_EXPOSURE, help="Delta E 2000: exposure (stops) before clipping to the display")
+    p.add_argument("--maps", metavar="DIR", help="write each metric's per-pixel map as DIR/<metric>.exr and .png")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(run=_compare)
+
+    p = sub.add_parser("study", help="run a study (a TOML grid of runs): results table, plots and an HTML report; resumable")
+    p.add_argument("study", metavar="STUDY.toml")
+    p.add_argument("--out", metavar="DIR", help="default: out/studies/<name>")
+    p.add_argument("--workers", type=_positive_int, default=1, help="runs at once (default 1: GL on llvmpipe already uses every core)")
+    p.add_argument("--executor", choices=("local", "dask"), default="local",
+                   help="local processes, or Dask (a LocalCluster of --workers, or --scheduler)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="dask: an existing scheduler, e.g. tcp://host:8786")
+    p.set_defaults(run=_study)
+
+    from evalkit.check import DEFAULT_THRESHOLDS
+
+    p = sub.add_parser("check", help="run declared accuracy cases against their thresholds: table, JUnit XML, exit 1 on any regression")
+    p.add_argument("thresholds", nargs="?", default=str(DEFAULT_THRESHOLDS), metavar="THRESHOLDS.toml",
+                   help="default: the toolkit's own (evalkit/thresholds.toml)")
+    p.add_argument("--case", nargs="+", metavar="NAME", help="only these cases")
+    p.add_argument("--out", default="out/check", metavar="DIR", help="runs, and on failure images, references and error maps (default out/check)")
+    p.add_argument("--junit", metavar="FILE", help="JUnit XML (default DIR/junit.xml)")
+    p.add_argument("--calibrate", metavar="SEEDS", help="instead: run each case over seeds, e.g. 0-4, and print the spread")
+    p.set_defaults(run=_check)
+
+    p = sub.add_parser("demo", help="the main job: perfect and imperfect bundles on cornell-box against Mitsuba and Embree, every metric, a report")
+    p.add_argument("--out", default="out/demo", metavar="DIR", help="default: out/demo")
+    p.set_defaults(run=_demo)
 
     from references.mitsuba import DEFAULT_STORE
 

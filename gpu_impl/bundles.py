@@ -69,7 +69,7 @@ class BundleTracer:
     def __init__(self, gl: GLContext, scene: Scene | GpuScene, method: str = "perfect", *, directions: int = 256,
                  resolution: int = 128, points: int = 16384, splat_scale: float = DEFAULT_SPLAT_SCALE,
                  splat_radius: float | None = None, node_budget: int = DEFAULT_NODE_BUDGET,
-                 initial_capacity: int | None = None, max_atlas_size: int | None = None):
+                 initial_capacity: int | None = None, max_atlas_size: int | None = None, textures: bool | None = None):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         for name, value in (("directions", directions), ("resolution", resolution), ("points", points)):
@@ -91,7 +91,9 @@ class BundleTracer:
             raise ValueError(f"K={self.K}, R={self.R}, N={self.N} exceed the 32-bit list and vertex indices")
         self._layout(max_atlas_size)
         ctx = gl.ctx
-        self.program = gl.program(f"{method}_bundles")
+        # 0: the shader variant without texture fetches, for scenes without textures (None: ask the scene).
+        self.textures = int(self.scene.scene.features().textures if textures is None else textures)
+        self.program = gl.program(f"{method}_bundles", TEXTURES=self.textures)
         if method == "perfect":
             self.vao = self.scene.vertex_array(self.program)
         else:
@@ -153,10 +155,12 @@ class BundleTracer:
         return min(self.node_budget // NODE_BYTES, by_driver)
 
     def _grow(self, nodes: int) -> None:
-        """List buffers for ``nodes`` nodes (within the budget); the contents are not kept."""
+        """List buffers for at least ``nodes`` nodes (within the budget); the contents are not kept."""
+        if min(nodes, self.budget_nodes) > self.capacity:
+            self._resize(nodes)
+
+    def _resize(self, nodes: int) -> None:
         nodes = max(1, min(nodes, self.budget_nodes))
-        if nodes <= self.capacity:
-            return
         for name, width in (("NEXT", 4), ("NODE_DEPTH", 4), ("NODE_PRIM", 4), ("NODE_NORMAL", 4), ("NODE_ALBEDO", 8)):
             if name in self.buffers:
                 self.buffers[name].release()
@@ -200,6 +204,11 @@ class BundleTracer:
         start = time.perf_counter()
         timer = PassTimer(self.gl)
         self.buffers["FRAMES"].write(_frames(directions).tobytes())
+        # Size the node buffers from the last frame's measured count: a first guess far too
+        # large (a scene of thin walls has less depth complexity than its bounds suggest) is given back.
+        last = self.stats.get("nodes")
+        if last is not None and self.capacity > 2 * CAPACITY_SLACK * last:
+            self._resize(int(last * CAPACITY_SLACK) + 1)
         self.bind()
 
         if self.method == "imperfect":
@@ -266,7 +275,7 @@ class BundleTracer:
     def _draw_lists(self, null_fragment: bool) -> None:
         """Every direction's nodes, appended to the pixel lists: one draw per atlas."""
         ctx = self.gl.ctx
-        program = self.gl.program(f"{self.method}_bundles", NULL_FRAGMENT=True) if null_fragment else self.program
+        program = self.gl.program(f"{self.method}_bundles", NULL_FRAGMENT=True, TEXTURES=self.textures) if null_fragment else self.program
         vao = self.vao if not null_fragment else self._null_vao(program)
         self.buffers["HEADS"].clear(chunk=b"\xff\xff\xff\xff")
         self.buffers["COUNTERS"].clear()

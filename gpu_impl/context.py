@@ -31,19 +31,19 @@ BINDINGS = {
     "AREA_CDF": 7, "FRAMES": 8, "COUNTERS": 9, "HEADS": 10, "NEXT": 11, "NODE_DEPTH": 12, "NODE_PRIM": 13,
     "NODE_NORMAL": 14, "NODE_ALBEDO": 15, "OFFSETS": 16, "SORTED_NODE": 17, "SORTED_DEPTH": 18, "POINTS": 19,
     "SCAN_DATA": 20, "SCAN_SUMS": 21, "NODE_RADIANCE": 22, "PATHS": 23, "PATH_SUMS": 24, "IMAGES": 25, "LIGHTS": 26,
-    "SHADOW_VIEWS": 27, "ENVMAP": 28,
+    "SHADOW_VIEWS": 27, "ENVMAP": 28, "ALIVE_PATHS": 29,
 }
 # Every program in shaders/ with each set of defines the code compiles it with (tests compile them all).
 SHADER_VARIANTS = {
-    "perfect_bundles": [{}, {"NULL_FRAGMENT": True}],
-    "imperfect_bundles": [{}, {"NULL_FRAGMENT": True}],
+    "perfect_bundles": [{"TEXTURES": t, **n} for t in (0, 1) for n in ({}, {"NULL_FRAGMENT": True})],
+    "imperfect_bundles": [{"TEXTURES": t, **n} for t in (0, 1) for n in ({}, {"NULL_FRAGMENT": True})],
     "splat_points": [{}],
     "resolve_lists": [{"COUNT_LISTS": True}, {"SORT_LISTS": True}],
     "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],
     "gbuffer": [{}],
     "shadow_maps": [{}],
     "node_radiance": [{"SHADOW_LIGHTS": 1, "NODE_SIDES": sides} for sides in (1, 2)],
-    "primary": [{"SHADOW_LIGHTS": lights, "ENVIRONMENT": env} for lights, env in ((0, 0), (1, 1), (0, 2))],
+    "primary": [{"SHADOW_LIGHTS": lights, "ENVIRONMENT": env, "TEXTURES": t} for lights, env, t in ((0, 0, 0), (1, 1, 1), (0, 2, 1))],
     "eye_paths": [{"SHADOW_LIGHTS": lights, "ENVIRONMENT": env, "NODE_SIDES": sides}
                   for lights, env, sides in ((0, 0, 1), (1, 1, 2), (1, 2, 1))],
     "resolve_images": [{}],

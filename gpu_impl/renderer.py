@@ -68,6 +68,8 @@ class RenderSettings:
     time: float = 0.0
     time_step: float = 0.0
     self_hit_bias: float = 0.25
+    rotate_directions: bool = True  # False: every frame uses frame 0's directions (static scenes reuse its bundles)
+    stop_early: bool = True  # skip the bounce passes left once every path has ended
     shadow_map_size: int = 1024
     shadow_filter: int = 1
     shadow_bias: float = 1.0
@@ -126,12 +128,16 @@ class Renderer:
         self.tracer = BundleTracer(gl, self.gpu_scene, settings.method, directions=settings.directions,
                                    resolution=settings.resolution, points=settings.points,
                                    splat_scale=settings.splat_scale, node_budget=settings.node_budget)
+        # A static scene seen along the same directions every frame has the same bundles and the
+        # same direct light at their nodes: both are made once.
+        self.reuse_bundles = not settings.rotate_directions and not (scene.animated and settings.time_step != 0.0)
         self.lights = ShadowLights(gl, self.gpu_scene, settings.shadow_map_size, settings.shadow_bias,
                                    settings.shadow_slope_bias, settings.shadow_filter)
         features = scene.features()
         # Shader variants from the scene's features: no shadow-map lookups without such lights, no
         # environment lookups without one, a node's back-side radiance only with two-sided materials.
         self.defines = {**self.lights.defines(), "NODE_SIDES": 2 if features.twosided else 1}
+        textures = {"TEXTURES": int(features.textures)}
         # The last bounce pass only collects emission and environment light; without either it adds nothing.
         self.steps = settings.bounces + (1 if features.emitters or features.environment else 0)
         ctx = gl.ctx
@@ -143,7 +149,7 @@ class Renderer:
         self.gbuffer_vao = self.gpu_scene.vertex_array(self.gbuffer_program)
         d = self.defines
         self.programs = {
-            "primary": gl.program("primary", SHADOW_LIGHTS=d["SHADOW_LIGHTS"], ENVIRONMENT=d["ENVIRONMENT"]),
+            "primary": gl.program("primary", SHADOW_LIGHTS=d["SHADOW_LIGHTS"], ENVIRONMENT=d["ENVIRONMENT"], **textures),
             "eye_paths": gl.program("eye_paths", **d),
             "resolve_images": gl.program("resolve_images"),
         }
@@ -154,6 +160,7 @@ class Renderer:
             "PATH_SUMS": ctx.buffer(reserve=32 * self.paths),  # and PathSums
             "IMAGES": ctx.buffer(reserve=2 * 16 * self.width * self.height),
             "NODE_RADIANCE": ctx.buffer(reserve=4),
+            "ALIVE_PATHS": ctx.buffer(reserve=4),
         }
         self.radiance_capacity = 0
         self._posed_at = self.times[0]  # the pose on the GPU
@@ -179,14 +186,20 @@ class Renderer:
         start = time.perf_counter()
         self.buffers["PATH_SUMS"].clear()
         frames, bundle_stats = [], []
+        self.skipped_bounces = 0
         for f in range(st.frames):
             timer = PassTimer(self.gl)
             if self.moving and (f > 0 or self._posed_at != self.times[0]):
                 self.gpu_scene.pose(self.scene.at(self.times[f]))
             self._posed_at = self.times[f]
-            stats = self.tracer.build(DirectionSet.make(st.directions, seed=st.seed, frame=f, jitter=True))
+            reused = self.reuse_bundles and f > 0
+            if reused:
+                stats = {**self.tracer.stats, "gpu_ms": {k: 0.0 for k in self.tracer.stats["gpu_ms"]}, "overflow_reruns": 0}
+            else:
+                stats = self.tracer.build(DirectionSet.make(st.directions, seed=st.seed, frame=f if st.rotate_directions else 0,
+                                                            jitter=True))
             bundle_stats.append(stats)
-            self._frame(f, timer, shadow_maps=f == 0 or self.moving)
+            self._frame(f, timer, shadow_maps=f == 0 or self.moving, node_direct=not reused)
             passes = {"bundles": _sum_ms(stats["gpu_ms"].values()), **{f"bundles.{k}": v for k, v in stats["gpu_ms"].items()},
                       **timer.milliseconds()}
             frames.append(passes)
@@ -211,11 +224,12 @@ class Renderer:
             "overflow_reruns": sum(s["overflow_reruns"] for s in bundle_stats),
             "max_list_length": max(s["max_list_length"] for s in bundle_stats),
             "paths_per_frame": self.paths, "bounce_passes": self.steps,
+            "bounce_passes_skipped": self.skipped_bounces, "bundles_reused": st.frames - 1 if self.reuse_bundles else 0,
             "gpu_bytes": self.gpu_bytes,
         }
         return RenderResult(images, timings, stats, self.params(), list(self.scene.warnings))
 
-    def _frame(self, frame: int, timer: PassTimer, shadow_maps: bool) -> None:
+    def _frame(self, frame: int, timer: PassTimer, shadow_maps: bool, node_direct: bool = True) -> None:
         st = self.settings
         gl = self.gl
         self._grow_radiance(self.tracer.stats["nodes"])
@@ -223,13 +237,18 @@ class Renderer:
             with timer.measure("shadow_maps"):
                 self.lights.render_shadow_maps()
         self._bind()
-        if self.defines["SHADOW_LIGHTS"]:
+        if self.defines["SHADOW_LIGHTS"] and node_direct:
             with timer.measure("node_direct"):
                 gl.dispatch(self.programs["node_radiance"], self.tracer.list_count)
                 gl.ctx.memory_barrier()
         with timer.measure("gbuffer"):
             self._gbuffer(frame)
         for j in range(1, self.steps + 1):
+            # Once every path has ended (throughput zero, or nothing hit), the passes left add nothing.
+            if st.stop_early and self._alive_paths() == 0:
+                self.skipped_bounces += self.steps - j + 1
+                break
+            self.buffers["ALIVE_PATHS"].write(b"\0\0\0\0")
             with timer.measure(f"bounce_{j}"):
                 program = self.programs["eye_paths"]
                 program["bounce"] = j
@@ -256,8 +275,12 @@ class Renderer:
         ctx.disable(moderngl.DEPTH_TEST)
         program = self.programs["primary"]
         program["subpixel"] = tuple(subpixel)
+        self.buffers["ALIVE_PATHS"].write(b"\0\0\0\0")
         self.gl.dispatch(program, self.paths)
         ctx.memory_barrier()
+
+    def _alive_paths(self) -> int:
+        return int(np.frombuffer(self.buffers["ALIVE_PATHS"].read(4), dtype=np.uint32)[0])
 
     def _bind(self) -> None:
         """Every buffer and texture the frame's compute passes read, at their bindings."""

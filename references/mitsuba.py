@@ -46,6 +46,7 @@ DEFAULT_STORE = Path(__file__).resolve().parent / "store"
 IMAGES = ("direct", "indirect", "total")
 STORE_FORMAT = 1
 DEFAULT_CHUNKS = 32
+TIMED_STREAM = 2**31  # the chunk index of `timed_render`'s samples: references use 0 .. chunks - 1
 
 
 @dataclass
@@ -88,12 +89,7 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
     if (entry / "manifest.json").is_file():
         return load_reference(entry, reused=True)
 
-    from evalkit.mitsuba_env import mitsuba
-    from evalkit.scene.mitsuba_io import to_mitsuba_dict
-
-    mi = mitsuba(variant)
-    mi_scene = mi.load_dict(to_mitsuba_dict(scene, mi, spp=spp // chunks, width=width, height=height))
-    integrators = {depth: mi.load_dict({"type": "path", "max_depth": depth, "rr_depth": depth}) for depth in (2, bounces + 2)}
+    mi, mi_scene, integrators = _mitsuba_scene(scene, bounces, spp // chunks, width, height, variant)
     entry.mkdir(parents=True, exist_ok=True)
     state_path = entry / "progress.npz"
     done, sums, squares = 0, np.zeros((3, height, width, 3)), np.zeros((3, height, width, 3))
@@ -150,6 +146,39 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
     (entry / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
     state_path.unlink()
     return load_reference(entry, reused=False)
+
+
+def _mitsuba_scene(scene: Scene, bounces: int, spp: int, width: int, height: int, variant: str | None):
+    """Mitsuba, the scene loaded at ``spp`` per render, and the path integrators for the direct
+    image (max_depth 2) and the total one (max_depth bounces + 2), by max_depth."""
+    from evalkit.mitsuba_env import mitsuba
+    from evalkit.scene.mitsuba_io import to_mitsuba_dict
+
+    mi = mitsuba(variant)
+    mi_scene = mi.load_dict(to_mitsuba_dict(scene, mi, spp=spp, width=width, height=height))
+    integrators = {depth: mi.load_dict({"type": "path", "max_depth": depth, "rr_depth": depth}) for depth in (2, bounces + 2)}
+    return mi, mi_scene, integrators
+
+
+def timed_render(scene: Scene, bounces: int, spp: int, width: int, height: int, seed: int,
+                 variant: str | None = None) -> tuple[dict[str, np.ndarray], float, dict]:
+    """Mitsuba's direct, indirect and total images at ``spp`` and the seconds they took, for
+    comparing speed against error: a 1-spp warm-up render first compiles Mitsuba's kernels, so the
+    time is rendering only. Both the direct and the total render are timed, as the indirect image
+    needs both. ``seed`` goes through `chunk_seed` with a chunk index no reference uses, so a test
+    image never shares samples with a stored reference of the same seed. Returns images, seconds
+    and provenance."""
+    mi, mi_scene, integrators = _mitsuba_scene(scene, bounces, spp, width, height, variant)
+    for integrator in integrators.values():
+        mi.render(mi_scene, integrator=integrator, seed=1, spp=1)
+    seed = chunk_seed(seed, TIMED_STREAM)
+    # spp given again: a render's spp argument stays set on the scene's sampler.
+    start = time.perf_counter()
+    direct = np.array(mi.render(mi_scene, integrator=integrators[2], seed=seed, spp=spp), dtype=np.float64)[..., :3]
+    total = np.array(mi.render(mi_scene, integrator=integrators[bounces + 2], seed=seed, spp=spp), dtype=np.float64)[..., :3]
+    seconds = time.perf_counter() - start
+    images = {"direct": direct, "indirect": total - direct, "total": total}
+    return images, seconds, {"mitsuba": mi.__version__, "variant": mi.variant()}
 
 
 def load_reference(entry: str | os.PathLike, reused: bool = True) -> Reference:

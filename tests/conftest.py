@@ -49,5 +49,18 @@ def write_texture(path, size: int = 8, seed: int = 0) -> np.ndarray:
 
 
 def relmse(test: np.ndarray, ref: np.ndarray, eps: float = 0.01) -> float:
-    """Mean of (x - r)^2 / (r^2 + eps), the tev form, over pixels and channels."""
-    return float(np.mean((test - ref) ** 2 / (ref**2 + eps)))
+    """Mean of (x - r)^2 / (r^2 + eps), the tev form, over pixels and channels (the toolkit's own metric)."""
+    from evalkit.metrics.images import relmse as metric
+
+    return metric(np.asarray(test, dtype=np.float64), np.asarray(ref, dtype=np.float64), eps).value
+
+
+# Hypothesis: derandomized in CI (the same examples every run); `make fuzz` (HYPOTHESIS_PROFILE=fuzz)
+# draws fresh examples, many more of them.
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True,
+                          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+settings.register_profile("fuzz", derandomize=False, deadline=None, max_examples=5000, print_blob=True,
+                          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))

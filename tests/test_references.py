@@ -134,3 +134,20 @@ def test_cli_reference_writes_images_and_manifest(tmp_path):
     bad = run_evalkit("reference", "furnace", "--spp", "10", "--chunks", "4", "--store", str(tmp_path / "store"),
                       "--out", str(tmp_path / "out2"))
     assert bad.returncode == 2 and "divide spp=10" in bad.stderr and bad.stderr.count("\n") == 1
+
+
+def test_timed_renders_use_their_sample_count(mi):
+    """`timed_render` (error against time in studies): more samples, less error, more time; a
+    1-spp warm-up must not leave the sampler at 1 spp."""
+    from references.mitsuba import load_reference, store_entry, timed_render
+
+    scene = load_scene("cornell-box")
+    ref = load_reference(store_entry(scene.name, scene.content_hash(), 1, 16384, 128, 128, 0, DEFAULT_STORE))
+    errors, seconds = [], []
+    for spp in (2, 32):
+        images, s, info = timed_render(scene, 1, spp, 128, 128, seed=0)
+        errors.append(relmse(images["total"], ref.images["total"]))
+        seconds.append(s)
+    # 16x the samples: the error falls about 16x (asserted: more than 6x).
+    assert errors[1] < errors[0] / 6, errors
+    assert seconds[1] > seconds[0] and info["mitsuba"] == mi.__version__

@@ -16,6 +16,13 @@ when that node is within the depth tolerance. Then:
 So test nodes = matched + redundant + spurious, and exact nodes = matched + holes. Node agreement
 is matched / exact nodes. The tolerance is relative to the frame radius, so the numbers do not
 change with the scene's scale.
+
+The rates are also broken down by direction and by **slope**: |cos| between the bundle direction
+and the node's surface normal, in `SLOPE_BINS` (0 is grazing, 1 head-on). Holes are counted at
+the exact node's surface, spurious and redundant nodes at the test node's.
+
+`next_hit_errors` measures what the renderer sees: from eye vertices, the next hit that a bundle
+lookup returns (the rule of shaders/eye_paths.glsl) against an exact Embree ray from the vertex.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ from evalkit.bundleset import BundleSet
 # GL perfect depths are float32 along lines centred on the bounding sphere: about 1e-6 of the
 # radius. 1e-4 leaves a wide margin and still separates surfaces 1e-4 r apart.
 DEFAULT_DEPTH_TOLERANCE = 1e-4
+SLOPE_BINS = (0.0, 0.1, 0.25, 0.5, 0.75, 1.0)
 
 
 def frame_mismatch(test: BundleSet, exact: BundleSet) -> str | None:
@@ -100,6 +108,15 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
     def per_direction(mask, direction):
         return np.bincount(direction[mask], minlength=K)
 
+    def slope_bin(normals, lists):
+        cos = np.abs(np.einsum("ij,ij->i", normals.astype(np.float64), exact.directions.directions[lists // R2]))
+        return np.clip(np.searchsorted(SLOPE_BINS, cos, side="right") - 1, 0, len(SLOPE_BINS) - 2)
+
+    bins = len(SLOPE_BINS) - 1
+    e_slope, t_slope = slope_bin(exact.normal, e_list), slope_bin(test.normal, t_list)
+    exact_s, test_s = np.bincount(e_slope, minlength=bins), np.bincount(t_slope, minlength=bins)
+    holes_s = np.bincount(e_slope[starts], weights=hole_per_cluster, minlength=bins)
+
     exact_k, test_k = np.bincount(e_dir, minlength=K), np.bincount(t_dir, minlength=K)
     holes_k = np.bincount(e_dir[starts], weights=hole_per_cluster, minlength=K).astype(np.int64)
     spurious_k = per_direction(spurious_node, t_dir)
@@ -138,4 +155,145 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
             "spurious_rate": (spurious_k / np.maximum(test_k, 1)).tolist(),
             "redundant_rate": (redundant_k / np.maximum(test_k, 1)).tolist(),
         },
+        "per_slope": {  # |cos| between direction and surface normal, bins [SLOPE_BINS[i], SLOPE_BINS[i + 1])
+            "bins": list(SLOPE_BINS),
+            "exact_nodes": exact_s.tolist(),
+            "test_nodes": test_s.tolist(),
+            "hole_rate": (holes_s / np.maximum(exact_s, 1)).tolist(),
+            "spurious_rate": (np.bincount(t_slope[spurious_node], minlength=bins) / np.maximum(test_s, 1)).tolist(),
+            "redundant_rate": (np.bincount(t_slope[redundant_node], minlength=bins) / np.maximum(test_s, 1)).tolist(),
+        },
+    }
+
+
+# -- next hits from eye vertices ----------------------------------------------------------------
+
+# A lookup agrees with the exact ray when both miss, or both hit the same surface: the bundle's
+# hit faces the same way as the ray's (normals within 90 degrees, which tells a thin slab's two
+# sides apart) and lies within NEXT_HIT_PIXELS / |cos| bundle pixels of it (the line runs up to
+# sqrt(2) pixels beside the vertex, which moves its hit by that over |cos| on the slanted surface
+# it meets; curved, tessellated surfaces rule out a same-plane test).
+NEXT_HIT_PIXELS = 2.0
+NEXT_HIT_MIN_COS = 1e-3
+
+
+def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = None, height: int | None = None) -> dict:
+    """Surface points where eye paths look up bundles: the camera's first hits through uniformly
+    random film positions, and as many second vertices, one cosine-distributed bounce further.
+    Returns position, normal (shading, facing the arriving ray) and geometric normal, (M, 3)."""
+    from gpu_impl.renderer import camera_frame
+
+    rng = np.random.default_rng(seed)
+    w, h = width or scene.camera.width, height or scene.camera.height
+    cam = camera_frame(scene, np.zeros(3), w, h)
+    film = rng.random((count, 2))
+    tx, ty = cam["tan_half"]
+    local = np.stack([(0.5 - film[:, 0]) * 2 * tx, (0.5 - film[:, 1]) * 2 * ty, np.ones(count)], axis=1)
+    origins = np.broadcast_to(cam["origin"], (count, 3))
+    rays = local @ cam["to_world"].T
+    points, normals, geometric = [], [], []
+    for _ in range(2):
+        hits = tracer.next_hit(origins, rays)
+        ok = hits.prim_id >= 0
+        facing = np.where(np.einsum("ij,ij->i", hits.geometric_normal, rays) > 0, -1.0, 1.0)[:, None]
+        ng, ns = (hits.geometric_normal * facing)[ok], (hits.normal * facing)[ok]
+        points.append(hits.point[ok]), normals.append(ns), geometric.append(ng)
+        # The next vertex: a cosine-distributed bounce about the geometric normal.
+        t1 = np.cross(ng, np.where(np.abs(ng[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]]))
+        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+        t2 = np.cross(ng, t1)
+        u1, u2 = rng.random(len(ng)), rng.random(len(ng))
+        r, phi = np.sqrt(u1), 2 * np.pi * u2
+        rays = (r * np.cos(phi))[:, None] * t1 + (r * np.sin(phi))[:, None] * t2 + np.sqrt(1 - u1)[:, None] * ng
+        origins = hits.point[ok] + tracer.epsilon * ng
+    return {"position": np.concatenate(points), "normal": np.concatenate(normals), "geometric": np.concatenate(geometric)}
+
+
+def bundle_lookup(bundles: BundleSet, position: np.ndarray, normal: np.ndarray, geometric: np.ndarray, k: np.ndarray,
+                  self_hit_bias: float = 0.25) -> dict:
+    """The renderer's next-vertex lookup (shaders/eye_paths.glsl) on a `BundleSet`, in float64:
+    per vertex, the direction taken (d_k or -d_k, in the shading hemisphere), whether it leaves the
+    geometric surface, and the node found (index into the set's nodes, -1: none)."""
+    ds = bundles.directions
+    R, h = bundles.resolution, bundles.pixel_size()
+    d, u, v = ds.directions[k], ds.axis_u[k], ds.axis_v[k]
+    c = np.einsum("ij,ij->i", d, normal)
+    forward = c >= 0
+    omega = np.where(forward[:, None], d, -d)
+    cg = np.einsum("ij,ij->i", geometric, d)
+    leaves = np.where(forward, cg > 0, cg < 0)
+    p = position - bundles.centre
+    grid = np.stack([(np.einsum("ij,ij->i", p, u) / bundles.radius * 0.5 + 0.5) * R - ds.jitter[k, 0] - 0.5,
+                     (np.einsum("ij,ij->i", p, v) / bundles.radius * 0.5 + 0.5) * R - ds.jitter[k, 1] - 0.5], axis=1)
+    above = np.stack([np.einsum("ij,ij->i", geometric, u), np.einsum("ij,ij->i", geometric, v)], axis=1)
+    pixel = np.clip(np.where(above >= 0, np.ceil(grid), np.floor(grid)), 0, R - 1).astype(np.int64)
+    lists = k * R * R + pixel[:, 1] * R + pixel[:, 0]
+    origin = (bundles.centre + (bundles.radius * (2.0 * (pixel[:, :1] + 0.5 + ds.jitter[k, :1]) / R - 1.0)) * u
+              + (bundles.radius * (2.0 * (pixel[:, 1:] + 0.5 + ds.jitter[k, 1:]) / R - 1.0)) * v - bundles.radius * d)
+    depth = np.einsum("ij,ij->i", position - origin, d)
+    off_line = position - (origin + depth[:, None] * d)
+    crossing = depth + np.einsum("ij,ij->i", geometric, off_line) / np.where(leaves, cg, 1.0)
+    bias = self_hit_bias * h
+    bound = np.where(forward, np.maximum(depth, crossing) + bias, np.minimum(depth, crossing) - bias)
+    first, last = bundles.offsets[lists], bundles.offsets[lists + 1]
+    depths = bundles.depth.astype(np.float64)
+    node = np.full(len(k), -1, np.int64)
+    for i in np.nonzero(leaves)[0]:  # vertices are thousands; each search is a few steps
+        span = depths[first[i]:last[i]]
+        if forward[i]:
+            j = np.searchsorted(span, bound[i], side="right")
+            node[i] = first[i] + j if j < len(span) else -1
+        else:
+            j = np.searchsorted(span, bound[i], side="left")
+            node[i] = first[i] + j - 1 if j > 0 else -1
+    found = np.nonzero(node >= 0)[0]
+    point = np.full((len(k), 3), np.nan)
+    point[found] = origin[found] + depths[node[found], None] * d[found]
+    return {"omega": omega, "leaves": leaves, "node": node, "point": point}
+
+
+def next_hit_errors(bundles: BundleSet, tracer, vertices: dict, seed: int = 0, self_hit_bias: float = 0.25) -> dict:
+    """The next-hit error rate of ``bundles`` from ``vertices`` (see `eye_vertices`): each vertex
+    takes a uniformly random bundle direction, as an eye path does; the bundle lookup is compared
+    with the exact Embree ray from the vertex along the same direction. Vertices whose direction
+    does not leave their surface (shading normals) end their path in the renderer and are not
+    counted. Broken down by outcome, by direction and by the slope at the exact hit."""
+    rng = np.random.default_rng(seed)
+    K = bundles.directions.count
+    k = rng.integers(0, K, len(vertices["position"]))
+    look = bundle_lookup(bundles, vertices["position"], vertices["normal"], vertices["geometric"], k, self_hit_bias)
+    use = np.nonzero(look["leaves"])[0]
+    k, omega = k[use], look["omega"][use]
+    node, point = look["node"][use], look["point"][use]
+    ng = vertices["geometric"][use]
+    exact = tracer.next_hit(vertices["position"][use] + tracer.epsilon * ng, omega)
+    bundle_hit, exact_hit = node >= 0, exact.prim_id >= 0
+    facing = np.zeros(len(node), bool)
+    facing[bundle_hit] = np.einsum("ij,ij->i", bundles.normal[node[bundle_hit]].astype(np.float64), exact.normal[bundle_hit]) > 0
+    distance = np.linalg.norm(np.nan_to_num(point) - exact.point, axis=1)
+    cos = np.abs(np.einsum("ij,ij->i", exact.geometric_normal, omega))
+    same = (bundle_hit & exact_hit & facing
+            & (distance <= NEXT_HIT_PIXELS * bundles.pixel_size() / np.maximum(cos, NEXT_HIT_MIN_COS)))
+    agree = (~bundle_hit & ~exact_hit) | same
+    false_miss = ~bundle_hit & exact_hit
+    false_hit = bundle_hit & ~exact_hit
+    wrong_surface = bundle_hit & exact_hit & ~same
+    bins = len(SLOPE_BINS) - 1
+    slope = np.clip(np.searchsorted(SLOPE_BINS, cos, side="right") - 1, 0, bins - 1)
+    n_k = np.bincount(k, minlength=K)
+    n_s = np.bincount(slope[exact_hit], minlength=bins)
+    n = max(len(use), 1)
+    return {
+        "vertices": int(len(vertices["position"])),
+        "lookups": int(len(use)),
+        "pixel_tolerance": NEXT_HIT_PIXELS,
+        "self_hit_bias": self_hit_bias,
+        "error_rate": float(1.0 - agree.sum() / n),
+        "false_miss_rate": float(false_miss.sum() / n),
+        "false_hit_rate": float(false_hit.sum() / n),
+        "wrong_surface_rate": float(wrong_surface.sum() / n),
+        "per_direction": {"lookups": n_k.tolist(),
+                          "error_rate": (np.bincount(k[~agree], minlength=K) / np.maximum(n_k, 1)).tolist()},
+        "per_slope": {"bins": list(SLOPE_BINS), "lookups": n_s.tolist(),
+                      "error_rate": (np.bincount(slope[exact_hit & ~agree], minlength=bins) / np.maximum(n_s, 1)).tolist()},
     }

@@ -121,6 +121,7 @@ void main() {
     sums[id].indirect.rgb += reflected;
     path.throughput = throughput;
     path.alive = alive ? 1u : 0u;
+    if (alive) atomicAdd(alive_paths, 1u);
     paths[id] = path;
 }
 

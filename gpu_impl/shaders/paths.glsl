@@ -32,6 +32,8 @@ struct PathSums {
 
 layout(std430, binding = BINDING_PATHS) buffer Paths { Path paths[]; };
 layout(std430, binding = BINDING_PATH_SUMS) buffer Sums { PathSums sums[]; };
+// Paths still alive after a bounce pass: when none is, the passes left are skipped.
+layout(std430, binding = BINDING_ALIVE_PATHS) buffer AlivePaths { uint alive_paths; };
 
 #if defined BUNDLE_LOOKUP
 // Per node in CSR order, NODE_SIDES rgb triples: the direct light the node's front (and, for a

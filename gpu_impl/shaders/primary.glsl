@@ -57,6 +57,7 @@ void main() {
             vec3 g = triangle_normal(t);
             path = Path(camera_origin + depth * dir, encode_normal(n), vec3(1.0), 1u, albedo,
                         encode_normal(dot(g, dir) < 0.0 ? g : -g));
+            atomicAdd(alive_paths, 1u);
         }
         // else: the back of a one-sided surface, black as in Mitsuba; the path ends.
     }

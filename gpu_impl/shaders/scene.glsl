@@ -70,9 +70,13 @@ vec3 texel(uint first, uint width, int x, int y) {
 
 // Bilinear, repeat-wrapped lookup: texel (row, col) is centred on ((col + 0.5) / W, (row + 0.5) / H)
 // in (u, v), as Mitsuba's bitmap texture and evalkit.scene.model.sample_texture have it.
+// TEXTURES 0 (a scene without textures) compiles the texture fetch out.
+#ifndef TEXTURES
+#define TEXTURES 1
+#endif
 vec3 material_albedo(uint m, vec2 uv) {
     uvec4 tex = materials[m].texture;
-    if ((tex.w & MATERIAL_TEXTURED) == 0u) return materials[m].albedo.rgb;
+    if (TEXTURES == 0 || (tex.w & MATERIAL_TEXTURED) == 0u) return materials[m].albedo.rgb;
     ivec2 size = ivec2(tex.yz);
     vec2 p = uv * vec2(size) - 0.5;
     vec2 f = floor(p);

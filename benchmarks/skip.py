@@ -1,0 +1,137 @@
+"""What skipping work a scene does not need saves, each skip against the unskipped path, side by
+side in one run:
+
+- texture variant: bundle builds of a scene without textures with the shader variant that has no
+  texture fetch (TEXTURES 0) against the one that has it;
+- early bounce stop: a render whose paths all end at the first bounce (black diffuse surfaces
+  around an emitter) with the bounce passes skipped once no path is alive, against running all B;
+- bundle reuse: frames with fixed directions on a static scene (bundles and node direct light made
+  once) against rotating directions (both built every frame); this one changes the result, so its
+  relMSE against the committed Mitsuba reference is printed beside the time;
+- node buffer sizing: the node capacity after the first frame (from the measured count) against
+  the first guess (from the depth complexity of the bounds).
+
+    python benchmarks/skip.py [--repeats 5] [--frames 8]
+
+Times are medians over the repeats, runs interleaved. Prints a table; the last line is one JSON
+object with every figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+from dataclasses import replace
+
+import numpy as np
+
+from evalkit.bundleset import DirectionSet
+from evalkit.metrics.images import relmse
+from evalkit.scene import load_scene
+from gpu_impl.bundles import BundleTracer
+from gpu_impl.context import GLContext
+from gpu_impl.renderer import Renderer, RenderSettings
+
+
+def texture_variant(gl, repeats: int) -> dict:
+    scene = load_scene("cornell-box")  # no textures
+    ds = DirectionSet.make(64, seed=0)
+    tracers = {t: BundleTracer(gl, scene, "perfect", directions=64, resolution=128, textures=t) for t in (False, True)}
+    times = {t: [] for t in tracers}
+    for _ in range(repeats):
+        for t, tracer in tracers.items():
+            times[t].append(sum(tracer.build(ds)["gpu_ms"].values()))
+    for tracer in tracers.values():
+        tracer.release()
+    skipped, full = statistics.median(times[False]), statistics.median(times[True])
+    return {"what": "perfect bundle build, cornell-box K=64 R=128", "skipped_ms": skipped, "unskipped_ms": full,
+            "saving": full / skipped, "result_change": "none (bitwise the same lists)"}
+
+
+def black_scene():
+    """cornell-box with every non-emissive surface black: every path ends at its first bounce."""
+    scene = load_scene("cornell-box")
+    materials = [m if m.emissive else replace(m, albedo=(0.0, 0.0, 0.0)) for m in scene.materials]
+    return replace(scene, materials=materials)
+
+
+def early_stop(gl, repeats: int, frames: int) -> dict:
+    scene = black_scene()
+    base = RenderSettings(bounces=8, directions=32, resolution=128, width=128, height=128, frames=frames, spp=4)
+    renderers = {stop: Renderer(gl, scene, replace(base, stop_early=stop)) for stop in (True, False)}
+    times, images, skipped = {s: [] for s in renderers}, {}, 0
+    for _ in range(repeats):
+        for stop, renderer in renderers.items():
+            result = renderer.render()
+            times[stop].append(sum(v for k, v in result.timings["median_ms"].items() if k.startswith("bounce_")) or 0.0)
+            images[stop] = result.images["total"]
+            skipped = max(skipped, result.stats["bounce_passes_skipped"])
+    for renderer in renderers.values():
+        renderer.release()
+    on, off = statistics.median(times[True]), statistics.median(times[False])
+    return {"what": "bounce passes per frame, black cornell-box, B=8", "skipped_ms": on, "unskipped_ms": off,
+            "saving": off / max(on, 1e-9), "passes_skipped_per_frame": skipped / frames,
+            "result_change": f"max |difference| {float(np.abs(images[True] - images[False]).max()):.3g}"}
+
+
+def bundle_reuse(gl, repeats: int, frames: int) -> dict:
+    from references.mitsuba import DEFAULT_STORE, load_reference, store_entry
+
+    scene = load_scene("cornell-box")
+    ref = load_reference(store_entry(scene.name, scene.content_hash(), 3, 16384, 128, 128, 0, DEFAULT_STORE))
+    base = RenderSettings(bounces=3, directions=32, resolution=128, width=128, height=128, frames=frames, spp=16)
+    times, errors = {r: [] for r in (False, True)}, {r: [] for r in (False, True)}
+    for seed in range(repeats):
+        for rotate in times:
+            renderer = Renderer(gl, scene, replace(base, rotate_directions=rotate, seed=seed))
+            result = renderer.render()
+            renderer.release()
+            times[rotate].append(result.timings["wall_s"] * 1e3 / frames)
+            errors[rotate].append(relmse(result.images["indirect"], ref.images["indirect"]).value)
+    reuse, rotate = statistics.median(times[False]), statistics.median(times[True])
+    return {"what": f"frame, cornell-box K=32 R=128 B=3, {frames} frames", "skipped_ms": reuse, "unskipped_ms": rotate,
+            "saving": rotate / reuse,
+            "result_change": f"indirect relMSE {statistics.median(errors[False]):.4g} (fixed) vs "
+                             f"{statistics.median(errors[True]):.4g} (rotating), medians over seeds 0..{repeats - 1}"}
+
+
+def node_capacity(gl) -> dict:
+    scene = load_scene("atrium")
+    tracer = BundleTracer(gl, scene, "perfect", directions=32, resolution=128)
+    first = tracer.capacity
+    for f in range(2):
+        tracer.build(DirectionSet.make(32, seed=0, frame=f))
+    after, nodes = tracer.capacity, tracer.stats["nodes"]
+    tracer.release()
+    return {"what": "node capacity, atrium K=32 R=128", "first_guess_nodes": first, "after_first_frame_nodes": after,
+            "measured_nodes": nodes, "saving": first / after, "result_change": "none"}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--frames", type=int, default=8)
+    args = parser.parse_args()
+    with GLContext() as gl:
+        results = {
+            "texture_variant": texture_variant(gl, args.repeats),
+            "early_bounce_stop": early_stop(gl, args.repeats, args.frames),
+            "bundle_reuse": bundle_reuse(gl, args.repeats, args.frames),
+            "node_capacity": node_capacity(gl),
+        }
+        renderer = gl.info.get("GL_RENDERER")
+    print(f"GL: {renderer}; medians of {args.repeats} repeats")
+    print(f"{'skip':20}{'skipped':>14}{'unskipped':>14}{'saving':>9}  measured on / result change")
+    for name, r in results.items():
+        if name == "node_capacity":
+            print(f"{name:20}{r['after_first_frame_nodes']:>14,}{r['first_guess_nodes']:>14,}{r['saving']:>8.2f}x  "
+                  f"nodes; {r['what']}, {r['measured_nodes']:,} measured")
+        else:
+            print(f"{name:20}{r['skipped_ms']:>11.1f} ms{r['unskipped_ms']:>11.1f} ms{r['saving']:>8.2f}x  "
+                  f"{r['what']}; {r['result_change']}")
+    print(json.dumps({"gl_renderer": renderer, "repeats": args.repeats, **results}))
+
+
+if __name__ == "__main__":
+    main()

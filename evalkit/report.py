@@ -1,0 +1,303 @@
+"""The HTML report of a study: what was run and how (command, versions, reduced sizes), the results
+table, plots, the bias/variance split over seeds, the hole model, tonemapped images beside their
+references and error maps, and the warnings the scenes raised. Everything it shows is in the
+study folder: report.html, plots/*.png, images/*.png, results.csv."""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from evalkit.study import RUN_DEFAULTS, Study, run_id
+
+IMAGE_CAP = 12
+IMPERFECT_ONLY = {"points", "splat_scale"}  # run parameters only imperfect bundles have
+REPORT_EXPOSURE = 0.0
+
+
+def tonemap(image: np.ndarray, exposure: float = REPORT_EXPOSURE) -> np.ndarray:
+    """Linear RGB -> 8-bit sRGB: scale by 2^exposure, clip to [0, 1], the sRGB curve."""
+    x = np.clip(image * 2.0**exposure, 0.0, 1.0)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return (srgb * 255 + 0.5).astype(np.uint8)
+
+
+def save_png(rgb8: np.ndarray, path: Path) -> None:
+    from PIL import Image
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(rgb8).save(path)
+
+
+def error_map_png(values: np.ndarray, path: Path, vmax: float | None = None) -> float:
+    """A per-pixel error map in magma, 0 .. vmax (default: its 99th percentile); returns vmax."""
+    import matplotlib
+
+    vmax = float(vmax if vmax is not None else max(np.quantile(values, 0.99), 1e-12))
+    rgba = matplotlib.colormaps["magma"](np.clip(values / vmax, 0, 1))
+    save_png((rgba[..., :3] * 255 + 0.5).astype(np.uint8), path)
+    return vmax
+
+
+def varying(study: Study) -> list[str]:
+    """The run parameters that take more than one value in the study."""
+    return [k for k in RUN_DEFAULTS if len({json.dumps(r[k]) for r in study.runs}) > 1]
+
+
+def metric_columns(rows: list[dict]) -> list[str]:
+    params = set(RUN_DEFAULTS) | {"run_id", "status", "scene_hash", "warnings", "reference", "gl_renderer"}
+    return [k for k in dict.fromkeys(k for r in rows for k in r) if k not in params and not k.startswith(("version_", "hole_rate_slope"))]
+
+
+def _fmt(value) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        if value == 0 or math.isnan(value):
+            return f"{value:g}"
+        return f"{value:.4g}" if 1e-3 <= abs(value) < 1e5 else f"{value:.3e}"
+    return str(value)
+
+
+def table_html(rows: list[dict], columns: list[str]) -> str:
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(r.get(c)))}</td>" for c in columns) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def pareto_front(rows: list[dict], x: str, y: str) -> list[dict]:
+    """Rows no other row beats in both x and y (lower is better in both)."""
+    points = sorted((r for r in rows if _number(r.get(x)) and _number(r.get(y))), key=lambda r: (r[x], r[y]))
+    front, best = [], math.inf
+    for r in points:
+        if r[y] < best:
+            front.append(r)
+            best = r[y]
+    return front
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def plot(rows: list[dict], spec: dict, path: Path) -> str:
+    """One figure per [[plot]]: y against x, a line per ``group`` value, a panel per ``facet``
+    (default: scene); ``log`` = "x", "y" or "xy"; ``pareto`` draws the front of x and the first y."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ys = spec["y"] if isinstance(spec["y"], list) else [spec["y"]]
+    facet, group = spec.get("facet", "scene"), spec.get("group")
+    facets = list(dict.fromkeys(r.get(facet) for r in rows))
+    fig, axes = plt.subplots(1, len(facets), figsize=(5.2 * len(facets), 4), squeeze=False)
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    for ax, fv in zip(axes[0], facets):
+        sub = [r for r in rows if r.get(facet) == fv]
+        series = list(dict.fromkeys((r["method"], r.get(group) if group else None) for r in sub))
+        for y in ys:
+            for method, g in series:
+                members = [r for r in sub if r["method"] == method and (group is None or r.get(group) == g)
+                           and _number(r.get(y)) and (r[y] > 0 or "y" not in spec.get("log", ""))]
+                parts = [y] if len(ys) > 1 else []
+                parts += [method] if len(methods) > 1 else []
+                parts += [f"{group}={g}"] if group and group != "method" and (method == "imperfect" or group not in IMPERFECT_ONLY) else []
+                label = ", ".join(parts) or y
+                if method != "imperfect" and spec["x"] in IMPERFECT_ONLY:
+                    # A method without splats is a baseline across the splat parameters.
+                    for r in members:
+                        ax.axhline(r[y], color="k", ls="--", lw=1, label=f"{label} (baseline)")
+                    continue
+                pts = sorted((r[spec["x"]], r[y]) for r in members if _number(r.get(spec["x"])))
+                if pts:
+                    ax.plot(*zip(*pts), marker="o", label=label)
+        if spec.get("pareto"):
+            front = pareto_front(sub, spec["x"], ys[0])
+            ax.step([r[spec["x"]] for r in front], [r[ys[0]] for r in front], where="post", color="k", lw=2, alpha=0.4,
+                    label="Pareto front")
+        if "x" in spec.get("log", ""):
+            ax.set_xscale("log")
+        if "y" in spec.get("log", ""):
+            ax.set_yscale("log")
+        ax.set_xlabel(spec["x"])
+        ax.set_ylabel(", ".join(ys))
+        ax.set_title(f"{facet} = {fv}")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return spec.get("title") or f"{', '.join(ys)} against {spec['x']}"
+
+
+def bias_variance_rows(study: Study, rows: list[dict], out: Path) -> list[dict]:
+    """Per group of runs that differ only in the seed (two seeds or more): the bias/variance split
+    of each measured image's relMSE."""
+    from evalkit.exr import read_exr
+    from evalkit.metrics.images import bias_variance
+    from references.mitsuba import load_reference
+
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        if r.get("status") == "ok" and r.get("reference"):
+            key = run_id({k: r[k] for k in RUN_DEFAULTS if k != "seed"})
+            groups.setdefault(key, []).append(r)
+    result = []
+    for members in groups.values():
+        if len(members) < 2:
+            continue
+        ref = load_reference(members[0]["reference"])
+        for image in study.measure["images"]:
+            stack = [read_exr(out / "runs" / m["run_id"] / f"{image}.exr")[0] for m in members]
+            bv = bias_variance(stack, ref.images[image], ref.variances[image])
+            entry = {k: members[0][k] for k in varying(study) if k != "seed"}
+            entry.update({"image": image, **{k: v for k, v in bv.items() if k != "per_seed_relmse"}})
+            result.append(entry)
+    return result
+
+
+def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: list[dict]) -> Path:
+    from evalkit.exr import read_exr
+    from references.mitsuba import load_reference
+
+    ok = [r for r in rows if r.get("status") == "ok"]
+    parts = [f"<h1>{html.escape(study.title)}</h1>",
+             f"<p>{html.escape(study.description)}</p>" if study.description else "",
+             f"<p><b>Reduced sizes:</b> {html.escape(study.reduced)}</p>" if study.reduced else "",
+             f"<p><b>Command:</b> <code>{html.escape(meta['command'])}</code><br><b>Finished:</b> {meta['finished']}, "
+             f"{len(ok)} of {len(rows)} runs ok ({meta['executor']}, {meta['workers']} worker(s))</p>",
+             "<p><b>Versions:</b> " + ", ".join(f"{html.escape(k)} {html.escape(str(v))}" for k, v in meta["versions"].items())
+             + (f", GL {html.escape(str(ok[0].get('gl_renderer')))}" if ok and ok[0].get("gl_renderer") else "") + "</p>",
+             f"<p>Metric definitions: relMSE = mean (t - r)^2 / (r^2 + 0.01); SMAPE = mean |t - r| / (|t| + |r| + 0.01); "
+             f"FLIP is HDR-FLIP at 67 ppd; Delta E 2000 after exposure {REPORT_EXPOSURE:g} and clipping to [0, 1]. "
+             f"Bundle rates are against Embree's exact bundles on the same lines (evalkit/metrics/bundles.py). "
+             f"Images below: exposure {REPORT_EXPOSURE:g}, sRGB.</p>"]
+    if failed:
+        parts.append("<h2>Failed runs</h2>" + table_html(failed, ["run_id", *varying(study), "status"]))
+    columns = study.report.get("columns") or ["run_id", *varying(study), *metric_columns(ok)]
+    parts.append("<h2>Results</h2><p>Every column of every run is in <a href='results.csv'>results.csv</a>.</p>"
+                 + table_html(ok, [c for c in columns if any(c in r for r in ok)]))
+
+    for i, spec in enumerate(study.plots):
+        title = plot(ok, spec, out / "plots" / f"plot{i}.png")
+        parts.append(f"<h2>{html.escape(title)}</h2><img src='plots/plot{i}.png'>")
+        if spec.get("pareto"):
+            ys = spec["y"] if isinstance(spec["y"], list) else [spec["y"]]
+            front = pareto_front(ok, spec["x"], ys[0])
+            parts.append("<p>Pareto front (no run is both faster and more accurate):</p>"
+                         + table_html(front, ["run_id", *varying(study), spec["x"], ys[0]]))
+
+    bv = bias_variance_rows(study, ok, out)
+    if bv:
+        parts.append("<h2>Bias and variance over seeds</h2><p>relMSE per seed (mean, std, range), split into variance "
+                     "(mean over pixels of the seeds' variance, weighted as relMSE) and bias^2 (the seeds' mean image "
+                     "against the reference, less the noise of both; can be slightly negative when the bias is below the noise). "
+                     "Celarek et al., CGF 2019.</p>"
+                     + table_html(bv, [*[k for k in bv[0] if k not in ("seeds", "epsilon")], "seeds"]))
+
+    if study.hole_model is not None:
+        parts.append(_hole_model_section(study, ok, out))
+
+    shown = [r for r in ok if r.get("reference") and r.get("seed") == min(x.get("seed", 0) for x in ok)][: study.report.get("images", IMAGE_CAP)]
+    if shown:
+        parts.append("<h2>Images</h2><p>Test, reference, relMSE map and FLIP map (magma, 0 to the value given).</p>")
+        for r in shown:
+            ref = load_reference(r["reference"])
+            for image in study.measure["images"]:
+                key = f"{r['run_id']}_{image}"
+                save_png(tonemap(read_exr(out / "runs" / r["run_id"] / f"{image}.exr")[0]), out / "images" / f"{key}.png")
+                save_png(tonemap(ref.images[image]), out / "images" / f"{key}_ref.png")
+                cells = [f"<figure><img src='images/{key}.png'><figcaption>{html.escape(r['method'])} {image}</figcaption></figure>",
+                         f"<figure><img src='images/{key}_ref.png'><figcaption>reference {image}</figcaption></figure>"]
+                for metric in ("relmse", "flip"):
+                    path = out / "runs" / r["run_id"] / f"{image}_{metric}_map.npy"
+                    if path.is_file():
+                        vmax = error_map_png(np.load(path), out / "images" / f"{key}_{metric}.png")
+                        cells.append(f"<figure><img src='images/{key}_{metric}.png'><figcaption>{metric} "
+                                     f"{_fmt(r.get(f'{image}_{metric}'))} (0..{vmax:.3g})</figcaption></figure>")
+                label = ", ".join(f"{k}={r[k]}" for k in varying(study))
+                parts.append(f"<div class='row'><p>{html.escape(label)}</p>{''.join(cells)}</div>")
+        if len(ok) > len(shown):
+            parts.append(f"<p>{len(shown)} of {len(ok)} runs shown (the first seed, at most {study.report.get('images', IMAGE_CAP)}).</p>")
+
+    parts.append(_thresholds_section({r["scene"] for r in rows}))
+
+    warnings = sorted({(r["scene"], w) for r in ok for w in (r.get("warnings") or "").split(" | ") if w})
+    parts.append("<h2>Scene warnings</h2>" + ("<ul>" + "".join(f"<li>{html.escape(s)}: {html.escape(w)}</li>" for s, w in warnings)
+                                            + "</ul>" if warnings else "<p>None: no scene needed an approximation.</p>"))
+    style = ("body{font-family:sans-serif;max-width:1400px;margin:2em auto}table{border-collapse:collapse;font-size:12px}"
+             "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}figure{display:inline-block;margin:4px}"
+             "figure img{width:192px;image-rendering:pixelated}figcaption{font-size:11px}")
+    path = out / "report.html"
+    path.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(study.title)}</title>"
+                    f"<style>{style}</style></head><body>{''.join(parts)}</body></html>\n")
+    return path
+
+
+def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from evalkit.metrics.hole_model import DEFAULT_NODE_COST, analyse, hole_rate_model
+
+    node_cost = float(study.hole_model.get("node_cost", DEFAULT_NODE_COST))
+    imperfect = [r for r in rows if r["method"] == "imperfect" and _number(r.get("hole_rate"))]
+    fits = analyse(imperfect, node_cost)
+    (out / "hole_model.json").write_text(json.dumps(fits, indent=2) + "\n")
+    if not fits:
+        return "<h2>Hole model</h2><p>Not fitted: it needs imperfect runs at two splat scales or more.</p>"
+    scenes = sorted({f["scene"] for f in fits})
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5.2 * len(scenes), 4), squeeze=False)
+    for ax, scene in zip(axes[0], scenes):
+        for f in fits:
+            if f["scene"] != scene or f["points"] == "all":
+                continue
+            pts = sorted((r["splat_scale"], max(r["hole_rate"], 1 / r["exact_nodes"])) for r in imperfect
+                         if r["scene"] == scene and int(r["points"]) == f["points"])
+            line = ax.plot(*zip(*pts), "o", label=f"measured N={f['points']}")[0]
+            s = np.linspace(min(p[0] for p in pts), max(p[0] for p in pts), 100)
+            ax.plot(s, hole_rate_model(s**2, f["c"], f["h0"]), "-", color=line.get_color(),
+                    label=f"{f['h0']:.2g} + {1 - f['h0']:.2g} exp(-{f['c']:.3g} s^2)")
+            ax.axvline(f["splat_scale"], color=line.get_color(), ls=":", lw=1)
+        ax.set_yscale("log")
+        ax.set_xlabel("splat scale s (radius / sqrt(A / (pi N)))")
+        ax.set_ylabel("hole rate")
+        ax.set_title(f"{scene}: measured, the model, and (dotted) the recommended s", fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "plots" / "hole_model.png", dpi=90)
+    plt.close(fig)
+    columns = ["scene", "points", "c", "h0", "c_nodes", "samples", "median_ratio_error", "max_ratio_error", "max_abs_error",
+               "splat_scale", "closed_form", "predicted_hole_rate", "predicted_cost", "measured_best_scale",
+               "nearest_grid_scale", "regret"]
+    return ("<h2>Hole model</h2><p>P(hole) = h0 + (1 - h0) exp(-c s^2) and nodes per surface crossing = c_n s^2, "
+            "fitted in log space with Dr.Jit AD (ideal coverage: c = c_n = 1, h0 = 0; h0 is the floor of crossings whose "
+            "splats lie in a neighbouring triangle's plane, see evalkit/metrics/hole_model.py). Ratio errors are |ln(predicted / measured)| of the hole rate. "
+            f"The recommended splat scale minimises hole rate + {node_cost:g} x nodes per crossing (gradient descent with "
+            "Dr.Jit AD; the closed form beside it as a check); regret is the measured cost at the grid scale nearest the "
+            "recommendation over the measured best cost, less 1.</p>"
+            "<img src='plots/hole_model.png'>" + table_html(fits, columns))
+
+
+def _thresholds_section(scenes: set[str]) -> str:
+    """The declared accuracy thresholds of these scenes, as `evalkit check` and the tests read them."""
+    from evalkit.check import DEFAULT_THRESHOLDS, load_thresholds
+
+    cases = [c for c in load_thresholds(DEFAULT_THRESHOLDS) if c.runs[0]["scene"] in scenes]
+    if not cases:
+        return ""
+    rows = [{"case": c.name, "metric": c.metric, "kind": c.kind,
+             "threshold": c.threshold if c.kind != "falls" else f"x{1 + c.tolerance:g} per step over {c.sweep}",
+             "why": c.why, "calibration": c.calibration} for c in cases]
+    return ("<h2>Declared accuracy thresholds</h2><p>From evalkit/thresholds.toml, which <code>evalkit check</code> and "
+            "the test suite run; the runs above are not these cases unless their parameters match.</p>"
+            + table_html(rows, ["case", "metric", "kind", "threshold", "why", "calibration"]))

@@ -1,0 +1,135 @@
+"""Studies: the grid, rows with every parameter and metric, resume, the Dask executor, the report,
+and bad study files."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+from conftest import run_evalkit
+from evalkit.errors import InputError
+from evalkit.study import load_study, run_id, run_study, study_from_dict
+
+# Tiny runs: 32x32, K=4 directions of R=32 lines, one frame; references of 64 spp in the study's
+# own store (the committed ones are 128x128).
+TINY = {
+    "name": "tiny",
+    "defaults": {"scene": "cornell-box", "bounces": 1, "directions": 4, "resolution": 32, "points": 1024, "width": 32,
+                 "height": 32, "frames": 1, "spp": 2},
+    "grid": [{"method": ["perfect", "imperfect"], "seed": [0, 1]}, {"method": "mitsuba", "spp": 4, "seed": [0, 1]}],
+    "measure": {"bundles": True, "images": ["indirect"], "metrics": ["relmse", "flip"], "reference_spp": 64,
+                "eye_vertices": 256},
+    "plot": [{"x": "wall_s", "y": "indirect_relmse", "group": "method", "log": "xy", "pareto": True}],
+}
+
+
+def test_grids_expand_to_the_union_of_their_products():
+    study = study_from_dict(TINY)
+    assert len(study.runs) == 6
+    assert {(r["method"], r["seed"]) for r in study.runs} == {(m, s) for m in ("perfect", "imperfect", "mitsuba") for s in (0, 1)}
+    assert all(r["resolution"] == 32 and r["scene"] == "cornell-box" for r in study.runs)
+    assert len({run_id(r) for r in study.runs}) == 6
+
+
+@pytest.mark.parametrize("spec, problem", [
+    ({"grid": [{"method": ["raytraced"]}]}, "method 'raytraced' is not one of"),
+    ({"grid": [{"directions": [0]}]}, "directions = 0 must be positive"),
+    ({"grid": [{"colour": [1]}]}, "unknown run parameter"),
+    ({"measure": {"metrics": ["psnr"]}}, "unknown psnr"),
+    ({"plots": []}, "unknown key"),
+    ({"plot": [{"x": "wall_s"}]}, "needs x and y"),
+])
+def test_bad_studies_are_refused_with_the_problem_named(spec, problem):
+    with pytest.raises(InputError, match=problem):
+        study_from_dict(spec)
+
+
+def test_bad_study_files_end_in_one_line(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = [unclosed\n")
+    with pytest.raises(InputError, match="bad.toml: malformed TOML"):
+        load_study(bad)
+    r = run_evalkit("study", str(tmp_path / "missing.toml"))
+    assert r.returncode == 2 and r.stderr.strip() == f"evalkit: error: {tmp_path / 'missing.toml'}: no such study file"
+    missing_scene = tmp_path / "scene.toml"
+    missing_scene.write_text('[defaults]\nscene = "no-such-scene.obj"\n[measure]\nimages = []\nrender = false\n')
+    r = run_evalkit("study", str(missing_scene), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "no-such-scene.obj" in r.stderr
+
+
+@pytest.fixture(scope="module")
+def tiny_study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tiny")
+    lines = []
+    rows = run_study(study_from_dict(TINY), out, progress=lines.append, command="pytest tiny")
+    return out, rows, lines
+
+
+def test_a_study_writes_one_row_per_run_with_parameters_metrics_timings_and_versions(tiny_study):
+    out, rows, _ = tiny_study
+    assert [r["status"] for r in rows] == ["ok"] * 6
+    with open(out / "results.csv") as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == 6
+    for row in table:
+        for column in ("run_id", "scene", "method", "seed", "directions", "resolution", "indirect_relmse", "indirect_flip",
+                       "wall_s", "version_mitsuba", "version_raybundle-evalkit", "scene_hash", "reference"):
+            assert row[column] != "", column
+        assert float(row["indirect_relmse"]) > 0
+    bundles = [r for r in rows if r["method"] != "mitsuba"]
+    assert all(r["hole_rate"] < 1e-3 for r in bundles if r["method"] == "perfect")
+    assert all(r["redundant_rate"] > 0.1 for r in bundles if r["method"] == "imperfect")
+    assert all(0 <= r["next_hit_error_rate"] <= 1 and r["next_hit_lookups"] > 100 for r in bundles)
+    # Different seeds give different images.
+    perfect = [r for r in rows if r["method"] == "perfect"]
+    assert perfect[0]["indirect_relmse"] != perfect[1]["indirect_relmse"]
+
+
+def test_the_report_shows_tables_plots_images_and_the_bias_variance_split(tiny_study):
+    out, _, _ = tiny_study
+    report = (out / "report.html").read_text()
+    for text in ("Results", "Pareto front", "Bias and variance over seeds", "Images", "pytest tiny", "mitsuba 3.9.1",
+                 "Scene warnings"):
+        assert text in report, text
+    assert (out / "plots" / "plot0.png").stat().st_size > 1000
+    assert len(list((out / "images").glob("*.png"))) >= 4
+    assert json.loads((out / "study.json").read_text())["versions"]["drjit"] == "1.5.0"
+
+
+def test_a_second_start_resumes_and_recomputes_nothing(tiny_study):
+    out, rows, _ = tiny_study
+    lines = []
+    again = run_study(study_from_dict(TINY), out, progress=lines.append)
+    assert "6 finished before, 0 to run" in lines[0]
+    assert again == rows
+    assert len((out / "results.jsonl").read_text().splitlines()) == 6
+
+
+def test_the_dask_executor_gives_the_same_rows_as_the_local_one(tiny_study, tmp_path):
+    out, rows, _ = tiny_study
+    spec = {**TINY, "grid": [{"method": ["perfect", "mitsuba"], "seed": 1}],
+            "measure": {**TINY["measure"], "bundles": False}}
+    dask_rows = run_study(study_from_dict(spec), tmp_path, workers=2, executor="dask", progress=lambda line: None)
+    local = {r["run_id"]: r for r in run_study(study_from_dict(spec), tmp_path / "local", progress=lambda line: None)}
+    assert [r["status"] for r in dask_rows] == ["ok", "ok"]
+    for row in dask_rows:
+        assert row["indirect_relmse"] == local[row["run_id"]]["indirect_relmse"]  # bitwise: same seed, same image
+
+
+def test_the_demo_renders_compares_and_reports(tmp_path):
+    r = run_evalkit("demo", "--out", str(tmp_path / "demo"))
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[-1] == f"report      {tmp_path / 'demo' / 'report.html'}"
+    assert lines[-3].split()[0] == "perfect" and lines[-2].split()[0] == "imperfect"
+    with open(tmp_path / "demo" / "results.csv") as f:
+        rows = {row["method"]: row for row in csv.DictReader(f)}
+    # The committed 16384-spp reference; 512 paths per pixel put the indirect relMSE near 0.09.
+    assert "b3_128x128_spp16384_seed0" in rows["perfect"]["reference"]
+    for row in rows.values():
+        assert float(row["indirect_relmse"]) < 0.2
+        assert float(row["total_delta_e2000"]) > 0
+    assert float(rows["perfect"]["hole_rate"]) < 1e-3 < float(rows["imperfect"]["hole_rate"])
+    assert "Images" in (tmp_path / "demo" / "report.html").read_text()

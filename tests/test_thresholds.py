@@ -1,0 +1,67 @@
+"""The declared accuracy thresholds (evalkit/thresholds.toml), each case a test; and `evalkit check`
+itself: its table, JUnit XML, exit status and what it keeps for a person to look at on failure.
+A failing case leaves the test image, the reference and the error maps in out/thresholds/<case>."""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from conftest import REPO, run_evalkit
+from evalkit.check import DEFAULT_THRESHOLDS, evaluate, load_thresholds
+
+CASES = load_thresholds(DEFAULT_THRESHOLDS)
+ARTIFACTS = os.path.join(REPO, "out", "thresholds")
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+def test_declared_threshold(case):
+    outcome = evaluate(case, ARTIFACTS)
+    assert outcome.passed, f"{outcome.message}; why: {case.why}; calibration: {case.calibration}; look at {outcome.folder}"
+
+
+def test_every_case_says_why_and_how_it_was_calibrated():
+    for case in CASES:
+        assert len(case.why) > 40 and "TBD" not in case.calibration and "seeds" in case.calibration, case.name
+
+
+TINY = """
+[[case]]
+name = "{name}"
+metric = "indirect_relmse"
+kind = "max"
+threshold = {threshold}
+why = "a test of evalkit check"
+calibration = "none"
+run = {{ scene = "cornell-box", method = "perfect", directions = 4, resolution = 32, width = 32, height = 32, frames = 1, spp = 2 }}
+measure = {{ images = ["indirect"], metrics = ["relmse", "flip"], reference_spp = 64 }}
+"""
+
+
+def test_check_prints_a_table_writes_junit_and_keeps_failures_for_inspection(tmp_path):
+    table = tmp_path / "thresholds.toml"
+    table.write_text(TINY.format(name="loose", threshold=1e9) + TINY.format(name="impossible", threshold=1e-12))
+    r = run_evalkit("check", str(table), "--out", str(tmp_path / "out"))
+    assert r.returncode == 1, r.stderr
+    lines = r.stdout.splitlines()
+    assert any(line.startswith("loose") and " pass " in line for line in lines)
+    assert any(line.startswith("impossible") and "FAIL" in line for line in lines)
+    suite = ET.parse(tmp_path / "out" / "junit.xml").getroot()
+    assert suite.get("tests") == "2" and suite.get("failures") == "1"
+    failed = [c for c in suite.iter("testcase") if c.find("failure") is not None]
+    assert [c.get("name") for c in failed] == ["impossible"]
+    run = next((tmp_path / "out" / "impossible" / "runs").iterdir())
+    for name in ("indirect.exr", "indirect_reference.exr", "indirect_relmse_map.exr", "indirect_relmse_map.png",
+                 "indirect_flip_map.png"):
+        assert (run / name).is_file(), name
+    r = run_evalkit("check", str(table), "--case", "loose", "--out", str(tmp_path / "out2"))
+    assert r.returncode == 0 and "1 of 1 cases pass" in r.stdout
+
+
+def test_bad_threshold_tables_end_in_one_line(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[case]]\nname = "x"\nmetric = "hole_rate"\nkind = "below"\nwhy = "w"\ncalibration = "c"\n')
+    r = run_evalkit("check", str(bad))
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [f"evalkit: error: {bad}: case 1 (x): kind 'below' is not one of max, min, falls"]
