@@ -111,8 +111,7 @@ def evaluate(case: Case, out: str | os.PathLike) -> Outcome:
     elif case.kind == "min":
         passed, message = values[0] >= case.threshold, f"{case.metric} {values[0]:.6g} >= {case.threshold:g}"
     else:
-        steps = [(a, b) for a, b in zip(values, values[1:])]
-        passed = all(b <= a * (1 + case.tolerance) for a, b in steps)
+        passed = all(b <= a * (1 + case.tolerance) for a, b in zip(values, values[1:]))
         sweep_values = [r[case.sweep] for r in rows]
         message = (f"{case.metric} over {case.sweep} = {sweep_values}: {', '.join(f'{v:.4g}' for v in values)} "
                    f"(each at most {1 + case.tolerance:g} x the one before)")

@@ -309,7 +309,7 @@ def _render(scene, run: dict) -> tuple[dict, dict, dict]:
         renderer.release()
     t = result.timings
     timings = {"wall_s": t["wall_s"], "paths_per_pixel": result.params["paths_per_pixel"],
-               "nodes_per_frame": result.stats["nodes_median"], "gl_renderer": gl.info.get("GL_RENDERER"),
+               "nodes_per_frame": result.stats["nodes_median"], "gl_renderer": gl.info["renderer"],
                **{f"ms_{k}": v for k, v in t["median_ms"].items() if "." not in k}}
     return result.images, timings, {**result.params, "warnings": result.warnings}
 

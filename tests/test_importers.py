@@ -158,6 +158,8 @@ BAD_FILES = {
     "garbage.glb": (b"glTF" + bytes(range(200)), "cannot be read|no triangle geometry"),
     "nofaces.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no triangle geometry"),
     "flat.obj": ("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "all degenerate"),
+    # Found by tests/test_fuzz_importers.py: trimesh returns (n, 2) positions, which crashed the import.
+    "two-coordinates.obj": ("v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n", r"shape \(3, 2\), not \(n, 3\)"),
 }
 
 

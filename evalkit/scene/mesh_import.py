@@ -63,6 +63,9 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
 def _mesh(path, node, geometry, transform, materials, material_index, warnings) -> Mesh | None:
     vertices = np.asarray(geometry.vertices, dtype=np.float64)
     faces = np.asarray(geometry.faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:  # e.g. an OBJ 'v' line with two coordinates
+        raise InputError(path, f"mesh '{node}': vertex positions came back with shape {vertices.shape}, not (n, 3); "
+                               f"is a vertex line missing a coordinate?")
     if len(faces) == 0:
         warnings.append(f"'{node}' has no faces; it is left out")
         return None
