@@ -130,7 +130,7 @@ class Renderer:
                                    splat_scale=settings.splat_scale, node_budget=settings.node_budget)
         # A static scene seen along the same directions every frame has the same bundles and the
         # same direct light at their nodes: both are made once.
-        self.reuse_bundles = not settings.rotate_directions and not (scene.animated and settings.time_step != 0.0)
+        self.reuse_bundles = not settings.rotate_directions and not self.moving
         self.lights = ShadowLights(gl, self.gpu_scene, settings.shadow_map_size, settings.shadow_bias,
                                    settings.shadow_slope_bias, settings.shadow_filter)
         features = scene.features()
