@@ -194,7 +194,9 @@ def prepare(study: Study, out: Path, progress=print) -> None:
         if study.measure["images"] and ref_key not in made:
             made.add(ref_key)
             reference_for(scene, run, study.measure, out, progress)
-        if study.measure["bundles"] and run["method"] != "mitsuba":
+        exact_key = ("exact", run["scene"], run["directions"], run["resolution"], run["seed"])
+        if study.measure["bundles"] and run["method"] != "mitsuba" and exact_key not in made:
+            made.add(exact_key)
             exact_bundles(scene, run, out)
 
 
@@ -213,18 +215,30 @@ def reference_for(scene, run: dict, measure: dict, out: Path, progress=print):
 def exact_bundles(scene, run: dict, out: Path):
     """Embree's exact bundles on the run's lines (frame 0 of its seed), cached in the study folder."""
     from evalkit.bundleset import BundleSet, DirectionSet
-    from references.embree import ExactTracer
 
     path = out / "cache" / f"exact-{scene.name}-{scene.content_hash()[:12]}-K{run['directions']}-R{run['resolution']}-seed{run['seed']}.npz"
     if path.is_file():
         return BundleSet.load(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     directions = DirectionSet.make(int(run["directions"]), seed=int(run["seed"]))
-    bundles = ExactTracer(scene).bundles(directions, int(run["resolution"]))
+    bundles = exact_tracer(scene).bundles(directions, int(run["resolution"]))
     tmp = path.with_suffix(".tmp.npz")
     bundles.save(tmp)
     os.replace(tmp, path)
     return bundles
+
+
+_TRACERS: dict = {}
+
+
+def exact_tracer(scene):
+    """One Embree scene per scene and process: its BVH is built once, not once per run."""
+    from references.embree import ExactTracer
+
+    key = scene.content_hash()
+    if key not in _TRACERS:
+        _TRACERS[key] = ExactTracer(scene)
+    return _TRACERS[key]
 
 
 _GL = None
@@ -318,7 +332,6 @@ def _bundle_metrics(scene, run: dict, measure: dict, out: Path) -> dict:
     from evalkit.bundleset import DirectionSet
     from evalkit.metrics.bundles import compare_bundles, eye_vertices, next_hit_errors
     from gpu_impl.bundles import BundleTracer
-    from references.embree import ExactTracer
 
     exact = exact_bundles(scene, run, out)
     tracer = BundleTracer(_gl(), scene, run["method"], directions=int(run["directions"]), resolution=int(run["resolution"]),
@@ -331,7 +344,7 @@ def _bundle_metrics(scene, run: dict, measure: dict, out: Path) -> dict:
     finally:
         tracer.release()
     r = compare_bundles(bundles, exact)
-    embree = ExactTracer(scene)
+    embree = exact_tracer(scene)
     vertices = eye_vertices(scene, embree, int(measure["eye_vertices"]), seed=int(run["seed"]))
     hit = next_hit_errors(bundles, embree, vertices, seed=int(run["seed"]))
     floor = next_hit_errors(exact, embree, vertices, seed=int(run["seed"]))
