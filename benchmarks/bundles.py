@@ -16,13 +16,13 @@ import argparse
 import json
 import statistics
 
-from evalkit.bundleset import DirectionSet
-from evalkit.scene import load_scene
+from evalkit.core.bundleset import DirectionSet
+from evalkit.core.scene import load_scene
 from gpu_impl.bundles import DEFAULT_SPLAT_SCALE, BundleTracer
 from gpu_impl.context import GLContext
 from gpu_impl.scene_buffers import GpuScene
 
-# The targets: imperfect builds >= 6x faster than perfect ones on atrium (the poster:
+# The targets: imperfect builds >= 6x faster than perfect ones on atrium (the poster:
 # 161 ms vs 27 ms), and perfect bundles cost <= 2x the raw raster.
 TARGET_SPEEDUP = 6.0
 TARGET_PERFECT_OVER_RAW = 2.0

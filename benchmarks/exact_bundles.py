@@ -19,14 +19,15 @@ import os
 import statistics
 import time
 
-from evalkit.bundleset import DirectionSet
+from evalkit.core.bundleset import DirectionSet
 from evalkit.metrics.bundles import compare_bundles
-from evalkit.scene import load_scene
+from evalkit.core.scene import load_scene
 from gpu_impl.bundles import BundleTracer
 from gpu_impl.context import GLContext
+from gpu_impl.scene_buffers import GpuScene
 from references.embree import ExactTracer
 
-TARGET_HITS_PER_CORE = 2e6  # the target, hits per second per core
+TARGET_HITS_PER_CORE = 2e6  # the target, hits per second per core
 
 
 def measure_scene(gl: GLContext, name: str, *, directions: int, resolution: int, repeats: int, seed: int, threads: int) -> dict:
@@ -35,7 +36,8 @@ def measure_scene(gl: GLContext, name: str, *, directions: int, resolution: int,
     start = time.perf_counter()
     exact_tracer = ExactTracer(scene, threads=threads)
     prepare_s = time.perf_counter() - start
-    gl_tracer = BundleTracer(gl, scene, "perfect", directions=directions, resolution=resolution, node_budget=16 << 30)
+    gpu_scene = GpuScene(gl, scene)
+    gl_tracer = BundleTracer(gl, gpu_scene, "perfect", directions=directions, resolution=resolution, node_budget=16 << 30)
     exact_s, gl_s = [], []
     for _ in range(repeats):
         start = time.perf_counter()
@@ -46,6 +48,7 @@ def measure_scene(gl: GLContext, name: str, *, directions: int, resolution: int,
         perfect = gl_tracer.read()
         gl_s.append(time.perf_counter() - start)
     gl_tracer.release()
+    gpu_scene.release()
     agreement = compare_bundles(perfect, exact)["agreement"]
     e, g = statistics.median(exact_s), statistics.median(gl_s)
     return {

@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from evalkit.scene import load_scene
+from evalkit.core.scene import load_scene
 from gpu_impl.context import GLContext
 from gpu_impl.renderer import PRESETS, Renderer, RenderSettings, apply_preset
 

@@ -26,16 +26,18 @@ from dataclasses import replace
 
 import numpy as np
 
-from evalkit.bundleset import DirectionSet
+from evalkit.core.bundleset import DirectionSet
 from evalkit.metrics.images import relmse
-from evalkit.scene import load_scene
+from evalkit.core.scene import load_scene
 from gpu_impl.bundles import NODE_BYTES, BundleTracer
 from gpu_impl.context import GLContext
 from gpu_impl.renderer import Renderer, RenderSettings
+from gpu_impl.scene_buffers import GpuScene
+from references.mitsuba import DEFAULT_STORE, load_reference, store_entry
 
 
 def texture_variant(gl, repeats: int) -> dict:
-    scene = load_scene("cornell-box")  # no textures
+    scene = GpuScene(gl, load_scene("cornell-box"))  # no textures
     ds = DirectionSet.make(64, seed=0)
     tracers = {t: BundleTracer(gl, scene, "perfect", directions=64, resolution=128, textures=t) for t in (False, True)}
     times = {t: [] for t in tracers}
@@ -45,6 +47,7 @@ def texture_variant(gl, repeats: int) -> dict:
     lists = {t: tracer.read() for t, tracer in tracers.items()}
     for tracer in tracers.values():
         tracer.release()
+    scene.release()
     same = all(np.array_equal(getattr(lists[False], n), getattr(lists[True], n)) for n in ("offsets", *lists[True].NODE_FIELDS))
     skipped, full = statistics.median(times[False]), statistics.median(times[True])
     return {"what": "perfect bundle build, cornell-box K=64 R=128", "skipped_ms": skipped, "unskipped_ms": full,
@@ -78,8 +81,6 @@ def early_stop(gl, repeats: int, frames: int) -> dict:
 
 
 def bundle_reuse(gl, repeats: int, frames: int) -> dict:
-    from references.mitsuba import DEFAULT_STORE, load_reference, store_entry
-
     scene = load_scene("cornell-box")
     ref = load_reference(store_entry(scene.name, scene.content_hash(), 3, 16384, 128, 128, 0, DEFAULT_STORE))
     base = RenderSettings(bounces=3, directions=32, resolution=128, width=128, height=128, frames=frames, spp=16)
@@ -101,14 +102,13 @@ def bundle_reuse(gl, repeats: int, frames: int) -> dict:
 def node_capacity(gl) -> dict:
     """Node buffers made for a fixed 1 GiB (as if sized without a measurement), then sized from
     the first frame's count; the first guess from the depth complexity is printed beside them."""
-    scene = load_scene("atrium")
     fixed = (1 << 30) // NODE_BYTES
-    tracer = BundleTracer(gl, scene, "perfect", directions=32, resolution=128, initial_capacity=fixed)
-    guess = tracer.predicted_nodes()
-    for f in range(2):
-        tracer.build(DirectionSet.make(32, seed=0, frame=f))
-    after, nodes = tracer.capacity, tracer.stats["nodes"]
-    tracer.release()
+    with GpuScene(gl, load_scene("atrium")) as scene, BundleTracer(gl, scene, "perfect", directions=32, resolution=128,
+                                                                   initial_capacity=fixed) as tracer:
+        guess = tracer.predicted_nodes()
+        for f in range(2):
+            tracer.build(DirectionSet.make(32, seed=0, frame=f))
+        after, nodes = tracer.capacity, tracer.stats["nodes"]
     return {"what": "node capacity, atrium K=32 R=128", "fixed_1gib_nodes": fixed, "after_first_frame_nodes": after,
             "first_guess_nodes": guess, "measured_nodes": nodes, "saving": fixed / after, "result_change": "none"}
 

@@ -1,14 +1,5 @@
-"""Declared accuracy thresholds, checked: `evalkit check THRESHOLDS.toml` and the test suite read
-the same table (evalkit/thresholds.toml is the toolkit's own).
-
-A case is one run of `evalkit.study` (its ``run`` parameters over `RUN_DEFAULTS`, its ``measure``
-over the study's) and one metric column of the run's row, with:
-
-- ``kind`` "max" (the value must not exceed ``threshold``), "min" (must not fall below it), or
-  "falls": ``sweep`` names one parameter and its values, and the metric must not rise from one
-  value to the next by more than a factor (1 + ``tolerance``): monotone within noise;
-- ``why`` (why this number) and ``calibration`` (what was measured, over which seeds, and the
-  margin), which the table and the report print beside the result.
+"""`evalkit check`: run the declared accuracy cases (`evalkit.thresholds`) and compare each with
+its threshold; a table, JUnit XML, and `calibrate` to set or review a threshold over seeds.
 
 On failure the case's folder keeps the test image, the reference and the error maps (EXR and PNG),
 so a person can look.
@@ -25,26 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from evalkit.errors import InputError
-from evalkit.study import MEASURE_DEFAULTS, RUN_DEFAULTS, Study, check_run, prepare, read_toml, run_case
-
-DEFAULT_THRESHOLDS = Path(__file__).with_name("thresholds.toml")
-KINDS = ("max", "min", "falls")
-CASE_KEYS = {"name", "metric", "kind", "threshold", "tolerance", "why", "calibration", "run", "measure", "sweep"}
-
-
-@dataclass
-class Case:
-    name: str
-    metric: str
-    kind: str
-    threshold: float | None
-    tolerance: float | None
-    why: str
-    calibration: str
-    runs: list[dict]
-    measure: dict
-    sweep: str | None = None
+from evalkit.core.errors import InputError
+from evalkit.core.exr import write_exr
+from evalkit.figures import error_map_png
+from evalkit.study.artefacts import prepare_artefacts
+from evalkit.study.run import execute_run
+from evalkit.thresholds import Case
+from references.mitsuba import load_reference
 
 
 @dataclass
@@ -58,47 +36,13 @@ class Outcome:
     rows: list[dict] = field(default_factory=list)
 
 
-def load_thresholds(path: str | os.PathLike = DEFAULT_THRESHOLDS) -> list[Case]:
-    path = Path(path)
-    spec = read_toml(path, "thresholds")
-    cases = []
-    for i, c in enumerate(spec.get("case", [])):
-        where = f"{path}: case {i + 1} ({c.get('name', 'unnamed')})"
-        unknown = set(c) - CASE_KEYS
-        if unknown:
-            raise InputError(where, f"unknown key(s) {', '.join(sorted(unknown))}")
-        missing = {"name", "metric", "kind", "why", "calibration"} - set(c)
-        if missing:
-            raise InputError(where, f"missing {', '.join(sorted(missing))}")
-        if c["kind"] not in KINDS:
-            raise InputError(where, f"kind '{c['kind']}' is not one of {', '.join(KINDS)}")
-        if c["kind"] == "falls":
-            if not isinstance(c.get("sweep"), dict) or len(c["sweep"]) != 1 or "tolerance" not in c:
-                raise InputError(where, "a 'falls' case needs tolerance and a sweep of one parameter, e.g. sweep = {directions = [8, 32]}")
-        elif "threshold" not in c:
-            raise InputError(where, "needs a threshold")
-        base = {**RUN_DEFAULTS, **c.get("run", {})}
-        sweep = next(iter(c["sweep"])) if c["kind"] == "falls" else None
-        runs = [{**base, sweep: v} for v in c["sweep"][sweep]] if sweep else [base]
-        for run in runs:
-            check_run(run, where)
-        measure = {**MEASURE_DEFAULTS, **c.get("measure", {})}
-        if set(measure) - set(MEASURE_DEFAULTS):
-            raise InputError(where, f"[measure]: unknown key(s) {', '.join(sorted(set(measure) - set(MEASURE_DEFAULTS)))}")
-        cases.append(Case(c["name"], c["metric"], c["kind"], c.get("threshold"), c.get("tolerance"), c["why"],
-                          c["calibration"], runs, measure, sweep))
-    if not cases:
-        raise InputError(str(path), "no [[case]] tables")
-    return cases
-
-
 def evaluate(case: Case, out: str | os.PathLike) -> Outcome:
     """Run a case and compare it with its threshold; on failure, keep what a person needs to look."""
     folder = Path(out) / case.name
     folder.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    prepare(Study(case.name, None, case.name, "", "", case.runs, case.measure), folder, progress=lambda line: None)
-    rows = [run_case(run, case.measure, str(folder)) for run in case.runs]
+    prepare_artefacts(case.runs, case.measure, folder, progress=lambda line: None)
+    rows = [execute_run(run, case.measure, str(folder)) for run in case.runs]
     seconds = time.perf_counter() - start
     bad = [r for r in rows if r["status"] != "ok"]
     if bad:
@@ -123,10 +67,6 @@ def evaluate(case: Case, out: str | os.PathLike) -> Outcome:
 
 def _keep_for_inspection(rows: list[dict], folder: Path) -> None:
     """Beside each run's test images: the reference and the error maps as EXR and PNG."""
-    from evalkit.exr import write_exr
-    from evalkit.report import error_map_png
-    from references.mitsuba import load_reference
-
     for row in rows:
         run = folder / "runs" / row["run_id"]
         if not row.get("reference"):

@@ -8,17 +8,35 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import traceback
+from dataclasses import fields
+from pathlib import Path
 
 import numpy as np
 
-from evalkit.errors import InputError
+from evalkit.check import calibrate, evaluate, junit_xml
+from evalkit.core.bundleset import BundleSet, DirectionSet
+from evalkit.core.errors import InputError
+from evalkit.core.exr import read_exr, write_exr
+from evalkit.core.scene import load_scene
+from evalkit.demo import run_demo, summary_lines
+from evalkit.doctor import diagnose, report_lines
+from evalkit.figures import error_map_png
+from evalkit.metrics.bundles import DEFAULT_DEPTH_TOLERANCE, compare_bundles
+from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
+from evalkit.study.executors import run_study
+from evalkit.study.spec import load_study
+from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
+from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE, format_bytes, trace_bundles
+from gpu_impl.context import GLContext
+from gpu_impl.renderer import IMAGES, PRESETS, Renderer, RenderSettings, apply_preset, write_render
+from references.embree import ExactTracer
+from references.mitsuba import DEFAULT_STORE, export_reference, reference
 
 
 def _doctor(args) -> int:
-    from evalkit.doctor import diagnose, report_lines
-
     results = diagnose()
     for line in report_lines(results):
         print(line)
@@ -29,8 +47,6 @@ def _doctor(args) -> int:
 
 
 def _scene_info(args) -> int:
-    from evalkit.scene import load_scene
-
     scene = load_scene(args.scene)
     info = scene.summary()
     f = info["features"]
@@ -57,16 +73,9 @@ def _scene_info(args) -> int:
 
 
 def _bundles(args) -> int:
-    import os
-
-    from evalkit.bundleset import DirectionSet
-    from evalkit.scene import load_scene
-
     scene = load_scene(args.scene)
     directions = DirectionSet.make(args.directions, seed=args.seed, frame=args.frame, jitter=not args.no_jitter)
     if args.method == "exact":
-        from references.embree import ExactTracer
-
         bundles = ExactTracer(scene, threads=args.threads).bundles(directions, args.resolution)
         stats = bundles.stats
         detail = (f"{stats['casts']:,} Embree casts on {stats['threads']} thread(s), re-cast offset "
@@ -91,19 +100,13 @@ def _bundles(args) -> int:
 
 
 def _gl_bundles(args, scene, directions):
-    from gpu_impl.bundles import BundleTracer, format_bytes
-    from gpu_impl.context import GLContext
-
     with GLContext() as gl:
         try:
-            tracer = BundleTracer(gl, scene, args.method, directions=args.directions, resolution=args.resolution,
-                                  points=args.points, splat_scale=args.splat_scale, splat_radius=args.splat_radius,
-                                  node_budget=args.node_budget)
+            bundles = trace_bundles(gl, scene, directions, args.method, resolution=args.resolution, points=args.points,
+                                    splat_scale=args.splat_scale, splat_radius=args.splat_radius, node_budget=args.node_budget)
         except ValueError as e:
             raise InputError("evalkit bundles", str(e)) from None
-        stats = tracer.build(directions)
-        bundles = tracer.read()
-        tracer.release()
+    stats = bundles.stats
     detail = (f"{stats['redundant_nodes']:,} redundant nodes, {format_bytes(stats['node_bytes'])} of nodes, "
               f"{format_bytes(stats['gpu_bytes'])} on the GPU in all, {stats['overflow_reruns']} overflow re-run(s)")
     passes = ", ".join(f"{k} {v:.1f}" if v is not None else f"{k} n/a" for k, v in stats["gpu_ms"].items())
@@ -111,9 +114,6 @@ def _gl_bundles(args, scene, directions):
 
 
 def _compare_bundles(args) -> int:
-    from evalkit.bundleset import BundleSet
-    from evalkit.metrics.bundles import compare_bundles
-
     test, exact = BundleSet.load(args.test), BundleSet.load(args.exact)
     if exact.method != "exact":
         print(f"evalkit: warning: {args.exact}: method is '{exact.method}', not 'exact'; it is used as the reference anyway",
@@ -140,11 +140,6 @@ def _compare_bundles(args) -> int:
 
 
 def _reference(args) -> int:
-    from pathlib import Path
-
-    from evalkit.scene import load_scene
-    from references.mitsuba import IMAGES, export_reference, reference
-
     scene = load_scene(args.scene).at(args.time)
     try:
         ref = reference(scene, bounces=args.bounces, spp=args.spp, width=args.width, height=args.height, seed=args.seed,
@@ -170,23 +165,17 @@ def _reference(args) -> int:
 
 
 def _render(args) -> int:
-    from evalkit.scene import load_scene
-    from gpu_impl.bundles import format_bytes
-    from gpu_impl.context import GLContext
-    from gpu_impl.renderer import IMAGES, Renderer, RenderSettings, apply_preset, write_render
-
     scene = load_scene(args.scene)
-    names = ("method", "bounces", "directions", "resolution", "points", "splat_scale", "width", "height", "supersampling",
-             "spp", "frames", "seed", "time", "time_step", "self_hit_bias", "shadow_map_size", "shadow_filter", "node_budget")
-    settings = apply_preset(RenderSettings(), args.preset, **{name: getattr(args, name) for name in names},
-                            rotate_directions=False if args.fixed_directions else None)
+    # Every RenderSettings field the command line has an option for (None: not given).
+    given = {f.name: getattr(args, f.name) for f in fields(RenderSettings) if hasattr(args, f.name)}
+    settings = apply_preset(RenderSettings(), args.preset, **given, rotate_directions=False if args.fixed_directions else None)
     with GLContext() as gl:
         try:
             renderer = Renderer(gl, scene, settings)
         except ValueError as e:
             raise InputError("evalkit render", str(e)) from None
-        result = renderer.render(progress=lambda line: print(f"progress    {line}", flush=True))
-        renderer.release()
+        with renderer:
+            result = renderer.render(progress=lambda line: print(f"progress    {line}", flush=True))
     written = write_render(result, args.out)
     p, t = result.params, result.timings
     print(f"render      {settings.method} bundles on {scene.name}: {p['width']}x{p['height']} (supersampling {settings.supersampling}), "
@@ -210,11 +199,6 @@ def _render(args) -> int:
 
 
 def _compare(args) -> int:
-    from pathlib import Path
-
-    from evalkit.exr import read_exr, write_exr
-    from evalkit.metrics.images import compare_images
-
     test, test_meta = read_exr(args.test)
     ref, _ = read_exr(args.ref)
     metrics = compare_images(test, ref, args.metrics, args.test, args.ref, relmse_eps=args.relmse_eps,
@@ -224,8 +208,6 @@ def _compare(args) -> int:
         params = ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in m.params.items())
         print(f"{m.name:12}{m.value:12.6g}   {params}")
     if args.maps:
-        from evalkit.report import error_map_png
-
         out = Path(args.maps)
         out.mkdir(parents=True, exist_ok=True)
         for m in metrics.values():
@@ -239,8 +221,6 @@ def _compare(args) -> int:
 
 
 def _study(args) -> int:
-    from evalkit.study import load_study, run_study
-
     study = load_study(args.study)
     out = args.out or f"out/studies/{study.name}"
     rows = run_study(study, out, workers=args.workers, executor=args.executor, scheduler=args.scheduler,
@@ -253,27 +233,14 @@ def _study(args) -> int:
 
 
 def _demo(args) -> int:
-    from pathlib import Path
-
-    from evalkit.study import load_study, run_study
-
-    study = load_study(Path(__file__).with_name("demo.toml"))
-    rows = run_study(study, args.out, command="evalkit " + " ".join(sys.argv[1:]))
-    columns = [("method", "{}"), ("indirect_relmse", "{:.4g}"), ("indirect_flip", "{:.4g}"), ("total_relmse", "{:.4g}"),
-               ("total_delta_e2000", "{:.3g}"), ("hole_rate", "{:.3%}"), ("redundant_rate", "{:.1%}"),
-               ("next_hit_error_rate", "{:.2%}"), ("wall_s", "{:.1f}")]
-    print(" ".join(f"{name:>20}" for name, _ in columns))
-    for r in rows:
-        print(" ".join(f"{fmt.format(r[name]) if r.get(name) is not None else '-':>20}" for name, fmt in columns))
+    rows = run_demo(args.out, command="evalkit " + " ".join(sys.argv[1:]))
+    for line in summary_lines(rows):
+        print(line)
     print(f"report      {Path(args.out).resolve() / 'report.html'}")
     return 0 if all(r["status"] == "ok" for r in rows) else 1
 
 
 def _check(args) -> int:
-    from pathlib import Path
-
-    from evalkit.check import calibrate, evaluate, junit_xml, load_thresholds
-
     cases = load_thresholds(args.thresholds)
     if args.case:
         unknown = set(args.case) - {c.name for c in cases}
@@ -359,7 +326,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_scene_info)
 
-    from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE
 
     p = sub.add_parser("bundles", help="build perfect or imperfect ray bundles on the GPU, or exact ones with Embree, and save a BundleSet .npz")
     p.add_argument("scene", help="a built-in name or a scene file")
@@ -380,7 +346,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_bundles)
 
-    from evalkit.metrics.bundles import DEFAULT_DEPTH_TOLERANCE
 
     p = sub.add_parser("compare-bundles", help="hole, spurious and redundant rates and depth error of a BundleSet against the exact one")
     p.add_argument("test", metavar="TEST.npz")
@@ -390,7 +355,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_compare_bundles)
 
-    from gpu_impl.renderer import PRESETS, RenderSettings
 
     d = RenderSettings()
     p = sub.add_parser("render", help="render direct, indirect and total images with eye paths over perfect or imperfect bundles")
@@ -422,7 +386,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_render)
 
-    from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON
 
     p = sub.add_parser("compare", help="MSE, relMSE, SMAPE, FLIP and Delta E 2000 of a test image against a reference, with error maps")
     p.add_argument("test", metavar="TEST.exr")
@@ -445,7 +408,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask: an existing scheduler, e.g. tcp://host:8786")
     p.set_defaults(run=_study)
 
-    from evalkit.check import DEFAULT_THRESHOLDS
 
     p = sub.add_parser("check", help="run declared accuracy cases against their thresholds: table, JUnit XML, exit 1 on any regression")
     p.add_argument("thresholds", nargs="?", default=str(DEFAULT_THRESHOLDS), metavar="THRESHOLDS.toml",
@@ -460,7 +422,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/demo", metavar="DIR", help="default: out/demo")
     p.set_defaults(run=_demo)
 
-    from references.mitsuba import DEFAULT_STORE
 
     p = sub.add_parser("reference", help="Mitsuba 3 path-traced direct, indirect and total images with variances (stored, reused, resumable)")
     p.add_argument("scene", help="a built-in name or a scene file")

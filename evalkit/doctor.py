@@ -11,13 +11,14 @@ import json
 import subprocess
 import sys
 
+from evalkit.core.mitsuba_env import configure_llvm, default_variant, mitsuba
+from gpu_impl.context import GL_REQUIRED, GLContext
+
 PROBE_TIMEOUT_S = 180
 SETUP_FIX = "run `make setup` in the checkout (installs the Debian packages and .venv)"
 
 
 def probe_gl() -> dict:
-    from gpu_impl.context import GL_REQUIRED, GLContext
-
     with GLContext() as gl:
         info = gl.info
     info["ok"] = info["version_code"] >= GL_REQUIRED
@@ -30,8 +31,6 @@ def probe_mitsuba() -> dict:
     """Import Mitsuba the way the toolkit does and render 16x16 pixels, which compiles real
     kernels: the step at which an unusable LLVM aborts."""
     import numpy as np
-
-    from evalkit.mitsuba_env import configure_llvm, default_variant, mitsuba
 
     llvm_path = configure_llvm()
     variant = default_variant()

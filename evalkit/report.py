@@ -12,35 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
-from evalkit.study import RUN_DEFAULTS, Study, run_id
+from evalkit.core.exr import read_exr
+from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png, tonemap
+from evalkit.metrics.hole_model import DEFAULT_NODE_COST, analyse, hole_rate_model
+from evalkit.metrics.images import bias_variance
+from evalkit.study.spec import RUN_DEFAULTS, Study, run_id
+from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
+from references.mitsuba import load_reference
 
 IMAGE_CAP = 12
 IMPERFECT_ONLY = {"points", "splat_scale"}  # run parameters only imperfect bundles have
-REPORT_EXPOSURE = 0.0
-
-
-def tonemap(image: np.ndarray, exposure: float = REPORT_EXPOSURE) -> np.ndarray:
-    """Linear RGB -> 8-bit sRGB: scale by 2^exposure, clip to [0, 1], the sRGB curve."""
-    x = np.clip(image * 2.0**exposure, 0.0, 1.0)
-    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return (srgb * 255 + 0.5).astype(np.uint8)
-
-
-def save_png(rgb8: np.ndarray, path: Path) -> None:
-    from PIL import Image
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(rgb8).save(path)
-
-
-def error_map_png(values: np.ndarray, path: Path, vmax: float | None = None) -> float:
-    """A per-pixel error map in magma, 0 .. vmax (default: its 99th percentile); returns vmax."""
-    import matplotlib
-
-    vmax = float(vmax if vmax is not None else max(np.quantile(values, 0.99), 1e-12))
-    rgba = matplotlib.colormaps["magma"](np.clip(values / vmax, 0, 1))
-    save_png((rgba[..., :3] * 255 + 0.5).astype(np.uint8), path)
-    return vmax
 
 
 def varying(study: Study) -> list[str]:
@@ -139,10 +120,6 @@ def plot(rows: list[dict], spec: dict, path: Path) -> str:
 def bias_variance_rows(study: Study, rows: list[dict], out: Path) -> list[dict]:
     """Per group of runs that differ only in the seed (two seeds or more): the bias/variance split
     of each measured image's relMSE."""
-    from evalkit.exr import read_exr
-    from evalkit.metrics.images import bias_variance
-    from references.mitsuba import load_reference
-
     groups: dict[str, list[dict]] = {}
     for r in rows:
         if r.get("status") == "ok" and r.get("reference"):
@@ -163,9 +140,6 @@ def bias_variance_rows(study: Study, rows: list[dict], out: Path) -> list[dict]:
 
 
 def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: list[dict]) -> Path:
-    from evalkit.exr import read_exr
-    from references.mitsuba import load_reference
-
     ok = [r for r in rows if r.get("status") == "ok"]
     parts = [f"<h1>{html.escape(study.title)}</h1>",
              f"<p>{html.escape(study.description)}</p>" if study.description else "",
@@ -246,8 +220,6 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from evalkit.metrics.hole_model import DEFAULT_NODE_COST, analyse, hole_rate_model
-
     node_cost = float(study.hole_model.get("node_cost", DEFAULT_NODE_COST))
     imperfect = [r for r in rows if r["method"] == "imperfect" and _number(r.get("hole_rate"))]
     fits = analyse(imperfect, node_cost)
@@ -290,8 +262,6 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
 
 def _thresholds_section(scenes: set[str]) -> str:
     """The declared accuracy thresholds of these scenes, as `evalkit check` and the tests read them."""
-    from evalkit.check import DEFAULT_THRESHOLDS, load_thresholds
-
     cases = [c for c in load_thresholds(DEFAULT_THRESHOLDS) if c.runs[0]["scene"] in scenes]
     if not cases:
         return ""

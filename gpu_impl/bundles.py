@@ -22,10 +22,10 @@ import time
 import moderngl
 import numpy as np
 
-from evalkit.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, bundle_params
-from evalkit.errors import InputError
-from evalkit.scene import Scene
-from gpu_impl.context import BINDINGS, LOCAL_SIZE, GLContext, PassTimer, set_uniforms
+from evalkit.core.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, bundle_params
+from evalkit.core.errors import InputError
+from gpu_impl.context import LOCAL_SIZE, GLContext, PassTimer, set_uniforms
+from gpu_impl.layout import BINDINGS, BUNDLE_FRAME, COUNTERS, SPLAT_BIT
 from gpu_impl.scene_buffers import GpuScene
 
 METHODS = ("perfect", "imperfect")
@@ -39,12 +39,11 @@ NODE_BYTES = LIST_NODE_BYTES + SORTED_NODE_BYTES
 DEFAULT_NODE_BUDGET = 2 << 30
 # Splat radius in units of sqrt(A / (pi N)), the radius at which N disks cover area A once. With
 # independent uniform points a surface point is missed by all of them with probability
-# exp(-splat_scale^2) (FIELD_NOTES.md); the stratified points leave fewer holes than that.
+# exp(-splat_scale^2) (docs/MEASURED_FACTS.md); the stratified points leave fewer holes than that.
 DEFAULT_SPLAT_SCALE = 2.0
 # How much the node buffer grows past a measured count, so the next frame's rotated directions
 # (a slightly different count) rarely need a re-run.
 CAPACITY_SLACK = 1.125
-SPLAT_BIT = 0x80000000
 SCAN_BLOCK = 4 * LOCAL_SIZE  # shaders/prefix_sum.glsl
 
 
@@ -53,10 +52,11 @@ class NodeBudgetExceeded(InputError):
 
 
 class BundleTracer:
-    """Builds perfect or imperfect bundles of one scene with one GL context.
+    """Builds perfect or imperfect bundles of one uploaded scene (`GpuScene`, which its maker owns)
+    with one GL context.
 
-    The scene is uploaded once, and buffers are kept and grown across `build` calls (frames), so
-    a frame costs only its passes. ``node_budget`` (bytes) caps the node memory (`NODE_BYTES` per
+    Buffers are kept and grown across `build` calls (frames), so a frame costs only its passes;
+    `release` (or leaving a ``with`` block) frees every GL object the tracer made. ``node_budget`` (bytes) caps the node memory (`NODE_BYTES` per
     node); a build that needs more raises `NodeBudgetExceeded` with the amount needed.
 
     Parameters: ``directions`` K and ``resolution`` R fix the buffer layout. Imperfect bundles use
@@ -66,7 +66,7 @@ class BundleTracer:
     in pixels (default: the GL viewport limit); past it, directions are drawn in several draws.
     """
 
-    def __init__(self, gl: GLContext, scene: Scene | GpuScene, method: str = "perfect", *, directions: int = 256,
+    def __init__(self, gl: GLContext, gpu_scene: GpuScene, method: str = "perfect", *, directions: int = 256,
                  resolution: int = 128, points: int = 16384, splat_scale: float = DEFAULT_SPLAT_SCALE,
                  splat_radius: float | None = None, node_budget: int = DEFAULT_NODE_BUDGET,
                  initial_capacity: int | None = None, max_atlas_size: int | None = None, textures: bool | None = None):
@@ -76,11 +76,11 @@ class BundleTracer:
             if value < 1:
                 raise ValueError(f"{name} must be at least 1, got {value}")
         self.gl = gl
-        self.scene = scene if isinstance(scene, GpuScene) else GpuScene(gl, scene)
+        self.gpu_scene = gpu_scene
         self.method = method
         self.K, self.R, self.N = directions, resolution, points
         # The radius at which N disks cover the scene's area once: the unit of splat_scale.
-        unit = math.sqrt(self.scene.arrays.tri_area.sum() / (math.pi * points))
+        unit = math.sqrt(gpu_scene.arrays.tri_area.sum() / (math.pi * points))
         self.splat_radius = splat_radius if splat_radius is not None else splat_scale * unit
         self.splat_scale = self.splat_radius / unit
         if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
@@ -90,23 +90,18 @@ class BundleTracer:
         if self.list_count >= 2**32 - 1 or (method == "imperfect" and 3 * self.K * self.N >= 2**31):
             raise ValueError(f"K={self.K}, R={self.R}, N={self.N} exceed the 32-bit list and vertex indices")
         self._layout(max_atlas_size)
-        ctx = gl.ctx
         # 0: the shader variant without texture fetches, for scenes without textures (None: ask the scene).
-        self.textures = int(self.scene.scene.features().textures if textures is None else textures)
-        self.program = gl.program(f"{method}_bundles", TEXTURES=self.textures)
-        if method == "perfect":
-            self.vao = self.scene.vertex_array(self.program)
-        else:
-            self.vao = ctx.vertex_array(self.program, [])
-        self.framebuffer = ctx.empty_framebuffer(self.atlas_size)
+        self.textures = int(gpu_scene.features.textures if textures is None else textures)
+        self.framebuffer = gl.empty_framebuffer(self.atlas_size)
+        self.vertex_arrays: dict = {}  # by NULL_FRAGMENT: the node pass's and the raw-raster baseline's
         self.buffers = {
-            "FRAMES": ctx.buffer(reserve=48 * self.K),
-            "COUNTERS": ctx.buffer(reserve=16),
-            "HEADS": ctx.buffer(reserve=4 * self.list_count),
-            "OFFSETS": ctx.buffer(reserve=4 * (self.list_count + 1)),
+            "FRAMES": gl.buffer(reserve=BUNDLE_FRAME.itemsize * self.K),
+            "COUNTERS": gl.buffer(reserve=4 * len(COUNTERS)),
+            "HEADS": gl.buffer(reserve=4 * self.list_count),
+            "OFFSETS": gl.buffer(reserve=4 * (self.list_count + 1)),
         }
         if method == "imperfect":
-            self.buffers["POINTS"] = ctx.buffer(reserve=16 * self.K * self.N)
+            self.buffers["POINTS"] = gl.buffer(reserve=16 * self.K * self.N)  # uvec4: triangle, b1, b2, -
             self.buffers["POINTS"].clear()  # triangle 0 for the warm-up draw, before any points exist
         self.capacity = 0
         self.sorted_capacity = 0
@@ -114,24 +109,30 @@ class BundleTracer:
         self._grow(initial_capacity if initial_capacity is not None else self.predicted_nodes())
         self.directions: DirectionSet | None = None
         self.stats: dict = {}
-        self._null_fragment_vao = None  # the raw-raster baseline's, made on first use
-        self._warm_up(self.program, self.vao)
+        self._raster(null_fragment=False)
 
-    def _warm_up(self, program, vao) -> None:
-        """Draw one triangle with nothing to write to, so the driver compiles its shader variant
-        here and not inside the first timed pass (and llvmpipe's first timer query around a
-        compiling draw reports an invalid 2^32 - 1 ns)."""
-        self.bind()
-        self._common_uniforms(program, capacity=0, direction_base=0)
-        self.framebuffer.use()
-        vao.render(moderngl.TRIANGLES, vertices=3, instances=1)
-        self.gl.ctx.finish()
+    def _raster(self, null_fragment: bool) -> tuple:
+        """The raster program of the node pass (or of the raw-raster baseline: an empty fragment
+        shader) and its vertex array, made on first use. The first use also draws one triangle
+        with nothing to write to, so the driver compiles the shader variant here and not inside
+        the first timed pass (llvmpipe's first timer query around a compiling draw reports an
+        invalid 2^32 - 1 ns)."""
+        variant = {"NULL_FRAGMENT": True} if null_fragment else {}
+        program = self.gl.program(f"{self.method}_bundles", TEXTURES=self.textures, **variant)
+        if null_fragment not in self.vertex_arrays:
+            vao = self.gpu_scene.vertex_array(program) if self.method == "perfect" else self.gl.vertex_array(program, [])
+            self.vertex_arrays[null_fragment] = vao
+            self.bind()
+            self._common_uniforms(program, capacity=0, direction_base=0)
+            self.gl.draw(vao, moderngl.TRIANGLES, self.framebuffer, depth_test=False, vertices=3, instances=1)
+            self.gl.finish()
+        return program, self.vertex_arrays[null_fragment]
 
     # -- layout and memory ---------------------------------------------------------------
 
     def _layout(self, max_atlas_size: int | None) -> None:
         """The atlas: as square as possible, split into several draws only past the GL limit."""
-        max_dim = min(self.gl.ctx.info["GL_MAX_VIEWPORT_DIMS"])
+        max_dim = min(self.gl.limit("GL_MAX_VIEWPORT_DIMS"))
         max_dim = min(max_dim, max_atlas_size or max_dim)
         tiles = max_dim // self.R
         if tiles < 1:
@@ -147,7 +148,7 @@ class BundleTracer:
         splats covering a surface point."""
         lines = self.list_count * math.pi / 4  # the lines that meet the sphere
         overlap = max(1.0, self.splat_scale**2) if self.method == "imperfect" else 1.0
-        return int(lines * self.scene.scene.features().depth_complexity * overlap * 1.25) + 1024
+        return int(lines * self.gpu_scene.features.depth_complexity * overlap * 1.25) + 1024
 
     @property
     def budget_nodes(self) -> int:
@@ -164,7 +165,7 @@ class BundleTracer:
         for name, width in (("NEXT", 4), ("NODE_DEPTH", 4), ("NODE_PRIM", 4), ("NODE_NORMAL", 4), ("NODE_ALBEDO", 8)):
             if name in self.buffers:
                 self.buffers[name].release()
-            self.buffers[name] = self.gl.ctx.buffer(reserve=width * nodes)
+            self.buffers[name] = self.gl.buffer(reserve=width * nodes)
         self.capacity = nodes
 
     def _grow_sorted(self, nodes: int) -> None:
@@ -173,13 +174,13 @@ class BundleTracer:
         for name in ("SORTED_NODE", "SORTED_DEPTH"):
             if name in self.buffers:
                 self.buffers[name].release()
-            self.buffers[name] = self.gl.ctx.buffer(reserve=4 * max(1, nodes))
+            self.buffers[name] = self.gl.buffer(reserve=4 * max(1, nodes))
         self.sorted_capacity = nodes
 
     def _check_budget(self, nodes: int) -> None:
         if nodes > self.budget_nodes:
             need = nodes * NODE_BYTES
-            scene = self.scene.scene.name
+            scene = self.gpu_scene.scene.name
             raise NodeBudgetExceeded(
                 scene, f"{self.method} bundles (K={self.K}, R={self.R}) need {nodes:,} nodes = {format_bytes(need)}, "
                        f"over the node budget of {format_bytes(self.budget_nodes * NODE_BYTES)}; raise --node-budget "
@@ -188,12 +189,12 @@ class BundleTracer:
     @property
     def gpu_bytes(self) -> int:
         """Every buffer this tracer holds (nodes, lists, points) plus the scene's."""
-        return sum(b.size for b in self.buffers.values()) + self.scene.nbytes
+        return sum(b.size for b in self.buffers.values()) + self.gpu_scene.nbytes
 
     # -- the passes ----------------------------------------------------------------------
 
     def bind(self) -> None:
-        self.scene.bind()
+        self.gpu_scene.bind()
         for name, buffer in self.buffers.items():
             buffer.bind_to_storage_buffer(BINDINGS[name])
 
@@ -219,7 +220,7 @@ class BundleTracer:
         while True:
             with timer.measure("lists"):
                 self._draw_lists(null_fragment=False)
-            nodes = int(np.frombuffer(self.buffers["COUNTERS"].read(4), dtype=np.uint32)[0])
+            nodes = int(np.frombuffer(self.buffers["COUNTERS"].read(4 * len(COUNTERS)), dtype=np.uint32)[COUNTERS["NODES"]])
             if nodes <= self.capacity:
                 break
             self._check_budget(nodes)
@@ -231,14 +232,14 @@ class BundleTracer:
         self.bind()
         with timer.measure("resolve"):
             self._resolve()
-        counters = np.frombuffer(self.buffers["COUNTERS"].read(16), dtype=np.uint32)
+        counters = np.frombuffer(self.buffers["COUNTERS"].read(4 * len(COUNTERS)), dtype=np.uint32)
         self.directions = directions
         gpu_ms = timer.milliseconds()
         self.stats = {
             "nodes": nodes,
-            "redundant_nodes": int(counters[1]),
+            "redundant_nodes": int(counters[COUNTERS["REDUNDANT"]]),
             "redundant_tolerance": self.redundant_tolerance,
-            "max_list_length": int(counters[2]),
+            "max_list_length": int(counters[COUNTERS["MAX_LENGTH"]]),
             "capacity": self.capacity,
             "overflow_reruns": reruns,
             "node_bytes": nodes * NODE_BYTES,
@@ -258,7 +259,7 @@ class BundleTracer:
 
     def _common_uniforms(self, program, **overrides) -> None:
         """Set the raster programs' uniforms (those a variant compiled away are skipped)."""
-        values = {"radius": self.scene.radius, "resolution": self.R, "tiles_per_row": self.tiles_per_row,
+        values = {"radius": self.gpu_scene.radius, "resolution": self.R, "tiles_per_row": self.tiles_per_row,
                   "atlas_size": self.atlas_size, "capacity": self.capacity, "points_per_direction": self.N,
                   "splat_radius": self.splat_radius, **overrides}
         set_uniforms(program, values)
@@ -266,36 +267,24 @@ class BundleTracer:
     def _sample_points(self, directions: DirectionSet) -> None:
         shader = self.gl.program("splat_points")
         shader["points_per_direction"] = self.N
-        shader["triangle_count"] = self.scene.triangle_count
+        shader["triangle_count"] = self.gpu_scene.triangle_count
         shader["seed"] = directions.seed & 0xFFFFFFFF
         shader["frame"] = directions.frame & 0xFFFFFFFF
         self.gl.dispatch(shader, self.K * self.N)
-        self.gl.ctx.memory_barrier()
 
     def _draw_lists(self, null_fragment: bool) -> None:
         """Every direction's nodes, appended to the pixel lists: one draw per atlas."""
-        ctx = self.gl.ctx
-        program = self.gl.program(f"{self.method}_bundles", NULL_FRAGMENT=True, TEXTURES=self.textures) if null_fragment else self.program
-        vao = self.vao if not null_fragment else self._null_vao(program)
+        program, vao = self._raster(null_fragment)
         self.buffers["HEADS"].clear(chunk=b"\xff\xff\xff\xff")
         self.buffers["COUNTERS"].clear()
-        self.framebuffer.use()
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE | moderngl.BLEND)
         for base in range(0, self.K, self.directions_per_draw):
             count = min(self.directions_per_draw, self.K - base)
             self._common_uniforms(program, direction_base=base)
             if self.method == "perfect":
-                vao.render(moderngl.TRIANGLES, instances=count)
+                self.gl.draw(vao, moderngl.TRIANGLES, self.framebuffer, depth_test=False, instances=count)
             else:
-                vao.render(moderngl.TRIANGLES, vertices=3 * self.N * count, first=3 * self.N * base)
-        ctx.memory_barrier()
-
-    def _null_vao(self, program):
-        if self._null_fragment_vao is None:
-            ctx = self.gl.ctx
-            self._null_fragment_vao = self.scene.vertex_array(program) if self.method == "perfect" else ctx.vertex_array(program, [])
-            self._warm_up(program, self._null_fragment_vao)
-        return self._null_fragment_vao
+                self.gl.draw(vao, moderngl.TRIANGLES, self.framebuffer, depth_test=False, vertices=3 * self.N * count,
+                             first=3 * self.N * base)
 
     def raw_raster(self, directions: DirectionSet) -> float:
         """The raw-raster baseline: this build's geometry drawn with an empty fragment shader.
@@ -311,27 +300,24 @@ class BundleTracer:
         gl = self.gl
         count = gl.program("resolve_lists", COUNT_LISTS=True)
         gl.dispatch(count, self.list_count)
-        gl.ctx.memory_barrier()
         self._prefix_sum(self.buffers["OFFSETS"], self.list_count + 1, level=0)
         self.buffers["OFFSETS"].bind_to_storage_buffer(BINDINGS["OFFSETS"])
         sort = gl.program("resolve_lists", SORT_LISTS=True)
         sort["redundant_tolerance"] = self.redundant_tolerance
         gl.dispatch(sort, self.list_count)
-        gl.ctx.memory_barrier()
 
     def _prefix_sum(self, values, count: int, level: int) -> None:
         """Exclusive prefix sum of ``count`` uints of ``values`` in place (shaders/prefix_sum.glsl)."""
         gl = self.gl
         blocks = math.ceil(count / SCAN_BLOCK)
         if len(self._scan_sums) <= level:
-            self._scan_sums.append(gl.ctx.buffer(reserve=4 * max(blocks, 1)))
+            self._scan_sums.append(gl.buffer(reserve=4 * max(blocks, 1)))
         sums = self._scan_sums[level]
         values.bind_to_storage_buffer(BINDINGS["SCAN_DATA"])
         sums.bind_to_storage_buffer(BINDINGS["SCAN_SUMS"])
         scan = gl.program("prefix_sum", SCAN_BLOCKS=True)
         scan["count"] = count
         gl.run_groups(scan, blocks)
-        gl.ctx.memory_barrier()
         if blocks > 1:
             self._prefix_sum(sums, blocks, level + 1)
             values.bind_to_storage_buffer(BINDINGS["SCAN_DATA"])
@@ -339,7 +325,6 @@ class BundleTracer:
             add = gl.program("prefix_sum", ADD_BLOCK_OFFSETS=True)
             add["count"] = count
             gl.dispatch(add, count)
-            gl.ctx.memory_barrier()
 
     # -- readback ------------------------------------------------------------------------
 
@@ -358,35 +343,52 @@ class BundleTracer:
 
         prim = column("NODE_PRIM", 1)
         triangle = (prim & ~np.uint32(SPLAT_BIT)).astype(np.int64)
-        arrays, materials = self.scene.arrays, self.scene.scene.materials
+        arrays, materials = self.gpu_scene.arrays, self.gpu_scene.scene.materials
         material = arrays.tri_material[triangle].astype(np.int32)
         emission = np.array([m.emission for m in materials], dtype=np.float32).reshape(-1, 3)[material]
         albedo = np.ascontiguousarray(column("NODE_ALBEDO", 2)).view(np.float16)[:, :3].astype(np.float32)
         ds = self.directions
-        params = {**bundle_params(self.scene.scene, self.method, ds, self.R), "node_budget": self.node_budget, "gl": self.gl.info}
+        params = {**bundle_params(self.gpu_scene.scene, self.method, ds, self.R), "node_budget": self.node_budget, "gl": self.gl.info}
         if self.method == "imperfect":
             params.update(points=self.N, splat_scale=self.splat_scale, splat_radius=self.splat_radius)
         return BundleSet(
-            method=self.method, directions=ds, centre=self.scene.centre.copy(), radius=self.scene.radius,
+            method=self.method, directions=ds, centre=self.gpu_scene.centre.copy(), radius=self.gpu_scene.radius,
             resolution=self.R, offsets=offsets, depth=column("NODE_DEPTH", 1).view(np.float32),
             normal=decode_normals(column("NODE_NORMAL", 1)), albedo=albedo, emission=emission,
             prim_id=np.where(prim & SPLAT_BIT, SPLAT_PRIM_ID, triangle).astype(np.int32), material=material,
             params=params, stats=dict(self.stats))
 
     def release(self) -> None:
-        for buffer in [*self.buffers.values(), *self._scan_sums]:
-            buffer.release()
+        """Free every GL object this tracer made (not the scene upload: its maker owns that)."""
+        for obj in [*self.buffers.values(), *self._scan_sums, *self.vertex_arrays.values(), self.framebuffer]:
+            obj.release()
         self.buffers.clear()
         self._scan_sums.clear()
-        self.framebuffer.release()
+        self.vertex_arrays.clear()
+
+    def __enter__(self) -> "BundleTracer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def trace_bundles(gl: GLContext, scene, directions: DirectionSet, method: str = "perfect", **tracer_args) -> BundleSet:
+    """The bundles of one `DirectionSet`, made once: ``scene`` (a `Scene`) uploaded, its bundles
+    built and read back, and every GL object released. ``tracer_args`` go to `BundleTracer`; the
+    build's statistics are in the result's ``stats``."""
+    with GpuScene(gl, scene) as gpu_scene, BundleTracer(gl, gpu_scene, method, directions=directions.count,
+                                                        **tracer_args) as tracer:
+        tracer.build(directions)
+        return tracer.read()
 
 
 def _frames(directions: DirectionSet) -> np.ndarray:
-    """The per-direction frames as shaders/bundle.glsl's BundleFrame array (K, 3, 4) float32."""
-    frames = np.zeros((directions.count, 3, 4), dtype=np.float32)
-    frames[:, 0, :3], frames[:, 0, 3] = directions.axis_u, directions.jitter[:, 0]
-    frames[:, 1, :3], frames[:, 1, 3] = directions.axis_v, directions.jitter[:, 1]
-    frames[:, 2, :3] = directions.directions
+    """The per-direction frames as shaders/bundle.glsl's BundleFrame array (K,)."""
+    frames = np.zeros(directions.count, dtype=BUNDLE_FRAME)
+    frames["u"][:, :3], frames["u"][:, 3] = directions.axis_u, directions.jitter[:, 0]
+    frames["v"][:, :3], frames["v"][:, 3] = directions.axis_v, directions.jitter[:, 1]
+    frames["d"][:, :3] = directions.directions
     return frames
 
 

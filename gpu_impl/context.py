@@ -18,21 +18,15 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from evalkit.errors import InputError
+import moderngl
+
+from evalkit.core.errors import InputError
+from gpu_impl.layout import BINDINGS, SHADER_CONSTANTS, glsl_literal
 
 GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
 SHADER_DIR = Path(__file__).parent / "shaders"
 STAGES = {"VERTEX_SHADER": "vertex_shader", "FRAGMENT_SHADER": "fragment_shader", "COMPUTE_SHADER": "compute_shader"}
 
-# Storage-buffer binding points, the one table both the shaders (as BINDING_* defines) and the
-# Python side use.
-BINDINGS = {
-    "MATERIALS": 0, "TEXELS": 1, "TRIANGLES": 2, "POSITIONS": 3, "NORMALS": 4, "UVS": 5, "INDICES": 6,
-    "AREA_CDF": 7, "FRAMES": 8, "COUNTERS": 9, "HEADS": 10, "NEXT": 11, "NODE_DEPTH": 12, "NODE_PRIM": 13,
-    "NODE_NORMAL": 14, "NODE_ALBEDO": 15, "OFFSETS": 16, "SORTED_NODE": 17, "SORTED_DEPTH": 18, "POINTS": 19,
-    "SCAN_DATA": 20, "SCAN_SUMS": 21, "NODE_RADIANCE": 22, "PATHS": 23, "PATH_SUMS": 24, "IMAGES": 25, "LIGHTS": 26,
-    "SHADOW_VIEWS": 27, "ENVMAP": 28, "ALIVE_PATHS": 29,
-}
 # Every program in shaders/ with each set of defines the code compiles it with (tests compile them all).
 SHADER_VARIANTS = {
     "perfect_bundles": [{"TEXTURES": t, **n} for t in (0, 1) for n in ({}, {"NULL_FRAGMENT": True})],
@@ -47,6 +41,7 @@ SHADER_VARIANTS = {
     "eye_paths": [{"SHADOW_LIGHTS": lights, "ENVIRONMENT": env, "NODE_SIDES": sides}
                   for lights, env, sides in ((0, 0, 1), (1, 1, 2), (1, 2, 1))],
     "resolve_images": [{}],
+    "record_strides": [{"RECORD_GROUP": group} for group in (0, 1, 2)],
 }
 # The workgroup size of every 1-D compute pass, and the most workgroups along one dispatch axis.
 LOCAL_SIZE = 256
@@ -69,8 +64,6 @@ class GLContext:
     """
 
     def __init__(self, device_index: int | None = None):
-        import moderngl
-
         os.environ.setdefault("LP_NUM_THREADS", str(_default_raster_threads()))
         if device_index is None:
             env = os.environ.get("EVALKIT_GL_DEVICE", os.environ.get("GLCONTEXT_DEVICE_INDEX", "0"))
@@ -115,15 +108,57 @@ class GLContext:
 
     def dispatch(self, shader, invocations: int) -> None:
         """Run a compute shader over ``invocations`` 1-D work items (``linear_id()`` in the shader;
-        items past ``invocations`` must return early)."""
+        items past ``invocations`` must return early), then a barrier: what it wrote is visible
+        to every pass after it."""
         if "invocations" in shader:
             shader["invocations"] = invocations
         self.run_groups(shader, math.ceil(invocations / LOCAL_SIZE))
 
     def run_groups(self, shader, groups: int) -> None:
-        """Run ``groups`` workgroups, spread over y past the per-axis limit."""
+        """Run ``groups`` workgroups, spread over y past the per-axis limit, then a barrier."""
         gx = min(max(1, groups), MAX_GROUPS)
         shader.run(gx, math.ceil(max(1, groups) / gx))
+        self.ctx.memory_barrier()
+
+    def draw(self, vertex_array, mode: int, framebuffer, depth_test: bool, **kw) -> None:
+        """Draw ``vertex_array`` into ``framebuffer`` (no face culling, no blending; the depth test
+        only when asked), then a barrier: what its shaders wrote to storage is visible after it."""
+        framebuffer.use()
+        self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        (self.ctx.enable if depth_test else self.ctx.disable)(moderngl.DEPTH_TEST)
+        vertex_array.render(mode, **kw)
+        self.ctx.disable(moderngl.DEPTH_TEST)
+        self.ctx.memory_barrier()
+
+    # The GL objects the toolkit makes, each released by the one object that made it.
+    def buffer(self, data: bytes | None = None, reserve: int = 0):
+        return self.ctx.buffer(data, reserve=reserve)
+
+    def texture(self, size: tuple[int, int], components: int, dtype: str):
+        texture = self.ctx.texture(size, components, dtype=dtype)
+        texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return texture
+
+    def depth_renderbuffer(self, size: tuple[int, int]):
+        return self.ctx.depth_renderbuffer(size)
+
+    def framebuffer(self, color: list, depth=None):
+        """A framebuffer on ``color`` textures (and a depth renderbuffer); the caller owns them all."""
+        return self.ctx.framebuffer(color, depth)
+
+    def empty_framebuffer(self, size: tuple[int, int]):
+        """A framebuffer without attachments: the raster passes write only to storage buffers."""
+        return self.ctx.empty_framebuffer(size)
+
+    def vertex_array(self, program, content: list, **kw):
+        return self.ctx.vertex_array(program, content, **kw)
+
+    def finish(self) -> None:
+        self.ctx.finish()
+
+    def limit(self, name: str):
+        """A GL implementation limit, e.g. GL_MAX_VIEWPORT_DIMS."""
+        return self.ctx.info[name]
 
     @property
     def info(self) -> dict:
@@ -168,6 +203,7 @@ def shader_stages(text: str) -> list[str]:
 def _with_header(text: str, stage: str, defines: dict) -> str:
     lines = ["#version 450 core", f"#define {stage}", f"#define LOCAL_SIZE {LOCAL_SIZE}"]
     lines += [f"#define BINDING_{name} {index}" for name, index in BINDINGS.items()]
+    lines += [f"#define {name} {glsl_literal(value)}" for name, value in SHADER_CONSTANTS.items()]
     lines += [f"#define {k} {int(v) if isinstance(v, bool) else v}" for k, v in sorted(defines.items())]
     return "\n".join(lines) + "\n#line 1\n" + text
 

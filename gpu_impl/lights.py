@@ -15,12 +15,10 @@ import math
 import moderngl
 import numpy as np
 
-from evalkit.scene.model import Light
-from gpu_impl.context import BINDINGS, GLContext, set_uniforms
+from evalkit.core.scene.model import Light
+from gpu_impl.context import GLContext, set_uniforms
+from gpu_impl.layout import BINDINGS, ENVIRONMENT_KINDS, LIGHT, LIGHT_KINDS, SHADOW_VIEW
 from gpu_impl.scene_buffers import GpuScene
-
-SHADOW_KINDS = {"point": 0.0, "spot": 1.0, "directional": 2.0}  # shaders/lights.glsl: LIGHT_*
-ENVIRONMENTS = {None: 0, "constant": 1, "envmap": 2}  # shaders/environment.glsl: ENVIRONMENT_*
 # A spot light whose cone half-angle is within this of 90 degrees cannot use one perspective view.
 MAX_SPOT_VIEW_DEGREES = 60.0
 CUBE_FACES = ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1))  # lights.glsl: shadow_view_of
@@ -65,14 +63,14 @@ class ShadowLights:
     kernel side in bilinear taps (1: one bilinear 2x2 lookup).
     """
 
-    def __init__(self, gl: GLContext, scene: GpuScene, map_size: int = 1024, bias: float = 1.0,
+    def __init__(self, gl: GLContext, gpu_scene: GpuScene, map_size: int = 1024, bias: float = 1.0,
                  slope_bias: float = 2.0, filter: int = 1):
         if map_size < 8 or filter < 1:
             raise ValueError(f"need a shadow map size >= 8 and a filter >= 1, got {map_size} and {filter}")
-        self.gl, self.scene = gl, scene
+        self.gl, self.gpu_scene = gl, gpu_scene
         self.map_size, self.bias, self.slope_bias, self.filter = int(map_size), float(bias), float(slope_bias), int(filter)
-        lights = [light for light in scene.scene.lights if light.kind in SHADOW_KINDS]
-        environments = [light for light in scene.scene.lights if light.kind in ("constant", "envmap")]
+        lights = [light for light in gpu_scene.scene.lights if light.kind in LIGHT_KINDS]
+        environments = [light for light in gpu_scene.scene.lights if light.kind in ("constant", "envmap")]
         self.environment = environments[0] if environments else None
         self.count = len(lights)
         records, views = [], []
@@ -81,37 +79,35 @@ class ShadowLights:
             views += self._views(light)
             records.append(self._record(light, first, len(views) - first))
         self.views = views
-        ctx = gl.ctx
         self.buffers = {}
         self.atlas = self.framebuffer = None
         if lights:
             cols = math.ceil(math.sqrt(len(views)))
             rows = math.ceil(len(views) / cols)
-            max_side = ctx.info["GL_MAX_TEXTURE_SIZE"]
+            max_side = gl.limit("GL_MAX_TEXTURE_SIZE")
             if max(cols, rows) * self.map_size > max_side:
                 raise ValueError(f"{len(views)} shadow views of {self.map_size}^2 texels exceed the GL texture limit {max_side}")
-            view_records = np.zeros(len(views), dtype=[("to_clip", "<f4", (4, 4)), ("tile", "<f4", 4), ("origin", "<f4", 4), ("axis", "<f4", 4)])
+            view_records = np.zeros(len(views), dtype=SHADOW_VIEW)
             for i, (to_clip, texel, origin, perspective_view, axis, far) in enumerate(views):
                 view_records["to_clip"][i] = to_clip.T  # GLSL matrices are column-major
                 view_records["tile"][i] = ((i % cols) * self.map_size, (i // cols) * self.map_size, self.map_size, texel)
                 view_records["origin"][i] = (*origin, 1.0 if perspective_view else 0.0)
                 view_records["axis"][i] = (*axis, 1.0 / far)
-            self.buffers["LIGHTS"] = ctx.buffer(np.array(records, dtype=np.float32).tobytes())
-            self.buffers["SHADOW_VIEWS"] = ctx.buffer(view_records.tobytes())
-            self.atlas = ctx.texture((cols * self.map_size, rows * self.map_size), 1, dtype="f4")
-            self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            self.depth = ctx.depth_renderbuffer(self.atlas.size)
-            self.framebuffer = ctx.framebuffer([self.atlas], self.depth)
+            self.buffers["LIGHTS"] = gl.buffer(np.array(records, dtype=LIGHT).tobytes())
+            self.buffers["SHADOW_VIEWS"] = gl.buffer(view_records.tobytes())
+            self.atlas = gl.texture((cols * self.map_size, rows * self.map_size), 1, dtype="f4")
+            self.depth = gl.depth_renderbuffer(self.atlas.size)
+            self.framebuffer = gl.framebuffer([self.atlas], self.depth)
             self.program = gl.program("shadow_maps")
-            self.vao = scene.vertex_array(self.program)
+            self.vao = gpu_scene.vertex_array(self.program)
         if self.environment is not None and self.environment.kind == "envmap":
-            self.buffers["ENVMAP"] = ctx.buffer(np.ascontiguousarray(self.environment.envmap, dtype=np.float32).tobytes())
+            self.buffers["ENVMAP"] = gl.buffer(np.ascontiguousarray(self.environment.envmap, dtype=np.float32).tobytes())
 
     # -- views ---------------------------------------------------------------------------
 
     def _views(self, light: Light) -> list:
         """(to_clip, texel size term, origin, perspective?, axis, farthest distance) per shadow view."""
-        centre, r = self.scene.centre, self.scene.radius
+        centre, r = self.gpu_scene.centre, self.gpu_scene.radius
         s = self.map_size
         if light.kind == "directional":
             d = np.asarray(light.direction, dtype=np.float64)
@@ -129,16 +125,17 @@ class ShadowLights:
         return [(perspective(tan_half, near, far) @ look_at_view(position, np.array(face, dtype=np.float64)),
                  2.0 * tan_half / s, position, True, np.zeros(3), far) for face in CUBE_FACES]
 
-    def _record(self, light: Light, first_view: int, views: int) -> list:
-        kind = SHADOW_KINDS[light.kind]
-        position = np.zeros(3) if light.position is None else np.asarray(light.position) - self.scene.centre
+    def _record(self, light: Light, first_view: int, views: int) -> tuple:
+        """The light's `LIGHT` record (shaders/lights.glsl: Light)."""
+        kind = LIGHT_KINDS[light.kind]
+        position = np.zeros(3) if light.position is None else np.asarray(light.position) - self.gpu_scene.centre
         direction = np.zeros(3) if light.direction is None else np.asarray(light.direction, dtype=np.float64)
         cutoff = math.radians(light.cutoff_angle or 90.0)
         beam = math.radians(light.beam_width if light.beam_width is not None else 0.75 * (light.cutoff_angle or 90.0))
         beam = min(beam, cutoff)
         inv_transition = 1.0 / (cutoff - beam) if cutoff > beam else 0.0
-        return [*position, kind, *direction, math.cos(cutoff), *light.intensity, math.cos(beam),
-                cutoff, inv_transition, first_view, views]
+        return ((*position, kind), (*direction, math.cos(cutoff)), (*light.intensity, math.cos(beam)),
+                (cutoff, inv_transition, first_view, views))
 
     # -- passes --------------------------------------------------------------------------
 
@@ -146,23 +143,19 @@ class ShadowLights:
         """Draw the scene into every shadow view's tile."""
         if self.framebuffer is None:
             return
-        ctx = self.gl.ctx
-        self.scene.bind()
+        self.gpu_scene.bind()
         self.buffers["SHADOW_VIEWS"].bind_to_storage_buffer(BINDINGS["SHADOW_VIEWS"])
-        self.framebuffer.use()
         self.framebuffer.clear(red=np.finfo(np.float32).max, depth=1.0)
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         s = self.map_size
         cols = self.atlas.size[0] // s
         for i in range(len(self.views)):
             self.framebuffer.viewport = ((i % cols) * s, (i // cols) * s, s, s)
             self.program["view_index"] = i
-            self.vao.render(moderngl.TRIANGLES)
-        ctx.disable(moderngl.DEPTH_TEST)
+            self.gl.draw(self.vao, moderngl.TRIANGLES, self.framebuffer, depth_test=True)
 
     def defines(self) -> dict:
-        return {"SHADOW_LIGHTS": int(self.count > 0), "ENVIRONMENT": ENVIRONMENTS[None if self.environment is None else self.environment.kind]}
+        return {"SHADOW_LIGHTS": int(self.count > 0),
+                "ENVIRONMENT": ENVIRONMENT_KINDS[None if self.environment is None else self.environment.kind]}
 
     def bind(self, atlas_unit: int) -> None:
         """Bind the light buffers and the shadow atlas (at texture unit ``atlas_unit``)."""

@@ -26,18 +26,19 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from evalkit.bundleset import DirectionSet
-from evalkit.exr import write_exr
-from evalkit.scene import Scene
+from evalkit.core.bundleset import DirectionSet
+from evalkit.core.exr import write_exr
+from evalkit.core.scene import Scene
 from gpu_impl.bundles import CAPACITY_SLACK, DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE, BundleTracer
-from gpu_impl.context import BINDINGS, GLContext, PassTimer, set_uniforms
+from gpu_impl.context import GLContext, PassTimer, set_uniforms
+from gpu_impl.layout import BINDINGS, PATH, PATH_SUMS
 from gpu_impl.lights import ShadowLights
 from gpu_impl.scene_buffers import GpuScene
 
 IMAGES = ("direct", "indirect", "total")
 ATLAS_UNIT, GBUFFER_UNIT = 0, 1  # texture units
 
-# The poster's configuration (ARCHITECTURE.md); --bounces picks 1 or 3.
+# The poster's configuration (docs/ARCHITECTURE.md); --bounces picks 1 or 3.
 PRESETS = {
     "paper": {"width": 1920, "height": 1024, "supersampling": 2, "resolution": 128, "directions": 256, "points": 16384},
 }
@@ -89,6 +90,10 @@ class RenderSettings:
         for name in ("time", "time_step"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
+        if not (self.splat_scale > 0 and math.isfinite(self.splat_scale)):
+            raise ValueError(f"splat_scale must be positive and finite, got {self.splat_scale}")
+        if self.node_budget < 1:
+            raise ValueError(f"node_budget must be at least 1 byte, got {self.node_budget}")
         for name in ("self_hit_bias", "shadow_bias", "shadow_slope_bias"):
             value = getattr(self, name)
             if not (value >= 0 and math.isfinite(value)):
@@ -107,7 +112,11 @@ class RenderResult:
 
 
 class Renderer:
-    """Renders one scene with one set of `RenderSettings` on one GL context."""
+    """Renders one scene with one set of `RenderSettings` on one GL context.
+
+    It uploads the scene and owns that upload, its bundle tracer, its lights and every buffer and
+    texture of its passes; `release` (or leaving a ``with`` block) frees them all.
+    """
 
     def __init__(self, gl: GLContext, scene: Scene, settings: RenderSettings):
         settings.validate()
@@ -133,18 +142,16 @@ class Renderer:
         self.reuse_bundles = not settings.rotate_directions and not self.moving
         self.lights = ShadowLights(gl, self.gpu_scene, settings.shadow_map_size, settings.shadow_bias,
                                    settings.shadow_slope_bias, settings.shadow_filter)
-        features = scene.features()
+        features = self.gpu_scene.features
         # Shader variants from the scene's features: no shadow-map lookups without such lights, no
         # environment lookups without one, a node's back-side radiance only with two-sided materials.
         self.defines = {**self.lights.defines(), "NODE_SIDES": 2 if features.twosided else 1}
         textures = {"TEXTURES": int(features.textures)}
         # The last bounce pass only collects emission and environment light; without either it adds nothing.
         self.steps = settings.bounces + (1 if features.emitters or features.environment else 0)
-        ctx = gl.ctx
-        self.gbuffer = ctx.texture(self.gbuffer_size, 1, dtype="u4")
-        self.gbuffer.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self.gbuffer_depth = ctx.depth_renderbuffer(self.gbuffer_size)
-        self.gbuffer_fbo = ctx.framebuffer([self.gbuffer], self.gbuffer_depth)
+        self.gbuffer = gl.texture(self.gbuffer_size, 1, dtype="u4")
+        self.gbuffer_depth = gl.depth_renderbuffer(self.gbuffer_size)
+        self.gbuffer_fbo = gl.framebuffer([self.gbuffer], self.gbuffer_depth)
         self.gbuffer_program = gl.program("gbuffer")
         self.gbuffer_vao = self.gpu_scene.vertex_array(self.gbuffer_program)
         d = self.defines
@@ -156,15 +163,15 @@ class Renderer:
         if d["SHADOW_LIGHTS"]:
             self.programs["node_radiance"] = gl.program("node_radiance", SHADOW_LIGHTS=1, NODE_SIDES=d["NODE_SIDES"])
         self.buffers = {
-            "PATHS": ctx.buffer(reserve=48 * self.paths),  # shaders/paths.glsl: Path
-            "PATH_SUMS": ctx.buffer(reserve=32 * self.paths),  # and PathSums
-            "IMAGES": ctx.buffer(reserve=2 * 16 * self.width * self.height),
-            "NODE_RADIANCE": ctx.buffer(reserve=4),
-            "ALIVE_PATHS": ctx.buffer(reserve=4),
+            "PATHS": gl.buffer(reserve=PATH.itemsize * self.paths),
+            "PATH_SUMS": gl.buffer(reserve=PATH_SUMS.itemsize * self.paths),
+            "IMAGES": gl.buffer(reserve=2 * 16 * self.width * self.height),  # vec4 direct, then indirect
+            "NODE_RADIANCE": gl.buffer(reserve=4),
+            "ALIVE_PATHS": gl.buffer(reserve=4),
         }
         self.radiance_capacity = 0
         self._posed_at = self.times[0]  # the pose on the GPU
-        self.camera = camera_frame(scene, self.gpu_scene.centre, self.width, self.height)
+        self.camera = scene.camera.frame(self.gpu_scene.centre, self.width, self.height)
         # Uniforms that stay the same for every frame, set once.
         fixed = {
             "radius": self.gpu_scene.radius, "resolution": settings.resolution, "bounces": settings.bounces,
@@ -240,7 +247,6 @@ class Renderer:
         if self.defines["SHADOW_LIGHTS"] and node_direct:
             with timer.measure("node_direct"):
                 gl.dispatch(self.programs["node_radiance"], self.tracer.list_count)
-                gl.ctx.memory_barrier()
         with timer.measure("gbuffer"):
             self._gbuffer(frame)
         for j in range(1, self.steps + 1):
@@ -254,30 +260,22 @@ class Renderer:
                 program["bounce"] = j
                 program["frame"] = frame & 0xFFFFFFFF
                 gl.dispatch(program, self.paths)
-                gl.ctx.memory_barrier()
         with timer.measure("resolve"):
             program = self.programs["resolve_images"]
             program["sample_weight"] = 1.0 / (st.supersampling**2 * st.spp * (frame + 1))
             gl.dispatch(program, self.width * self.height)
-            gl.ctx.memory_barrier()
 
     def _gbuffer(self, frame: int) -> None:
         """Rasterize the camera view (this frame's sub-pixel jitter), then the PRIMARY pass."""
         st = self.settings
-        ctx = self.gl.ctx
         subpixel = np.random.default_rng([st.seed, frame, 1]).random(2)
-        self.gbuffer_fbo.use()
         self.gbuffer_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         self.gbuffer_program["to_clip"] = tuple(gbuffer_projection(self.camera, self.gbuffer_size, subpixel).T.ravel())
-        self.gbuffer_vao.render(moderngl.TRIANGLES)
-        ctx.disable(moderngl.DEPTH_TEST)
+        self.gl.draw(self.gbuffer_vao, moderngl.TRIANGLES, self.gbuffer_fbo, depth_test=True)
         program = self.programs["primary"]
         program["subpixel"] = tuple(subpixel)
         self.buffers["ALIVE_PATHS"].write(b"\0\0\0\0")
         self.gl.dispatch(program, self.paths)
-        ctx.memory_barrier()
 
     def _alive_paths(self) -> int:
         return int(np.frombuffer(self.buffers["ALIVE_PATHS"].read(4), dtype=np.uint32)[0])
@@ -295,7 +293,7 @@ class Renderer:
             return
         nodes = int(nodes * CAPACITY_SLACK)  # room for the next frame's slightly different count
         self.buffers["NODE_RADIANCE"].release()
-        self.buffers["NODE_RADIANCE"] = self.gl.ctx.buffer(reserve=12 * self.defines["NODE_SIDES"] * nodes)
+        self.buffers["NODE_RADIANCE"] = self.gl.buffer(reserve=12 * self.defines["NODE_SIDES"] * nodes)
         self.radiance_capacity = nodes
 
     def _read_images(self) -> dict[str, np.ndarray]:
@@ -344,19 +342,14 @@ class Renderer:
         self.tracer.release()
         self.gpu_scene.release()
 
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
 
 # -- camera ---------------------------------------------------------------------------------
-
-def camera_frame(scene: Scene, centre: np.ndarray, width: int, height: int) -> dict:
-    """The camera relative to the bundle centre: origin, to_world (3x3, Mitsuba's camera space:
-    +x left, +y up, +z forward), tan of the half field of view along x and y, near and far."""
-    cam = scene.camera
-    aspect = width / height
-    t = math.tan(math.radians(cam.fov) / 2.0)
-    tan_half = (t, t / aspect) if cam.fov_axis == "x" else (t * aspect, t)
-    return {"origin": cam.to_world[:3, 3] - centre, "to_world": cam.to_world[:3, :3], "tan_half": tan_half,
-            "near": cam.near_clip, "far": cam.far_clip}
-
 
 def enclosing_sphere(scenes: list[Scene]) -> tuple[np.ndarray, float]:
     """A sphere around every pose of an animated scene (centred on the union of their bounds)."""

@@ -4,14 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from evalkit.bundleset import FRAME_PADDING
-from evalkit.scene import Scene
-from gpu_impl.context import BINDINGS, GLContext
-
-# Bits of shaders/scene.glsl: Material.texture.w and Triangle.material_flags.
-MATERIAL_TEXTURED = 1
-MATERIAL_TWOSIDED = 2
-TRIANGLE_SMOOTH = 0x80000000
+from evalkit.core.bundleset import FRAME_PADDING
+from evalkit.core.scene import Scene
+from gpu_impl.context import GLContext
+from gpu_impl.layout import BINDINGS, MATERIAL, MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE, TRIANGLE_SMOOTH
 
 
 class GpuScene:
@@ -19,20 +15,22 @@ class GpuScene:
 
     Positions are uploaded as float32 relative to the bounding-sphere centre, where float32 keeps
     the most precision; ``centre`` (float64, scene space) and ``radius`` (the padded frame radius)
-    place them back. ``arrays`` is the host copy the primitive ids refer to.
+    place them back. ``scene`` is the host scene (the pose on the GPU), ``arrays`` its flattened
+    copy that primitive ids refer to, and ``features`` what it uses. The maker releases it
+    (`release`, or use it as a context manager).
     """
 
     def __init__(self, gl: GLContext, scene: Scene, sphere: tuple[np.ndarray, float] | None = None):
         self.gl = gl
         self.scene = scene
+        self.features = scene.features()
         self.arrays = a = scene.arrays()
         centre, radius = sphere if sphere is not None else scene.bounding_sphere()
         self.centre = np.asarray(centre, dtype=np.float64)
         self.radius = radius * FRAME_PADDING
         self.triangle_count = len(a.faces)
-        ctx = gl.ctx
 
-        materials = np.zeros(len(scene.materials), dtype=[("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "<u4", 4)])
+        materials = np.zeros(len(scene.materials), dtype=MATERIAL)
         texels, first = [], 0
         for i, m in enumerate(scene.materials):
             materials["albedo"][i, :3] = m.albedo
@@ -54,17 +52,17 @@ class GpuScene:
         cdf[-1] = 1.0
 
         self.buffers = {
-            **{name: ctx.buffer(data) for name, data in self._geometry(a).items()},
-            "UVS": ctx.buffer(a.uvs.astype(np.float32).tobytes()),
-            "INDICES": ctx.buffer(a.faces.astype(np.uint32).tobytes()),
-            "MATERIALS": ctx.buffer(materials.tobytes()),
-            "TEXELS": ctx.buffer(texels.astype(np.float32).tobytes()),
-            "AREA_CDF": ctx.buffer(cdf.astype(np.float32).tobytes()),
+            **{name: gl.buffer(data) for name, data in self._geometry(a).items()},
+            "UVS": gl.buffer(a.uvs.astype(np.float32).tobytes()),
+            "INDICES": gl.buffer(a.faces.astype(np.uint32).tobytes()),
+            "MATERIALS": gl.buffer(materials.tobytes()),
+            "TEXELS": gl.buffer(texels.astype(np.float32).tobytes()),
+            "AREA_CDF": gl.buffer(cdf.astype(np.float32).tobytes()),
         }
 
     def _geometry(self, a) -> dict[str, bytes]:
         """The buffers that move with the geometry: positions, vertex normals, triangle records."""
-        triangles = np.zeros(len(a.faces), dtype=[("normal", "<f4", 3), ("material_flags", "<u4")])
+        triangles = np.zeros(len(a.faces), dtype=TRIANGLE)
         triangles["normal"] = a.tri_normal
         triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(a.tri_smooth, TRIANGLE_SMOOTH, 0).astype(np.uint32)
         return {"POSITIONS": (a.positions - self.centre).astype(np.float32).tobytes(),
@@ -94,12 +92,19 @@ class GpuScene:
             buffer.bind_to_storage_buffer(BINDINGS[name])
 
     def vertex_array(self, program):
-        """The indexed triangle stream (positions only: shaders/perfect_bundles.glsl reads the rest from storage)."""
+        """A new vertex array of the indexed triangles for ``program`` (positions only: the raster
+        passes read the rest from storage); the caller owns and releases it."""
         b = self.buffers
         content = [(b["POSITIONS"], "3f", "in_position")]
-        return self.gl.ctx.vertex_array(program, content, index_buffer=b["INDICES"], index_element_size=4, skip_errors=True)
+        return self.gl.vertex_array(program, content, index_buffer=b["INDICES"], index_element_size=4, skip_errors=True)
 
     def release(self) -> None:
         for buffer in self.buffers.values():
             buffer.release()
         self.buffers.clear()
+
+    def __enter__(self) -> "GpuScene":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()

@@ -31,9 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evalkit.bundleset import FRAME_PADDING, BundleSet, DirectionSet, bundle_params, line_origins
-from evalkit.scene import Scene
-from evalkit.scene.model import sample_texture
+from evalkit.core.bundleset import FRAME_PADDING, BundleSet, DirectionSet, bundle_params, line_origins
+from evalkit.core.scene import Scene
+from evalkit.core.scene.model import sample_texture
 
 RECAST_ULPS = 16
 LINES_PER_TASK = 1 << 18

@@ -38,9 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
-from evalkit.errors import InputError
-from evalkit.exr import read_exr, write_exr
-from evalkit.scene import Scene
+from evalkit.core.errors import InputError
+from evalkit.core.exr import read_exr, write_exr
+from evalkit.core.mitsuba_env import mitsuba
+from evalkit.core.scene import Scene
+from evalkit.core.scene.mitsuba_io import to_mitsuba_dict
 
 DEFAULT_STORE = Path(__file__).resolve().parent / "store"
 IMAGES = ("direct", "indirect", "total")
@@ -151,8 +153,6 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
 def _mitsuba_scene(scene: Scene, bounces: int, spp: int, width: int, height: int, variant: str | None):
     """Mitsuba, the scene loaded at ``spp`` per render, and the path integrators for the direct
     image (max_depth 2) and the total one (max_depth bounces + 2), by max_depth."""
-    from evalkit.mitsuba_env import mitsuba
-    from evalkit.scene.mitsuba_io import to_mitsuba_dict
 
     mi = mitsuba(variant)
     mi_scene = mi.load_dict(to_mitsuba_dict(scene, mi, spp=spp, width=width, height=height))

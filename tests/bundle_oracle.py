@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evalkit.bundleset import BundleSet
-from evalkit.scene import Scene
+from evalkit.core.bundleset import BundleSet
+from evalkit.core.scene import Scene
 
 
 def exact_lists(scene: Scene, template: BundleSet) -> list[list[np.ndarray]]:

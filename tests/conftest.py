@@ -4,27 +4,33 @@ runner for the installed `evalkit` command (bad input must end in exit 2 without
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from evalkit.core.exr import write_exr
+from evalkit.core.mitsuba_env import mitsuba
+from evalkit.figures import error_map_png
+from evalkit.metrics.images import relmse as metric
+from gpu_impl.context import GLContext
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# Where tests that compare images keep them when they fail (as Mitsuba's render tests do).
+ERROR_OUTPUT = Path(REPO) / "error_output"
 
 
 @pytest.fixture(scope="session")
 def mi():
-    from evalkit.mitsuba_env import mitsuba
-
     return mitsuba()
 
 
 @pytest.fixture(scope="session")
 def gl():
     """One headless GL context for the whole session: making one is slow."""
-    from gpu_impl.context import GLContext
-
     with GLContext() as context:
         yield context
 
@@ -48,10 +54,39 @@ def write_texture(path, size: int = 8, seed: int = 0) -> np.ndarray:
     return texels
 
 
+class ImageOutput:
+    """For a test that compares images: on failure, `keep` writes the test image, the reference and
+    the relMSE error map (EXR, and PNG in magma) to error_output/<test>/<name>/ and returns the
+    failure message naming that folder, so the next person can look instead of guess."""
+
+    def __init__(self, test_id: str, root: Path = ERROR_OUTPUT):
+        self.folder = root / re.sub(r"[^\w.-]+", "_", test_id)
+
+    def keep(self, name: str, test: np.ndarray, ref: np.ndarray, message: str) -> str:
+        folder = self.folder / name
+        folder.mkdir(parents=True, exist_ok=True)
+        test, ref = np.asarray(test, dtype=np.float32), np.asarray(ref, dtype=np.float32)
+        write_exr(folder / "test.exr", test, {"test": self.folder.name, "image": name})
+        write_exr(folder / "reference.exr", ref, {"test": self.folder.name, "image": name})
+        error = metric(test.astype(np.float64), ref.astype(np.float64)).map
+        write_exr(folder / "relmse_map.exr", np.repeat(error[..., None], 3, axis=2).astype(np.float32), {"map": "relmse"})
+        vmax = error_map_png(error, folder / "relmse_map.png")
+        return f"{message}; test image, reference and relMSE map (magma, 0..{vmax:.3g}) in {folder}"
+
+    def relmse_at_most(self, name: str, test: np.ndarray, ref: np.ndarray, threshold: float) -> float:
+        """relMSE of ``test`` against ``ref``, asserted at most ``threshold``."""
+        value = relmse(test, ref)
+        assert value <= threshold, self.keep(name, test, ref, f"{name}: relMSE {value:.4g} > {threshold:.4g}")
+        return value
+
+
+@pytest.fixture
+def images(request) -> ImageOutput:
+    return ImageOutput(request.node.nodeid)
+
+
 def relmse(test: np.ndarray, ref: np.ndarray, eps: float = 0.01) -> float:
     """Mean of (x - r)^2 / (r^2 + eps), the tev form, over pixels and channels (the toolkit's own metric)."""
-    from evalkit.metrics.images import relmse as metric
-
     return metric(np.asarray(test, dtype=np.float64), np.asarray(ref, dtype=np.float64), eps).value
 
 

@@ -7,9 +7,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from evalkit.bundleset import DirectionSet
+from evalkit.core.bundleset import DirectionSet
 from evalkit.metrics.bundles import SLOPE_BINS, compare_bundles, eye_vertices, next_hit_errors
-from evalkit.scene import Material, Mesh, load_scene
+from evalkit.core.scene import Material, Mesh, load_scene
 from references.embree import ExactTracer
 from test_bundles import QUAD, QUAD_FACES, build, scene_of
 

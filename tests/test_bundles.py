@@ -11,11 +11,11 @@ import pytest
 
 from bundle_oracle import agreement, exact_lists
 from conftest import run_evalkit
-from evalkit.bundleset import FRAME_PADDING, SPLAT_PRIM_ID, BundleSet, DirectionSet
-from evalkit.scene import Material, Mesh, assemble, load_scene
-from evalkit.scene.model import sample_texture
-from evalkit.scene.tessellate import box
-from gpu_impl.bundles import BundleTracer, NodeBudgetExceeded
+from evalkit.core.bundleset import FRAME_PADDING, SPLAT_PRIM_ID, BundleSet, DirectionSet
+from evalkit.core.scene import Material, Mesh, assemble, load_scene
+from evalkit.core.scene.model import sample_texture
+from evalkit.core.scene.tessellate import box
+from gpu_impl.bundles import NodeBudgetExceeded, trace_bundles
 
 # Matching tolerance for perfect bundles: float32 depth of a point within the bounding sphere.
 PERFECT_DEPTH_TOLERANCE = 1e-5
@@ -50,11 +50,7 @@ SCENES = {"quad": textured_quad, "nested-boxes": nested_boxes, "coplanar-stack":
 
 
 def build(gl, scene, method="perfect", K=12, R=40, seed=3, **kw) -> BundleSet:
-    tracer = BundleTracer(gl, scene, method, directions=K, resolution=R, **kw)
-    tracer.build(DirectionSet.make(K, seed=seed))
-    bundles = tracer.read()
-    tracer.release()
-    return bundles
+    return trace_bundles(gl, scene, DirectionSet.make(K, seed=seed), method, resolution=R, **kw)
 
 
 @pytest.mark.parametrize("name", SCENES)

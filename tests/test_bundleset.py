@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evalkit.bundleset import BundleSet, DirectionSet, orthonormal_frames, spherical_fibonacci
-from evalkit.errors import InputError
+from evalkit.core.bundleset import BundleSet, DirectionSet, orthonormal_frames, spherical_fibonacci
+from evalkit.core.errors import InputError
 
 
 def test_fibonacci_directions_cover_the_sphere_evenly():

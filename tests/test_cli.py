@@ -10,7 +10,8 @@ import re
 import pytest
 
 from conftest import run_evalkit
-from evalkit.mitsuba_env import find_libllvm, llvm_major
+from evalkit import doctor
+from evalkit.core.mitsuba_env import find_libllvm, llvm_major
 
 
 def last_json(stdout: str) -> dict:
@@ -30,7 +31,6 @@ def test_doctor_reports_gl_mitsuba_llvm_and_embree():
 
 def test_doctor_survives_a_probe_that_aborts(monkeypatch):
     # An LLVM that Dr.Jit cannot use aborts the process; the doctor must report it, not die.
-    from evalkit import doctor
 
     monkeypatch.setattr(doctor.sys, "executable", os.path.join(os.path.dirname(__file__), "data", "abort.sh"))
     result = doctor.run_probe("mitsuba")

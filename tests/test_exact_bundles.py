@@ -11,10 +11,10 @@ import pytest
 
 from bundle_oracle import agreement, exact_lists
 from conftest import run_evalkit
-from evalkit.bundleset import BundleSet, DirectionSet
+from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.metrics.bundles import compare_bundles
-from evalkit.scene import Material, Mesh, load_scene
-from evalkit.scene.tessellate import box, unit_sphere
+from evalkit.core.scene import Material, Mesh, load_scene
+from evalkit.core.scene.tessellate import box, unit_sphere
 from references.embree import ExactTracer
 from test_bundles import QUAD, QUAD_FACES, build, coplanar_stack, nested_boxes, scene_of, textured_quad
 

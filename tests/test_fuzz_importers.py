@@ -14,8 +14,8 @@ import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evalkit.errors import InputError
-from evalkit.scene import Scene, load_scene
+from evalkit.core.errors import InputError
+from evalkit.core.scene import Scene, load_scene
 
 HANG_SECONDS = 20
 CI_EXAMPLES = 30

@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from evalkit.core.errors import InputError
 from gpu_impl.context import SHADER_DIR, SHADER_VARIANTS, GLContext, is_program
+from gpu_impl.layout import BINDINGS, RECORDS, SHADER_CONSTANTS, glsl_literal
 
 
 def test_every_shader_compiles(gl):
@@ -14,6 +16,37 @@ def test_every_shader_compiles(gl):
     for name, variants in SHADER_VARIANTS.items():
         for defines in variants:
             assert gl.program(name, **defines) is gl.program(name, **defines)  # compiled once, cached
+
+
+# The records of gpu_impl/layout.py by RECORD_GROUP of shaders/record_strides.glsl, in its order.
+RECORD_GROUPS = {0: ["Material", "Triangle", "BundleFrame"], 1: ["Light", "ShadowView"], 2: ["Path", "PathSums"]}
+
+
+def test_python_records_have_the_shaders_strides(gl):
+    # Each record array bound with room for exactly n records of the Python layout must have
+    # length n in the shader: a stride that differs by even one byte changes the length.
+    assert sorted(sum(RECORD_GROUPS.values(), [])) == sorted(RECORDS)
+    n = 1000
+    for group, names in RECORD_GROUPS.items():
+        buffers = [gl.buffer(reserve=n * RECORDS[name][0].itemsize) for name in names]
+        for name, buffer in zip(names, buffers):
+            buffer.bind_to_storage_buffer(BINDINGS[RECORDS[name][1]])
+        lengths = gl.buffer(reserve=4 * len(names))
+        lengths.bind_to_storage_buffer(BINDINGS["SCAN_DATA"])
+        gl.run_groups(gl.program("record_strides", RECORD_GROUP=group), 1)
+        found = np.frombuffer(lengths.read(), dtype=np.uint32)
+        assert dict(zip(names, found.tolist())) == {name: n for name in names}
+        for buffer in [*buffers, lengths]:
+            buffer.release()
+
+
+def test_shared_constants_are_written_as_glsl_literals_of_their_type():
+    # Unsigned flags as uint literals (bit tests against uint fields), enumerations usable in #if,
+    # light kinds as floats (compared with a vec4 component); every program's compile checks the rest.
+    assert glsl_literal(SHADER_CONSTANTS["SPLAT_BIT"]) == "2147483648u"
+    assert glsl_literal(SHADER_CONSTANTS["ENVIRONMENT_MAP"]) == "2"
+    assert glsl_literal(SHADER_CONSTANTS["LIGHT_DIRECTIONAL"]) == "2.0"
+    assert {glsl_literal(v)[-1] for k, v in SHADER_CONSTANTS.items() if k.startswith(("MATERIAL_", "TRIANGLE_"))} == {"u"}
 
 
 def test_include_files_are_not_programs(gl):
@@ -28,9 +61,9 @@ def test_llvmpipe_indexes_storage_past_its_reported_limit(gl):
     # relies on it indexing further than that. Write past 128 MiB and read it back.
     if not gl.is_llvmpipe:
         pytest.skip("a llvmpipe fact")
-    reported = int(gl.ctx.info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"])
+    reported = int(gl.limit("GL_MAX_SHADER_STORAGE_BLOCK_SIZE"))
     words = reported // 4 + 1024
-    buffer = gl.ctx.buffer(reserve=4 * words)
+    buffer = gl.buffer(reserve=4 * words)
     shader = gl.ctx.compute_shader("""#version 450
         layout(local_size_x = 64) in;
         layout(std430, binding = 0) buffer B { uint v[]; };
@@ -45,7 +78,5 @@ def test_llvmpipe_indexes_storage_past_its_reported_limit(gl):
 
 
 def test_bad_device_index_is_one_clear_error():
-    from evalkit.errors import InputError
-
     with pytest.raises(InputError, match="EGL device 97"):
         GLContext(device_index=97)

@@ -9,7 +9,12 @@ import math
 import numpy as np
 import pytest
 
+from evalkit.core.bundleset import DirectionSet
+from evalkit.core.scene import load_scene
+from evalkit.metrics.bundles import compare_bundles
 from evalkit.metrics.hole_model import analyse, fit, recommend, validate
+from gpu_impl.bundles import trace_bundles
+from references.embree import ExactTracer
 
 SCALES = np.array([0.5, 0.75, 1.0, 1.5, 2.0, 3.0])
 
@@ -40,21 +45,12 @@ def test_validation_finds_the_grid_minimum_and_the_regret():
 
 
 def test_measured_holes_fall_and_redundant_nodes_rise_with_the_splat_scale(gl):
-    from evalkit.bundleset import DirectionSet
-    from evalkit.metrics.bundles import compare_bundles
-    from evalkit.scene import load_scene
-    from gpu_impl.bundles import BundleTracer
-    from references.embree import ExactTracer
-
     scene = load_scene("cornell-box")
     directions = DirectionSet.make(8, seed=3)
     exact = ExactTracer(scene).bundles(directions, 64)
     rows = []
     for scale in (0.5, 0.75, 1.0, 1.5, 2.0):
-        tracer = BundleTracer(gl, scene, "imperfect", directions=8, resolution=64, points=4096, splat_scale=scale)
-        tracer.build(directions)
-        r = compare_bundles(tracer.read(), exact)
-        tracer.release()
+        r = compare_bundles(trace_bundles(gl, scene, directions, "imperfect", resolution=64, points=4096, splat_scale=scale), exact)
         rows.append({"scene": "cornell-box", "points": 4096, "splat_scale": scale, **r})
     holes = [r["hole_rate"] for r in rows]
     redundant = [r["redundant_rate"] for r in rows]

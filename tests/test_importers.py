@@ -9,11 +9,11 @@ import trimesh
 from PIL import Image
 
 from conftest import write_texture
-from evalkit.errors import InputError
-from evalkit.scene import load_scene
-from evalkit.scene.builtin import FURNACE_ALBEDO, FURNACE_EMISSION, furnace_radiance
-from evalkit.scene.mitsuba_io import SPHERE_SEGMENTS
-from evalkit.scene.model import srgb_to_linear
+from evalkit.core.errors import InputError
+from evalkit.core.scene import load_scene
+from evalkit.core.scene.builtin import FURNACE_ALBEDO, FURNACE_EMISSION, furnace_radiance
+from evalkit.core.scene.mitsuba_io import SPHERE_SEGMENTS, load_mitsuba_dict
+from evalkit.core.scene.model import srgb_to_linear
 
 def xml_scene(tmp_path, body: str, name: str = "scene.xml") -> str:
     path = tmp_path / name
@@ -85,8 +85,6 @@ def test_mitsuba_xml_with_obj_ply_sphere_textures_and_lights(mixed_xml, tmp_path
 
 
 def test_mitsuba_dict_envmap_roundtrip(mi):
-    from evalkit.scene.mitsuba_io import load_mitsuba_dict
-
     env = np.random.default_rng(3).random((8, 16, 3)).astype(np.float32)
     s = load_mitsuba_dict({"type": "scene", "e": {"type": "envmap", "bitmap": mi.Bitmap(env), "scale": 2.0},
                            "r": {"type": "rectangle"}}, name="env")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evalkit.errors import InputError
-from evalkit.exr import write_exr
+from evalkit.core.errors import InputError
+from evalkit.core.exr import read_exr, write_exr
 from evalkit.metrics.images import bias_variance, compare_images, delta_e2000, flip, mse, relmse, smape
-from conftest import run_evalkit
+from conftest import ImageOutput, run_evalkit
 
 
 def test_a_constant_offset_gives_the_closed_form_values():
@@ -118,3 +118,20 @@ def test_compare_cli_prints_metrics_and_writes_error_maps(tmp_path):
     r = run_evalkit("compare", str(tmp_path / "bad.exr"), str(tmp_path / "ref.exr"))
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [f"evalkit: error: {tmp_path / 'bad.exr'}: 1 pixel(s) are NaN or Inf, the first at x=0, y=0"]
+
+
+def test_a_failing_image_comparison_keeps_its_images_where_the_message_says(tmp_path):
+    ref = np.full((8, 12, 3), 0.5, dtype=np.float32)
+    test = ref.copy()
+    test[3, 4] = 2.0
+    out = ImageOutput("tests/test_x.py::test_y[a]", root=tmp_path)
+    assert out.relmse_at_most("indirect", ref, ref, 0.0) == 0.0  # passing: nothing is written
+    assert not any(tmp_path.iterdir())
+    with pytest.raises(AssertionError) as failure:
+        out.relmse_at_most("indirect", test, ref, 1e-3)
+    folder = tmp_path / "tests_test_x.py_test_y_a_" / "indirect"
+    assert str(folder) in str(failure.value) and "relMSE" in str(failure.value)
+    kept = {p.name for p in folder.iterdir()}
+    assert kept == {"test.exr", "reference.exr", "relmse_map.exr", "relmse_map.png"}
+    image, provenance = read_exr(folder / "test.exr")
+    assert np.array_equal(image, test) and provenance["image"] == "indirect"

@@ -8,9 +8,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from evalkit.bundleset import DirectionSet
+from evalkit.core.bundleset import DirectionSet
 from evalkit.metrics.bundles import compare_bundles
-from evalkit.scene import Mesh
+from evalkit.core.scene import Mesh
 from references.embree import ExactTracer
 from test_bundles import build, nested_boxes, scene_of
 from test_stress import transformed

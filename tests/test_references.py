@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from conftest import relmse, run_evalkit
-from evalkit.exr import read_exr
-from evalkit.scene import load_scene
-from evalkit.scene.builtin import furnace_radiance
-from evalkit.scene.mitsuba_io import to_mitsuba_dict
-from references.mitsuba import DEFAULT_STORE, reference
+from evalkit.core.exr import read_exr
+from evalkit.core.scene import load_scene
+from evalkit.core.scene.builtin import furnace_radiance
+from evalkit.core.scene.mitsuba_io import to_mitsuba_dict
+from references.mitsuba import DEFAULT_STORE, load_reference, reference, store_entry, timed_render
 
 # Same seed, same spp, same integrator: only the export can differ (tessellated spheres,
 # float32 round-off). relMSE uses eps = 0.01 (conftest.relmse).
@@ -32,14 +32,14 @@ def small_film(d: dict, size: int = 64) -> dict:
     return d
 
 
-def test_export_renders_like_mitsubas_cornell_box(mi):
+def test_export_renders_like_mitsubas_cornell_box(mi, images):
     original = render(mi, small_film(mi.cornell_box()))
     exported = render(mi, to_mitsuba_dict(load_scene("cornell-box"), mi, width=64, height=64))
     assert original.mean() > 0.05
-    assert relmse(exported, original) <= EXPORT_RELMSE
+    images.relmse_at_most("export", exported, original, EXPORT_RELMSE)
 
 
-def test_export_renders_like_mitsuba_for_a_sphere_and_a_ply_mesh(mi, tmp_path):
+def test_export_renders_like_mitsuba_for_a_sphere_and_a_ply_mesh(mi, tmp_path, images):
     import trimesh
 
     trimesh.creation.box(extents=(0.6, 0.6, 0.6)).export(tmp_path / "box.ply")
@@ -66,7 +66,7 @@ def test_export_renders_like_mitsuba_for_a_sphere_and_a_ply_mesh(mi, tmp_path):
     original = np.array(mi.render(mi.load_file(str(tmp_path / "scene.xml")), integrator=integrator, spp=spp, seed=7))[..., :3]
     exported = render(mi, to_mitsuba_dict(load_scene(str(tmp_path / "scene.xml")), mi), spp=spp)
     assert original.mean() > 0.02
-    assert relmse(exported, original) <= EXPORT_RELMSE
+    images.relmse_at_most("export", exported, original, EXPORT_RELMSE)
 
 
 def test_store_keys_reuses_and_resumes(tmp_path):
@@ -139,7 +139,6 @@ def test_cli_reference_writes_images_and_manifest(tmp_path):
 def test_timed_renders_use_their_sample_count(mi):
     """`timed_render` (error against time in studies): more samples, less error, more time; a
     1-spp warm-up must not leave the sampler at 1 spp."""
-    from references.mitsuba import load_reference, store_entry, timed_render
 
     scene = load_scene("cornell-box")
     ref = load_reference(store_entry(scene.name, scene.content_hash(), 1, 16384, 128, 128, 0, DEFAULT_STORE))

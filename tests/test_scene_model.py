@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from evalkit.errors import InputError
-from evalkit.scene import Material, Mesh, assemble
-from evalkit.scene.model import Light, look_at, default_camera
-from evalkit.scene.tessellate import box, unit_sphere
+from evalkit.core.errors import InputError
+from evalkit.core.scene import Material, Mesh, assemble
+from evalkit.core.scene.model import Light, look_at, default_camera
+from evalkit.core.scene.tessellate import box, unit_sphere
 
 QUAD = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
 QUAD_FACES = np.array([[0, 1, 2], [0, 2, 3]])
@@ -89,7 +89,7 @@ def test_bad_lights_are_errors():
 
 def test_far_from_origin_geometry_keeps_float32_precision_after_recentring():
     # Two parallel quads 1e-4 apart, 1e4 from the world origin: in float32 world coordinates
-    # they collapse to one depth (FIELD_NOTES); recentred they stay distinct.
+    # they collapse to one depth (docs/MEASURED_FACTS.md); recentred they stay distinct.
     offset = np.array([1e4, -1e4, 1e4])
     a, b = QUAD + offset, QUAD + offset + [0, 0, 1e-4]
     assert np.float32(a[0, 2]) == np.float32(b[0, 2])

@@ -9,11 +9,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from evalkit.bundleset import DirectionSet
+from evalkit.core.bundleset import DirectionSet, orthonormal_frames
+from evalkit.core.scene import Material, Mesh, assemble, load_scene
+from evalkit.core.scene.builtin import BUILTIN_SCENES
+from evalkit.core.scene.tessellate import box
 from evalkit.metrics.bundles import compare_bundles
-from evalkit.metrics.images import relmse
-from evalkit.scene import Material, Mesh, assemble, load_scene
-from evalkit.scene.builtin import BUILTIN_SCENES
+from gpu_impl.bundles import trace_bundles
 from gpu_impl.renderer import Renderer, RenderSettings
 from references.embree import ExactTracer
 from test_bundles import QUAD, QUAD_FACES, build, coplanar_stack, scene_of
@@ -60,7 +61,7 @@ def render(gl, scene, method="perfect", **kw):
 
 @pytest.mark.parametrize("scale, shift", [(1e-3, 0.0), (1e4, 0.0), (1.0, 1e5), (1e-3, 1e5)],
                          ids=["scale-1e-3", "scale-1e4", "shift-1e5", "scale-1e-3-shift-1e5"])
-def test_scale_and_distance_change_neither_bundle_agreement_nor_the_image(gl, scale, shift):
+def test_scale_and_distance_change_neither_bundle_agreement_nor_the_image(gl, images, scale, shift):
     base = load_scene("cornell-box")
     moved = transformed(base, scale, shift=(shift, -shift, shift))
     directions = DirectionSet.make(8, seed=2)
@@ -76,7 +77,7 @@ def test_scale_and_distance_change_neither_bundle_agreement_nor_the_image(gl, sc
     # Expected: the same image up to float32 rounding (same seeds, same directions, relative
     # geometry): relMSE between the two below 1e-4, where noise alone is about 1.
     a, b = render(gl, base)["total"], render(gl, moved)["total"]
-    assert relmse(b, a).value < 1e-4, relmse(b, a).value
+    images.relmse_at_most("total", b, a, 1e-4)
 
 
 def test_thin_slabs_and_coincident_triangles_keep_every_surface(gl):
@@ -125,7 +126,6 @@ def test_slivers_are_kept_and_degenerate_triangles_removed_and_counted(gl, rng):
 @pytest.mark.parametrize("angle", [1e-2, 1e-4, 1e-6])
 def test_grazing_directions_lose_no_more_than_the_surface_they_graze(gl, angle):
     # A box on a floor, seen along directions `angle` radians off the floor's plane.
-    from evalkit.scene.tessellate import box
 
     floor = Mesh("floor", (QUAD[:, [0, 2, 1]] - [0.5, 0, 0.5]) * 4, QUAD_FACES[:, [0, 2, 1]], 0)
     cube = Mesh("cube", *box(np.array([-0.5, 0.0, -0.5]), np.array([0.5, 1.0, 0.5])), 0)
@@ -134,7 +134,6 @@ def test_grazing_directions_lose_no_more_than_the_surface_they_graze(gl, angle):
     d = base.directions.copy()
     d[:, 1] = np.sign(d[:, 1] + 1e-30) * np.sin(angle) * np.linalg.norm(d[:, [0, 2]], axis=1) / np.cos(angle)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    from evalkit.bundleset import orthonormal_frames
 
     u, v = orthonormal_frames(d)
     directions = replace(base, directions=d, axis_u=u, axis_v=v)
@@ -151,13 +150,7 @@ def test_grazing_directions_lose_no_more_than_the_surface_they_graze(gl, angle):
 
 
 def _build_with(gl, scene, directions, resolution):
-    from gpu_impl.bundles import BundleTracer
-
-    tracer = BundleTracer(gl, scene, "perfect", directions=directions.count, resolution=resolution)
-    tracer.build(directions)
-    bundles = tracer.read()
-    tracer.release()
-    return bundles
+    return trace_bundles(gl, scene, directions, resolution=resolution)
 
 
 def test_depth_complexity_beyond_the_first_node_buffer_loses_nothing(gl):
@@ -165,13 +158,9 @@ def test_depth_complexity_beyond_the_first_node_buffer_loses_nothing(gl):
     # buffer (sized for 4 nodes per line here) holds.
     meshes = [Mesh(f"q{i}", QUAD + [0.0, 0.0, 0.025 * i], QUAD_FACES, 0) for i in range(40)]
     scene = scene_of(meshes, [Material("grey")])
-    from gpu_impl.bundles import BundleTracer
-
     directions = DirectionSet.make(4, seed=0)
-    tracer = BundleTracer(gl, scene, "perfect", directions=4, resolution=32, initial_capacity=4 * 4 * 32 * 32)
-    stats = tracer.build(directions)
-    bundles = tracer.read()
-    tracer.release()
+    bundles = trace_bundles(gl, scene, directions, resolution=32, initial_capacity=4 * 4 * 32 * 32)
+    stats = bundles.stats
     # Expected: one re-run with a buffer that fits, and every exact node found.
     assert stats["overflow_reruns"] == 1
     r = compare_bundles(bundles, ExactTracer(scene).bundles(directions, 32))

@@ -9,8 +9,9 @@ import json
 import pytest
 
 from conftest import run_evalkit
-from evalkit.errors import InputError
-from evalkit.study import load_study, run_id, run_study, study_from_dict
+from evalkit.core.errors import InputError
+from evalkit.study.executors import run_study
+from evalkit.study.spec import load_study, run_id, study_from_dict
 
 # Tiny runs: 32x32, K=4 directions of R=32 lines, one frame; references of 64 spp in the study's
 # own store (the committed ones are 128x128).
@@ -35,7 +36,10 @@ def test_grids_expand_to_the_union_of_their_products():
 
 @pytest.mark.parametrize("spec, problem", [
     ({"grid": [{"method": ["raytraced"]}]}, "method 'raytraced' is not one of"),
-    ({"grid": [{"directions": [0]}]}, "directions = 0 must be positive"),
+    ({"grid": [{"directions": [0]}]}, "directions must be at least 1, got 0"),
+    ({"grid": [{"splat_scale": [0.0]}]}, "splat_scale must be positive and finite, got 0.0"),
+    ({"grid": [{"frames": [2.5]}]}, "frames = 2.5 must be a whole number"),
+    ({"grid": [{"stop_early": [1]}]}, "stop_early = 1 must be true or false"),
     ({"grid": [{"colour": [1]}]}, "unknown run parameter"),
     ({"measure": {"metrics": ["psnr"]}}, "unknown psnr"),
     ({"plots": []}, "unknown key"),

@@ -10,7 +10,8 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from conftest import REPO, run_evalkit
-from evalkit.check import DEFAULT_THRESHOLDS, evaluate, load_thresholds
+from evalkit.check import evaluate
+from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 
 CASES = load_thresholds(DEFAULT_THRESHOLDS)
 ARTIFACTS = os.path.join(REPO, "out", "thresholds")

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evalkit.bundleset import BundleSet
+from evalkit.core.bundleset import BundleSet
 
 # GL perfect depths are float32 along lines centred on the bounding sphere: about 1e-6 of the
 # radius. 1e-4 leaves a wide margin and still separates surfaces 1e-4 r apart.
@@ -181,11 +181,9 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
     """Surface points where eye paths look up bundles: the camera's first hits through uniformly
     random film positions, and as many second vertices, one cosine-distributed bounce further.
     Returns position, normal (shading, facing the arriving ray) and geometric normal, (M, 3)."""
-    from gpu_impl.renderer import camera_frame
-
     rng = np.random.default_rng(seed)
     w, h = width or scene.camera.width, height or scene.camera.height
-    cam = camera_frame(scene, np.zeros(3), w, h)
+    cam = scene.camera.frame(np.zeros(3), w, h)
     film = rng.random((count, 2))
     tx, ty = cam["tan_half"]
     local = np.stack([(0.5 - film[:, 0]) * 2 * tx, (0.5 - film[:, 1]) * 2 * ty, np.ones(count)], axis=1)

@@ -29,13 +29,13 @@ import math
 
 import numpy as np
 
+from evalkit.core.mitsuba_env import configure_llvm
+
 DEFAULT_NODE_COST = 0.01
 # Hole rates below one hole in the measured nodes are not measured: they are floored at 1 / nodes.
 
 
 def _drjit():
-    from evalkit.mitsuba_env import configure_llvm
-
     configure_llvm()
     import drjit as dr
     from drjit.llvm.ad import Float

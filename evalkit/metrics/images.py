@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evalkit.errors import InputError
+from evalkit.core.errors import InputError
 
 RELMSE_EPSILON = 0.01
 SMAPE_EPSILON = 0.01

@@ -32,10 +32,8 @@ layout(std430, binding = BINDING_NODE_DEPTH) buffer NodeDepth { float node_depth
 
 #define NO_NODE 0xFFFFFFFFu
 #define NO_MATERIAL 0xFFFFFFFFu
-#define SPLAT_BIT 0x80000000u   // node_prim: a splat of triangle (prim & ~SPLAT_BIT)
-#define COUNTER_NODES 0         // nodes appended, including any past the capacity
-#define COUNTER_REDUNDANT 1
-#define COUNTER_MAX_LENGTH 2
+// SPLAT_BIT (node_prim: a splat of triangle prim & ~SPLAT_BIT) and COUNTER_* (the counters' slots)
+// come from gpu_impl/layout.py, as every constant the Python side shares.
 
 uniform float radius;           // the frame radius (bounding sphere, padded)
 uniform int resolution;         // R
@@ -50,7 +48,7 @@ ivec2 tile_origin(int k) {
 }
 
 // Position p (relative to the bundle centre) in bundle k: its clip position in the atlas tile of k.
-// Bundle pixel (i, j) has its centre on line (i, j) of the BundleSet (evalkit/bundleset.py), so
+// Bundle pixel (i, j) has its centre on line (i, j) of the BundleSet (evalkit/core/bundleset.py), so
 // rasterizing at pixel centres finds exactly the surfaces on those lines. Geometry never leaves
 // its tile: it lies inside the bounding sphere, whose projection is the tile's inscribed disk. z
 // is 0, so nothing is depth-clipped.

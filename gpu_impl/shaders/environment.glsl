@@ -2,9 +2,7 @@
 // map, in Mitsuba's units and orientation. Compiled per scene: with ENVIRONMENT_NONE nothing here
 // exists.
 
-#define ENVIRONMENT_NONE 0
-#define ENVIRONMENT_CONSTANT 1
-#define ENVIRONMENT_MAP 2
+// ENVIRONMENT is one of ENVIRONMENT_NONE, ENVIRONMENT_CONSTANT, ENVIRONMENT_MAP (gpu_impl/layout.py).
 
 #if ENVIRONMENT == ENVIRONMENT_MAP
 layout(std430, binding = BINDING_ENVMAP) readonly buffer Envmap { float envmap[]; };  // (H, W, 3) linear rgb

@@ -16,9 +16,7 @@ struct Light {
     vec4 intensity;  // rgb: W/sr (point, spot) or W/m^2 (directional); w: cos(beam width)
     vec4 shape;      // x: cutoff (rad), y: 1 / (cutoff - beam width) (rad^-1), z: first shadow view, w: views (1 or 6)
 };
-#define LIGHT_POINT 0.0
-#define LIGHT_SPOT 1.0
-#define LIGHT_DIRECTIONAL 2.0
+// Light.position.w is LIGHT_POINT, LIGHT_SPOT or LIGHT_DIRECTIONAL (gpu_impl/layout.py).
 
 // One shadow map: a tile of the atlas holding, per texel, the distance from the light to the
 // nearest surface (radial for a perspective view, along the light direction for an orthographic one).

@@ -7,15 +7,13 @@ struct Material {
     vec4 emission;   // rgb radiance, front side only
     uvec4 texture;   // first texel, width, height, flags (MATERIAL_*)
 };
-#define MATERIAL_TEXTURED 1u
-#define MATERIAL_TWOSIDED 2u
 
 struct Triangle {
     float normal_x, normal_y, normal_z;  // unit geometric normal, counter-clockwise front
     uint material_flags;                 // material index | TRIANGLE_SMOOTH
 };
-#define TRIANGLE_SMOOTH 0x80000000u
-#define TRIANGLE_MATERIAL 0x7FFFFFFFu
+// The flags MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE_SMOOTH and the mask TRIANGLE_MATERIAL
+// come from gpu_impl/layout.py.
 
 layout(std430, binding = BINDING_MATERIALS) readonly buffer Materials { Material materials[]; };
 layout(std430, binding = BINDING_TRIANGLES) readonly buffer Triangles { Triangle triangles[]; };
@@ -69,7 +67,7 @@ vec3 texel(uint first, uint width, int x, int y) {
 }
 
 // Bilinear, repeat-wrapped lookup: texel (row, col) is centred on ((col + 0.5) / W, (row + 0.5) / H)
-// in (u, v), as Mitsuba's bitmap texture and evalkit.scene.model.sample_texture have it.
+// in (u, v), as Mitsuba's bitmap texture and evalkit.core.scene.model.sample_texture have it.
 // TEXTURES 0 (a scene without textures) compiles the texture fetch out.
 #ifndef TEXTURES
 #define TEXTURES 1

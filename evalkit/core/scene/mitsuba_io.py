@@ -19,9 +19,10 @@ import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 
-from evalkit.errors import InputError
-from evalkit.scene.model import Camera, Light, Material, Mesh, Scene, assemble, rgb
-from evalkit.scene.tessellate import unit_disk, unit_sphere
+from evalkit.core.errors import InputError
+from evalkit.core.mitsuba_env import mitsuba
+from evalkit.core.scene.model import Camera, Light, Material, Mesh, Scene, assemble, rgb
+from evalkit.core.scene.tessellate import unit_disk, unit_sphere
 
 SPHERE_SEGMENTS = (128, 64)  # (longitude, latitude): area within 0.1 % of the analytic sphere
 DISK_SEGMENTS = 128
@@ -38,7 +39,7 @@ def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Sc
         ElementTree.parse(path)
     except ElementTree.ParseError as e:
         raise InputError(path, f"malformed XML: {e}") from None
-    mi = _mitsuba(variant)
+    mi = mitsuba(variant)
     try:
         mi_scene = mi.load_file(path)
     except Exception as e:  # Mitsuba reports every load problem as a RuntimeError with its own text
@@ -49,7 +50,7 @@ def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Sc
 def load_mitsuba_dict(scene_dict: dict, name: str, source: str | None = None, variant: str | None = None) -> Scene:
     """Load a Mitsuba scene dict (as ``mi.load_dict`` takes it)."""
     source = source or name
-    mi = _mitsuba(variant)
+    mi = mitsuba(variant)
     try:
         mi_scene = mi.load_dict(scene_dict)
     except Exception as e:
@@ -100,12 +101,6 @@ def from_mitsuba_scene(mi, mi_scene, name: str, source: str) -> Scene:
 
 
 # --- import helpers -------------------------------------------------------------------------------
-
-
-def _mitsuba(variant):
-    from evalkit.mitsuba_env import mitsuba
-
-    return mitsuba(variant)
 
 
 def _last_line(e: Exception) -> str:
@@ -289,7 +284,7 @@ def to_mitsuba_dict(scene: Scene, mi, spp: int = 64, width: int | None = None, h
 
     ``mi`` is the Mitsuba module with the variant to build for (the meshes are Mitsuba objects).
     The sensor uses a box pixel filter and a float32 film, which is what comparisons with the
-    rasterizer need (FIELD_NOTES.md). Positions are in scene space (recentred).
+    rasterizer need (docs/MEASURED_FACTS.md). Positions are in scene space (recentred).
     """
     cam = scene.camera
     d: dict = {

@@ -4,34 +4,29 @@ from __future__ import annotations
 
 import os
 
-from evalkit.errors import InputError
-from evalkit.scene.model import Camera, Light, Material, Mesh, Motion, Scene, SceneFeatures, assemble
+from evalkit.core.errors import InputError
+from evalkit.core.scene.builtin import BUILTIN_SCENES
+from evalkit.core.scene.mesh_import import load_mesh_file
+from evalkit.core.scene.mitsuba_io import load_mitsuba_file
+from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scene, SceneFeatures, assemble
 
 MITSUBA_EXTENSIONS = (".xml",)
 MESH_EXTENSIONS = (".obj", ".ply", ".gltf", ".glb")
 
 
 def builtin_names() -> list[str]:
-    from evalkit.scene.builtin import BUILTIN_SCENES
-
     return sorted(BUILTIN_SCENES)
 
 
 def load_scene(spec: str | os.PathLike) -> Scene:
     """A built-in scene by name (`builtin_names`), a Mitsuba XML file, or an OBJ/PLY/glTF/GLB file."""
-    from evalkit.scene.builtin import BUILTIN_SCENES
-
     spec = os.fspath(spec)
     if spec in BUILTIN_SCENES:
         return BUILTIN_SCENES[spec]()
     ext = os.path.splitext(spec)[1].lower()
     if ext in MITSUBA_EXTENSIONS:
-        from evalkit.scene.mitsuba_io import load_mitsuba_file
-
         return load_mitsuba_file(spec)
     if ext in MESH_EXTENSIONS:
-        from evalkit.scene.mesh_import import load_mesh_file
-
         return load_mesh_file(spec)
     if not os.path.exists(spec):
         raise InputError(spec, f"not a built-in scene ({', '.join(builtin_names())}) and no such file")

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evalkit.errors import InputError
+from evalkit.core.errors import InputError
 
 # The frame's radius is the bounding sphere's times this, so that round-off in the projection
 # never puts a vertex on the sphere outside its bundle's tile.

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from evalkit.errors import InputError
+from evalkit.core.errors import InputError
 
 RGB = tuple[float, float, float]
 
@@ -30,7 +30,7 @@ LIGHT_KINDS = ("point", "spot", "directional", "constant", "envmap")
 ENVIRONMENT_KINDS = ("constant", "envmap")
 FOV_AXES = ("x", "y")
 
-# Embree silently ignores primitives with coordinates above about 1.8e18 (FIELD_NOTES.md).
+# Embree silently ignores primitives with coordinates above about 1.8e18 (docs/MEASURED_FACTS.md).
 MAX_COORDINATE = 1e18
 # A triangle is degenerate when its area is below this fraction of its longest edge squared: the
 # sine of its largest angle is then at float64 round-off level and no rasterizer or ray tracer can
@@ -181,6 +181,16 @@ class Camera:
     @property
     def position(self) -> np.ndarray:
         return self.to_world[:3, 3]
+
+    def frame(self, centre: np.ndarray, width: int, height: int) -> dict:
+        """The camera relative to ``centre`` for a ``width`` x ``height`` film: origin, to_world
+        (3x3, Mitsuba's camera space: +x left, +y up, +z forward), tan of the half field of view
+        along x and y, near and far."""
+        aspect = width / height
+        t = math.tan(math.radians(self.fov) / 2.0)
+        tan_half = (t, t / aspect) if self.fov_axis == "x" else (t * aspect, t)
+        return {"origin": self.to_world[:3, 3] - centre, "to_world": self.to_world[:3, :3], "tan_half": tan_half,
+                "near": self.near_clip, "far": self.far_clip}
 
 
 @dataclass(frozen=True)

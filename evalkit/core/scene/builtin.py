@@ -17,17 +17,16 @@ import math
 
 import numpy as np
 
-from evalkit.scene.model import Camera, Light, Material, Mesh, Motion, Scene, assemble, look_at, srgb_to_linear
-from evalkit.scene.tessellate import box, surface, unit_sphere
+from evalkit.core.mitsuba_env import mitsuba
+from evalkit.core.scene.mitsuba_io import load_mitsuba_dict
+from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scene, assemble, look_at, srgb_to_linear
+from evalkit.core.scene.tessellate import box, surface, unit_sphere
 
 FURNACE_ALBEDO = 0.5
 FURNACE_EMISSION = 1.0
 
 
 def cornell_box() -> Scene:
-    from evalkit.mitsuba_env import mitsuba
-    from evalkit.scene.mitsuba_io import load_mitsuba_dict
-
     mi = mitsuba()
     return load_mitsuba_dict(mi.cornell_box(), name="cornell-box", source="cornell-box")
 

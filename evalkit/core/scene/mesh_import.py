@@ -18,8 +18,8 @@ import os
 
 import numpy as np
 
-from evalkit.errors import InputError
-from evalkit.scene.model import Material, Mesh, Scene, assemble, default_sun, rgb, srgb_to_linear
+from evalkit.core.errors import InputError
+from evalkit.core.scene.model import Material, Mesh, Scene, assemble, default_sun, rgb, srgb_to_linear
 
 
 def load_mesh_file(path: str | os.PathLike) -> Scene:

@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from evalkit.errors import InputError
+from evalkit.core.errors import InputError
 
 PREFIX = "evalkit."
 

@@ -1,0 +1,133 @@
+"""One run of a study, measured into one row: every parameter, the metric values
+(``<image>_<metric>`` and the bundle metrics), timings, versions, its seed and its status.
+
+A run never raises: a failure is a row whose ``status`` says what went wrong, with the traceback
+in the run's folder, so a study reports it and goes on.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import platform
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from evalkit.core.bundleset import DirectionSet
+from evalkit.core.exr import write_exr
+from evalkit.core.scene import Scene, load_scene
+from evalkit.metrics.bundles import compare_bundles, eye_vertices, next_hit_errors
+from evalkit.metrics.images import compare_images
+from evalkit.study.artefacts import exact_bundles, exact_tracer, film_size, gl_context, reference_for
+from evalkit.study.spec import render_settings, run_id
+from gpu_impl.bundles import BundleTracer
+from gpu_impl.renderer import Renderer
+from gpu_impl.scene_buffers import GpuScene
+from references.mitsuba import timed_render
+
+VERSIONED = ("raybundle-evalkit", "mitsuba", "drjit", "moderngl", "numpy", "embreex", "flip-evaluator", "colour-science")
+
+
+def versions() -> dict:
+    """The versions of Python and of every package a row's numbers depend on."""
+    out = {"python": platform.python_version()}
+    for package in VERSIONED:
+        try:
+            out[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            out[package] = None
+    return out
+
+
+def execute_run(run: dict, measure: dict, out: str) -> dict:
+    """One run: its row of parameters, metrics, timings and versions. A failure is a row with
+    ``status`` 'error: ...' (the traceback goes to the run's folder), never an exception."""
+    out = Path(out)
+    key = run_id(run)
+    folder = out / "runs" / key
+    folder.mkdir(parents=True, exist_ok=True)
+    row = {"run_id": key, **run, "status": "ok", **{f"version_{k}": v for k, v in versions().items()}}
+    start = time.perf_counter()
+    try:
+        row.update(_measure(run, measure, out, folder))
+    except Exception as e:  # noqa: BLE001 -- a study reports a failed run and goes on
+        (folder / "error.txt").write_text(traceback.format_exc())
+        row["status"] = f"error: {type(e).__name__}: {e}".splitlines()[0]
+    row["run_s"] = round(time.perf_counter() - start, 3)
+    return row
+
+
+def _measure(run: dict, measure: dict, out: Path, folder: Path) -> dict:
+    scene = load_scene(run["scene"])
+    row = {"scene_hash": scene.content_hash(), "warnings": " | ".join(scene.warnings)}
+    if measure["bundles"] and run["method"] != "mitsuba":
+        row.update(_bundle_metrics(scene, run, measure, out))
+    if not measure["render"]:
+        return row
+    if run["method"] == "mitsuba":
+        images, seconds, info = timed_render(scene, int(run["bounces"]), int(run["spp"]), *film_size(scene, run), int(run["seed"]))
+        row.update({"wall_s": seconds, "paths_per_pixel": int(run["spp"]), "gl_renderer": None})
+        provenance = {**run, **info}
+    else:
+        images, timings, provenance = _render(scene, run)
+        row.update(timings)
+    if not measure["images"]:
+        return row
+    ref = reference_for(scene, run, measure, out, progress=lambda line: None)
+    row["reference"] = str(ref.path)
+    for name in measure["images"]:
+        write_exr(folder / f"{name}.exr", images[name].astype(np.float32), {**provenance, "image": name})
+        metrics = compare_images(images[name], ref.images[name], measure["metrics"], f"{run['method']} {name}", f"reference {name}")
+        # The relative error of the image's mean: bias that noise cannot hide (light lost to holes,
+        # or gained from splats overhanging an emitter).
+        row[f"{name}_mean_error"] = float(images[name].mean() / max(float(ref.images[name].mean()), 1e-30) - 1.0)
+        for metric in metrics.values():
+            row[f"{name}_{metric.name}"] = metric.value
+            if metric.name in ("relmse", "flip"):
+                np.save(folder / f"{name}_{metric.name}_map.npy", metric.map.astype(np.float32))
+    return row
+
+
+def _render(scene: Scene, run: dict) -> tuple[dict, dict, dict]:
+    gl = gl_context()
+    renderer = Renderer(gl, scene, render_settings(run))
+    try:
+        result = renderer.render()
+    finally:
+        renderer.release()
+    t = result.timings
+    timings = {"wall_s": t["wall_s"], "paths_per_pixel": result.params["paths_per_pixel"],
+               "nodes_per_frame": result.stats["nodes_median"], "gl_renderer": gl.info["renderer"],
+               **{f"ms_{k}": v for k, v in t["median_ms"].items() if "." not in k}}
+    return result.images, timings, {**result.params, "warnings": result.warnings}
+
+
+def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
+    exact = exact_bundles(scene, run, out)
+    gl = gl_context()
+    with GpuScene(gl, scene) as gpu_scene, BundleTracer(
+            gl, gpu_scene, run["method"], directions=int(run["directions"]), resolution=int(run["resolution"]),
+            points=int(run["points"]), splat_scale=float(run["splat_scale"])) as tracer:
+        directions = DirectionSet.make(int(run["directions"]), seed=int(run["seed"]))
+        tracer.build(directions)  # warm-up: the first build compiles and sizes the buffers
+        stats = tracer.build(directions)
+        bundles = tracer.read()
+        splat_radius = tracer.splat_radius if run["method"] == "imperfect" else None
+    r = compare_bundles(bundles, exact)
+    embree = exact_tracer(scene)
+    vertices = eye_vertices(scene, embree, int(measure["eye_vertices"]), seed=int(run["seed"]))
+    hit = next_hit_errors(bundles, embree, vertices, seed=int(run["seed"]))
+    floor = next_hit_errors(exact, embree, vertices, seed=int(run["seed"]))
+    row = {k: r[k] for k in ("exact_nodes", "test_nodes", "agreement", "hole_rate", "spurious_rate", "redundant_rate",
+                             "same_prim_rate")}
+    row["depth_error_rms"] = r["depth_error"]["rms"]
+    row["worst_direction_hole_rate"] = max(r["per_direction"]["hole_rate"])
+    for i, rate in enumerate(r["per_slope"]["hole_rate"]):
+        row[f"hole_rate_slope{i}"] = rate
+    row.update({"next_hit_error_rate": hit["error_rate"], "next_hit_exact_floor": floor["error_rate"],
+                "next_hit_false_miss_rate": hit["false_miss_rate"], "next_hit_wrong_surface_rate": hit["wrong_surface_rate"],
+                "next_hit_lookups": hit["lookups"], "build_ms": sum(v for v in stats["gpu_ms"].values() if v is not None),
+                "build_wall_ms": stats["wall_ms"], "splat_radius": splat_radius})
+    return row

@@ -1,0 +1,172 @@
+"""The study file: a declarative grid of runs, and the checks that refuse a bad one.
+
+A study file (TOML; studies/*.toml are examples)::
+
+    name = "directions"
+    title = "Error against K and R"
+    reduced = "what was made smaller than the paper, and why"   # stated in the report
+    [defaults]              # every run's parameters, below the grid's
+    scene = "cornell-box"
+    bounces = 1
+    [[grid]]                # each [[grid]] is a cartesian product; the runs of all grids are joined
+    method = ["perfect", "imperfect"]
+    directions = [8, 16, 32]
+    seed = [0, 1]
+    [measure]
+    bundles = true          # bundle metrics against Embree exact bundles (perfect, imperfect)
+    render = true           # render images (timings); false: bundle metrics only
+    images = ["indirect"]   # image metrics of these images against the Mitsuba reference
+    reference_spp = 4096
+    [hole_model]            # fit the coverage model to the imperfect rows (optional)
+    node_cost = 0.01
+    [[plot]]                # plots in the report
+    x = "splat_scale"
+    y = ["hole_rate", "redundant_rate"]
+    group = "points"
+    log = "xy"
+
+Methods: ``perfect`` and ``imperfect`` (GL bundles; rendered with `gpu_impl.renderer.Renderer`
+when images are measured) and ``mitsuba`` (Mitsuba 3 at ``spp``, timed). A run sets the scene, the
+method and any `RenderSettings` field; what it leaves out takes the renderer's own default
+(`RUN_DEFAULTS`). ``width`` and ``height`` left out are the scene camera's.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+from evalkit.core.errors import InputError
+from evalkit.metrics.images import METRICS
+from gpu_impl.renderer import RenderSettings
+
+METHODS = ("perfect", "imperfect", "mitsuba")
+# The parameters a run may set: the scene and every RenderSettings field, with the renderer's
+# defaults (Mitsuba runs use scene, bounces, spp, width, height and seed of them).
+RUN_DEFAULTS = {"scene": "cornell-box", **{f.name: f.default for f in fields(RenderSettings)}}
+MEASURE_DEFAULTS = {"bundles": False, "render": True, "images": ["indirect"], "metrics": list(METRICS),
+                    "reference_spp": 4096, "reference_seed": 0, "eye_vertices": 4096}
+TOP_KEYS = {"name", "title", "description", "reduced", "defaults", "grid", "measure", "hole_model", "plot", "report"}
+
+
+@dataclass
+class Study:
+    name: str
+    path: Path | None
+    title: str
+    description: str
+    reduced: str
+    runs: list[dict]
+    measure: dict
+    hole_model: dict | None = None
+    plots: list[dict] = field(default_factory=list)
+    report: dict = field(default_factory=dict)
+
+
+def read_toml(path: Path, what: str) -> dict:
+    """A TOML file's tables; a missing or malformed file is an `InputError` naming it."""
+    if not path.is_file():
+        raise InputError(str(path), f"no such {what} file")
+    try:
+        return tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise InputError(str(path), f"malformed TOML: {e}") from None
+
+
+def load_study(path: str | os.PathLike) -> Study:
+    """Parse and check a study file; every problem is an `InputError` naming the file."""
+    return study_from_dict(read_toml(Path(path), "study"), Path(path))
+
+
+def study_from_dict(spec: dict, path: Path | None = None) -> Study:
+    where = str(path or "study")
+    unknown = set(spec) - TOP_KEYS
+    if unknown:
+        raise InputError(where, f"unknown key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(TOP_KEYS))}")
+    defaults = {**RUN_DEFAULTS, **_table(spec, "defaults", where)}
+    grids = spec.get("grid", [{}])
+    if isinstance(grids, dict):
+        grids = [grids]
+    runs, seen = [], set()
+    for grid in grids:
+        axes = {k: v if isinstance(v, list) else [v] for k, v in grid.items()}
+        for values in itertools.product(*axes.values()):
+            run = {**defaults, **dict(zip(axes, values))}
+            validate_run(run, where)
+            key = run_id(run)
+            if key not in seen:
+                seen.add(key)
+                runs.append(run)
+    measure = measure_settings(_table(spec, "measure", where), where)
+    plots = spec.get("plot", [])
+    for p in plots:
+        if "x" not in p or "y" not in p:
+            raise InputError(where, f"a [[plot]] needs x and y, got {sorted(p)}")
+    name = spec.get("name") or (path.stem if path else "study")
+    return Study(name, path, spec.get("title", name), spec.get("description", ""), spec.get("reduced", ""), runs, measure,
+                 spec.get("hole_model"), plots, spec.get("report", {}))
+
+
+def measure_settings(table: dict, where: str) -> dict:
+    """A [measure] table over `MEASURE_DEFAULTS`, checked."""
+    measure = {**MEASURE_DEFAULTS, **table}
+    if set(measure) - set(MEASURE_DEFAULTS):
+        raise InputError(where, f"[measure]: unknown key(s) {', '.join(sorted(set(measure) - set(MEASURE_DEFAULTS)))}")
+    bad = set(measure["metrics"]) - set(METRICS)
+    if bad:
+        raise InputError(where, f"[measure] metrics: unknown {', '.join(sorted(bad))}; known: {', '.join(METRICS)}")
+    bad = set(measure["images"]) - {"direct", "indirect", "total"}
+    if bad:
+        raise InputError(where, f"[measure] images: unknown {', '.join(sorted(bad))}; known: direct, indirect, total")
+    return measure
+
+
+def _table(spec: dict, key: str, where: str) -> dict:
+    value = spec.get(key, {})
+    if not isinstance(value, dict):
+        raise InputError(where, f"[{key}] must be a table")
+    return value
+
+
+def validate_run(run: dict, where: str) -> None:
+    """An `InputError` naming ``where`` and the first parameter of ``run`` that is unknown, of the
+    wrong type or out of the renderer's range (`RenderSettings.validate`)."""
+    unknown = set(run) - set(RUN_DEFAULTS)
+    if unknown:
+        raise InputError(where, f"unknown run parameter(s) {', '.join(sorted(unknown))}; known: {', '.join(RUN_DEFAULTS)}")
+    if not isinstance(run["scene"], str):
+        raise InputError(where, f"scene = {run['scene']!r} is not a scene name or path")
+    if run["method"] not in METHODS:
+        raise InputError(where, f"method '{run['method']}' is not one of {', '.join(METHODS)}")
+    for f in fields(RenderSettings):
+        value, kind = run[f.name], f.type  # 'bool', 'int', 'int | None', 'float' or 'str' (postponed annotations)
+        if value is None and kind.endswith("| None") or kind == "str":
+            continue
+        if kind == "bool":
+            ok = isinstance(value, bool)
+        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise InputError(where, f"{f.name} = {value!r} is not a finite number")
+        else:
+            ok = isinstance(value, int) or kind == "float"
+        if not ok:
+            raise InputError(where, f"{f.name} = {value!r} must be {'true or false' if kind == 'bool' else 'a whole number'}")
+    try:
+        render_settings(run).validate()
+    except ValueError as e:
+        raise InputError(where, str(e)) from None
+
+
+def render_settings(run: dict) -> RenderSettings:
+    """The run's `RenderSettings` (every parameter but the scene)."""
+    return RenderSettings(**{k: v for k, v in run.items() if k != "scene"})
+
+
+def run_id(run: dict) -> str:
+    """A stable id of a run's parameters (the resume key)."""
+    return hashlib.sha256(json.dumps(run, sort_keys=True).encode()).hexdigest()[:12]
