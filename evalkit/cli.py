@@ -29,9 +29,10 @@ from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_E
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
-from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE, format_bytes, trace_bundles
+from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SAMPLER, DEFAULT_SPLAT_SCALE, SPLATTERS, format_bytes, trace_bundles
 from gpu_impl.context import GLContext
-from gpu_impl.renderer import IMAGES, PRESETS, Renderer, RenderSettings, apply_preset, write_render
+from gpu_impl.layout import SAMPLERS
+from gpu_impl.renderer import IMAGES, LIGHTING, PRESETS, Renderer, RenderSettings, apply_preset, write_render
 from references.embree import ExactTracer
 from references.mitsuba import DEFAULT_STORE, export_reference, reference
 
@@ -103,7 +104,8 @@ def _gl_bundles(args, scene, directions):
     with GLContext() as gl:
         try:
             bundles = trace_bundles(gl, scene, directions, args.method, resolution=args.resolution, points=args.points,
-                                    splat_scale=args.splat_scale, splat_radius=args.splat_radius, node_budget=args.node_budget)
+                                    splat_scale=args.splat_scale, splat_radius=args.splat_radius, sampler=args.sampler,
+                                    splatter=args.splatter, merge=not args.no_merge, node_budget=args.node_budget)
         except ValueError as e:
             raise InputError("evalkit bundles", str(e)) from None
     stats = bundles.stats
@@ -133,7 +135,7 @@ def _compare_bundles(args) -> int:
     e = r["depth_error"]
     print(f"depth error mean {e['mean']:.3g}, rms {e['rms']:.3g}, p99 {e['p99']:.3g}, max {e['max']:.3g} (x radius); "
           f"same primitive {r['same_prim_rate']:.4%}")
-    print(f"agreement   {r['agreement']:.4%} of exact nodes matched")
+    print(f"agreement   {r['agreement']:.4%} of exact nodes matched; {r['spurious_per_crossing']:.4f} spurious nodes per exact crossing")
     if args.json:
         print(json.dumps(r))
     return 0
@@ -311,8 +313,15 @@ def _vec(v) -> str:
     return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line, as every other bad input's (exit 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"evalkit: error: {self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="evalkit", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="evalkit", description=__doc__.splitlines()[0])
     parser.add_argument("--verbose", action="store_true", help="show tracebacks")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -336,11 +345,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--splat-scale", type=_positive_float, default=DEFAULT_SPLAT_SCALE, metavar="S",
                    help=f"imperfect: splat radius in units of sqrt(A / (pi N)) (default {DEFAULT_SPLAT_SCALE})")
     p.add_argument("--splat-radius", type=_positive_float, default=None, metavar="R", help="imperfect: absolute splat radius (overrides --splat-scale)")
+    p.add_argument("--sampler", choices=tuple(SAMPLERS), default=DEFAULT_SAMPLER,
+                   help=f"imperfect: the points, stratified along a space-filling curve or independent (default {DEFAULT_SAMPLER})")
+    p.add_argument("--splatter", choices=SPLATTERS, default="compute",
+                   help="imperfect: splats found by a compute pass (exact-size lists) or drawn by the rasterizer (default compute)")
+    p.add_argument("--no-merge", action="store_true", help="imperfect: keep every splat's node (by default one per surface crossing)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frame", type=int, default=0, help="frame index: a new rotation (and jitter) of the direction set")
     p.add_argument("--no-jitter", action="store_true", help="no sub-pixel jitter of the bundle grids")
     p.add_argument("--node-budget", type=parse_bytes, default=DEFAULT_NODE_BUDGET, metavar="BYTES",
-                   help="the most node memory to use, e.g. 1GiB (default: 2 GiB; 32 bytes per node)")
+                   help="the most memory for nodes and what they are built from, e.g. 1GiB (default: 2 GiB)")
     p.add_argument("--threads", type=_positive_int, default=None, help="exact: Embree threads (default: every core)")
     p.add_argument("--out", required=True, metavar="FILE.npz")
     p.add_argument("--json", action="store_true")
@@ -377,7 +391,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--self-hit-bias", type=float, default=None, metavar="E", help=f"nodes within E bundle pixels beyond a vertex are skipped (default {d.self_hit_bias})")
     p.add_argument("--shadow-map-size", type=_positive_int, default=None, metavar="S", help=f"texels per shadow map side (default {d.shadow_map_size})")
     p.add_argument("--shadow-filter", type=_positive_int, default=None, metavar="F", help=f"PCF kernel of F x F bilinear taps (default {d.shadow_filter})")
-    p.add_argument("--node-budget", type=parse_bytes, default=None, metavar="BYTES", help="the most bundle node memory to use (default 2 GiB)")
+    p.add_argument("--node-budget", type=parse_bytes, default=None, metavar="BYTES",
+                   help="the most memory for nodes, what they are built from and their precomputed light (default 2 GiB)")
+    p.add_argument("--sampler", choices=tuple(SAMPLERS), default=None, help=f"imperfect: the points (default {d.sampler})")
+    p.add_argument("--splatter", choices=SPLATTERS, default=None, help=f"imperfect: compute or raster (default {d.splatter})")
+    p.add_argument("--lighting", choices=LIGHTING, default=None,
+                   help=f"node light: precomputed per node or splat point, lazy at path hits, or auto per frame (default {d.lighting})")
     p.add_argument("--fixed-directions", action="store_true",
                    help="every frame along frame 0's directions: a static scene builds its bundles once (faster, correlated)")
     p.add_argument("--preset", choices=sorted(PRESETS), default=None,

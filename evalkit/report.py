@@ -21,7 +21,7 @@ from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 from references.mitsuba import load_reference
 
 IMAGE_CAP = 12
-IMPERFECT_ONLY = {"points", "splat_scale"}  # run parameters only imperfect bundles have
+IMPERFECT_ONLY = {"points", "splat_scale", "sampler", "splatter"}  # run parameters only imperfect bundles have
 
 
 def varying(study: Study) -> list[str]:
@@ -66,28 +66,31 @@ def _number(v) -> bool:
 
 
 def plot(rows: list[dict], spec: dict, path: Path) -> str:
-    """One figure per [[plot]]: y against x, a line per ``group`` value, a panel per ``facet``
-    (default: scene); ``log`` = "x", "y" or "xy"; ``pareto`` draws the front of x and the first y."""
+    """One figure per [[plot]]: y against x, a line per ``group`` value (``group`` names one run
+    parameter or a list of them), a panel per ``facet`` (default: scene); ``log`` = "x", "y" or
+    "xy"; ``pareto`` draws the front of x and the first y."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     ys = spec["y"] if isinstance(spec["y"], list) else [spec["y"]]
-    facet, group = spec.get("facet", "scene"), spec.get("group")
+    facet = spec.get("facet", "scene")
+    group = spec.get("group") or []
+    group = [group] if isinstance(group, str) else list(group)
     facets = list(dict.fromkeys(r.get(facet) for r in rows))
     fig, axes = plt.subplots(1, len(facets), figsize=(5.2 * len(facets), 4), squeeze=False)
     methods = list(dict.fromkeys(r["method"] for r in rows))
     for ax, fv in zip(axes[0], facets):
         sub = [r for r in rows if r.get(facet) == fv]
-        series = list(dict.fromkeys((r["method"], r.get(group) if group else None) for r in sub))
+        series = list(dict.fromkeys((r["method"], tuple(r.get(k) for k in group)) for r in sub))
         for y in ys:
             for method, g in series:
-                members = [r for r in sub if r["method"] == method and (group is None or r.get(group) == g)
+                members = [r for r in sub if r["method"] == method and tuple(r.get(k) for k in group) == g
                            and _number(r.get(y)) and (r[y] > 0 or "y" not in spec.get("log", ""))]
                 parts = [y] if len(ys) > 1 else []
                 parts += [method] if len(methods) > 1 else []
-                parts += [f"{group}={g}"] if group and group != "method" and (method == "imperfect" or group not in IMPERFECT_ONLY) else []
+                parts += [f"{k}={v}" for k, v in zip(group, g) if k != "method" and (method == "imperfect" or k not in IMPERFECT_ONLY)]
                 label = ", ".join(parts) or y
                 if method != "imperfect" and spec["x"] in IMPERFECT_ONLY:
                     # A method without splats is a baseline across the splat parameters.
@@ -226,37 +229,48 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
     (out / "hole_model.json").write_text(json.dumps(fits, indent=2) + "\n")
     if not fits:
         return "<h2>Hole model</h2><p>Not fitted: it needs imperfect runs at two splat scales or more.</p>"
-    scenes = sorted({f["scene"] for f in fits})
-    fig, axes = plt.subplots(1, len(scenes), figsize=(5.2 * len(scenes), 4), squeeze=False)
-    for ax, scene in zip(axes[0], scenes):
+    panels = sorted({(f["scene"], f["sampler"]) for f in fits})
+    fig, axes = plt.subplots(2, len(panels), figsize=(5.2 * len(panels), 8), squeeze=False)
+    for column, (scene, sampler) in enumerate(panels):
+        ax, cost_ax = axes[0][column], axes[1][column]
         for f in fits:
-            if f["scene"] != scene or f["points"] == "all":
+            if (f["scene"], f["sampler"]) != (scene, sampler) or f["points"] == "all":
                 continue
-            pts = sorted((r["splat_scale"], max(r["hole_rate"], 1 / r["exact_nodes"])) for r in imperfect
-                         if r["scene"] == scene and int(r["points"]) == f["points"])
-            line = ax.plot(*zip(*pts), "o", label=f"measured N={f['points']}")[0]
-            s = np.linspace(min(p[0] for p in pts), max(p[0] for p in pts), 100)
-            ax.plot(s, hole_rate_model(s**2, f["c"], f["h0"]), "-", color=line.get_color(),
-                    label=f"{f['h0']:.2g} + {1 - f['h0']:.2g} exp(-{f['c']:.3g} s^2)")
+            mine = sorted((r for r in imperfect if r["scene"] == scene and r.get("sampler", "random") == sampler
+                           and int(r["points"]) == f["points"]), key=lambda r: r["splat_scale"])
+            holes = [max(r["hole_rate"], 1 / r["exact_nodes"]) for r in mine]
+            line = ax.plot([r["splat_scale"] for r in mine], holes, "o", label=f"measured N={f['points']}")[0]
+            s = np.linspace(mine[0]["splat_scale"], mine[-1]["splat_scale"], 100)
+            ax.plot(s, hole_rate_model(s**2, f["c"], f["h0"], f["q"]), "-", color=line.get_color(),
+                    label=f"{f['h0']:.2g} + {1 - f['h0']:.2g} exp(-{f['c']:.3g} s^{f['q']:.2g})")
             ax.axvline(f["splat_scale"], color=line.get_color(), ls=":", lw=1)
+            cost_ax.plot([r["nodes_per_crossing"] for r in mine], holes, "o-", color=line.get_color(), label=f"N={f['points']}")
         ax.set_yscale("log")
         ax.set_xlabel("splat scale s (radius / sqrt(A / (pi N)))")
         ax.set_ylabel("hole rate")
-        ax.set_title(f"{scene}: measured, the model, and (dotted) the recommended s", fontsize=9)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.set_title(f"{scene}, {sampler} points: measured, the model, (dotted) the recommended s", fontsize=9)
+        cost_ax.set_yscale("log")
+        cost_ax.set_xlabel("nodes per surface crossing before merging")
+        cost_ax.set_ylabel("hole rate")
+        cost_ax.set_title(f"{scene}, {sampler} points: holes against what they cost", fontsize=9)
+        for a in (ax, cost_ax):
+            a.grid(True, which="both", alpha=0.3)
+            a.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "plots" / "hole_model.png", dpi=90)
     plt.close(fig)
-    columns = ["scene", "points", "c", "h0", "c_nodes", "samples", "median_ratio_error", "max_ratio_error", "max_abs_error",
-               "splat_scale", "closed_form", "predicted_hole_rate", "predicted_cost", "measured_best_scale",
+    columns = ["scene", "sampler", "points", "c", "q", "h0", "c_nodes", "samples", "median_ratio_error", "max_ratio_error",
+               "max_abs_error", "splat_scale", "searched", "predicted_hole_rate", "predicted_cost", "measured_best_scale",
                "nearest_grid_scale", "regret"]
-    return ("<h2>Hole model</h2><p>P(hole) = h0 + (1 - h0) exp(-c s^2) and nodes per surface crossing = c_n s^2, "
-            "fitted in log space with Dr.Jit AD (ideal coverage: c = c_n = 1, h0 = 0; h0 is the floor of crossings whose "
-            "splats lie in a neighbouring triangle's plane, see evalkit/metrics/hole_model.py). Ratio errors are |ln(predicted / measured)| of the hole rate. "
+    return ("<h2>Hole model</h2><p>P(hole) = h0 + (1 - h0) exp(-c s^q) and nodes per surface crossing before merging "
+            "= c_n s^2, fitted per scene, sampler and point count in log space with Dr.Jit AD (independent points, ideally: "
+            "c = c_n = 1, q = 2, h0 = 0; stratified points leave fewer holes, q > 2; h0 is the floor of crossings whose "
+            "splats lie in a neighbouring triangle's plane, see evalkit/metrics/hole_model.py). Ratio errors are "
+            "|ln(predicted / measured)| of the hole rate. "
             f"The recommended splat scale minimises hole rate + {node_cost:g} x nodes per crossing (gradient descent with "
-            "Dr.Jit AD; the closed form beside it as a check); regret is the measured cost at the grid scale nearest the "
-            "recommendation over the measured best cost, less 1.</p>"
+            "Dr.Jit AD; a direct search beside it as a check); regret is the measured cost at the grid scale nearest the "
+            "recommendation over the measured best cost, less 1. Below each fit, the hole rate against the nodes per "
+            "crossing it costs.</p>"
             "<img src='plots/hole_model.png'>" + table_html(fits, columns))
 
 

@@ -1,17 +1,24 @@
 """Perfect and imperfect ray bundles on the GPU, read back as a `BundleSet`.
 
-One build is a handful of passes and two GPU-CPU round-trips, whatever K is:
+A node is 8 bytes on the GPU: its depth along the bundle direction and a reference, the triangle
+(perfect bundles) or the splat point (imperfect bundles); shaders/bundle_hits.glsl computes the
+rest where it is needed. One build is a few passes and two GPU-CPU round-trips, whatever K is:
 
-1. ``points`` (imperfect only): N surface points per direction (shaders/splat_points.glsl);
-2. ``lists``: one instanced draw per atlas of R x R tiles appends every node to its pixel's
-   linked list (shaders/perfect_bundles.glsl or imperfect_bundles.glsl);
-   round-trip 1 reads the node counter: past the buffer's capacity, the pass is re-run with a
-   buffer that fits (or `NodeBudgetExceeded` says how much was needed);
-3. ``resolve``: list lengths, a GPU prefix sum, and a sort of each list into CSR order
-   (shaders/resolve_lists.glsl, prefix_sum.glsl); round-trip 2 reads the statistics.
+- **perfect**: ``lists``: one instanced draw per atlas of R x R tiles appends every node to its
+  pixel's linked list (shaders/perfect_bundles.glsl); round-trip 1 reads the node counter, and past
+  the buffer's capacity the pass runs again with a buffer that fits. ``resolve``: list lengths, a
+  prefix sum, and each list sorted into the CSR (shaders/resolve_lists.glsl); round-trip 2 reads
+  the statistics.
+- **imperfect**, compute splatter (the default): ``points``: N points per direction
+  (shaders/splat_points.glsl). ``lists``: every splat counts the lines it covers, a prefix sum makes
+  exact-size lists, round-trip 1 reads their total, and every splat writes its nodes
+  (shaders/splat_lists.glsl): no linked list, no re-run. ``resolve``: each list sorted and its
+  redundant nodes merged, a prefix sum of the merged lengths, round-trip 2, and the merged lists
+  moved into the CSR.
+- **imperfect**, raster splatter (``splatter="raster"``): the poster's splats drawn by the
+  rasterizer into linked lists (shaders/imperfect_bundles.glsl), then the same merge.
 
-The sorted CSR (``OFFSETS``, ``SORTED_NODE``, ``SORTED_DEPTH``) stays on the GPU for the renderer,
-which keeps each node's direct radiance in an array parallel to ``SORTED_NODE`` (CSR order).
+The sorted CSR (``OFFSETS``, ``SORTED_DEPTH``, ``SORTED_REF``) stays on the GPU for the renderer.
 """
 
 from __future__ import annotations
@@ -25,26 +32,35 @@ import numpy as np
 from evalkit.core.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, bundle_params
 from evalkit.core.errors import InputError
 from gpu_impl.context import LOCAL_SIZE, GLContext, PassTimer, set_uniforms
-from gpu_impl.layout import BINDINGS, BUNDLE_FRAME, COUNTERS, SPLAT_BIT
+from gpu_impl.layout import BINDINGS, BUNDLE_FRAME, COUNTERS, METHODS, SAMPLERS, SPLAT_BIT, SPLAT_POINT
 from gpu_impl.scene_buffers import GpuScene
 
-METHODS = ("perfect", "imperfect")
-# Bytes per node: depth, prim, normal (4 each), albedo (8) and link (4) while lists are built,
-# then the sorted node index and depth (4 each).
-LIST_NODE_BYTES = 24
-SORTED_NODE_BYTES = 8
-NODE_BYTES = LIST_NODE_BYTES + SORTED_NODE_BYTES
-# The poster used a 1 GB node buffer. Our nodes take NODE_BYTES = 32 bytes, and imperfect atrium
-# bundles at the default splat scale need 34.5 M of them (1.1 GB), so the default is 2 GiB.
+SPLATTERS = ("compute", "raster")
+# Bytes per node: the sorted CSR's depth and reference; while linked lists are built, depth,
+# reference and link; raw (unmerged) splat nodes, one 64-bit key (shaders/bundle_build.glsl).
+NODE_BYTES = 8
+LINKED_NODE_BYTES = 12
+RAW_NODE_BYTES = 8
+# The poster used a 1 GB node buffer; the default leaves room for the largest settings it used.
 DEFAULT_NODE_BUDGET = 2 << 30
 # Splat radius in units of sqrt(A / (pi N)), the radius at which N disks cover area A once. With
 # independent uniform points a surface point is missed by all of them with probability
-# exp(-splat_scale^2) (docs/MEASURED_FACTS.md); the stratified points leave fewer holes than that.
-DEFAULT_SPLAT_SCALE = 2.0
-# How much the node buffer grows past a measured count, so the next frame's rotated directions
-# (a slightly different count) rarely need a re-run.
+# exp(-splat_scale^2); the stratified points leave far fewer holes, exp(-1.25 s^2.4) on cornell-box.
+# 1.8 is the hole model's recommendation for stratified points (studies/hole_vs_splat.toml: 1.81
+# on cornell-box, 1.94 on atrium whose curved-surface floor of holes no splat size removes), at
+# 3.2 nodes per crossing against 4 for the old default 2 (docs/MEASURED_FACTS.md).
+DEFAULT_SPLAT_SCALE = 1.8
+DEFAULT_SAMPLER = "stratified"
+# Nodes of one line closer than this (times the frame radius) are one surface: the depth tolerance
+# of the bundle metrics (evalkit/metrics/bundles.py), about a hundred float32 ulps of a depth.
+MERGE_TOLERANCE = 1e-4
+# How much a buffer grows past a measured count, so the next frame's rotated directions (a
+# slightly different count) rarely need it to grow again.
 CAPACITY_SLACK = 1.125
 SCAN_BLOCK = 4 * LOCAL_SIZE  # shaders/prefix_sum.glsl
+# shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size (32), past
+# the list's end: the raw node buffer keeps that many slots beyond the last list.
+RAW_SLACK_NODES = 32
 
 
 class NodeBudgetExceeded(InputError):
@@ -56,22 +72,31 @@ class BundleTracer:
     with one GL context.
 
     Buffers are kept and grown across `build` calls (frames), so a frame costs only its passes;
-    `release` (or leaving a ``with`` block) frees every GL object the tracer made. ``node_budget`` (bytes) caps the node memory (`NODE_BYTES` per
-    node); a build that needs more raises `NodeBudgetExceeded` with the amount needed.
+    `release` (or leaving a ``with`` block) frees every GL object the tracer made.
 
-    Parameters: ``directions`` K and ``resolution`` R fix the buffer layout. Imperfect bundles use
-    ``points`` N per direction, of radius ``splat_radius`` (scene units) or, by default,
-    ``splat_scale * sqrt(A / (pi N))``. ``initial_capacity`` (nodes) overrides the first guess
-    of the node count (tests use it to force an overflow). ``max_atlas_size`` caps the atlas side
-    in pixels (default: the GL viewport limit); past it, directions are drawn in several draws.
+    Parameters: ``directions`` K and ``resolution`` R fix the list layout. Imperfect bundles use
+    ``points`` N per direction from ``sampler`` ('stratified' or 'random', shaders/splat_points.glsl),
+    of radius ``splat_radius`` (scene units) or, by default, ``splat_scale * sqrt(A / (pi N))``,
+    found by ``splatter`` ('compute' or 'raster'); ``merge`` (default on) merges the redundant nodes
+    of one surface (shaders/resolve_lists.glsl). ``node_budget`` (bytes) caps everything the
+    tracer holds for nodes: the CSR, the lists and points it is built from; a build that needs more
+    raises `NodeBudgetExceeded` with the amount needed. ``count_covered`` also counts the lines the
+    compute splatter's splats cover before merging (stats ``covered_nodes``; studies of the splat
+    size ask for it, at some cost). ``initial_capacity`` (nodes) overrides the
+    first guess of the linked lists' size (tests use it to force a re-run); ``max_atlas_size``
+    caps the atlas side in pixels (default: the GL viewport limit); past it, directions are drawn
+    in several draws.
     """
 
     def __init__(self, gl: GLContext, gpu_scene: GpuScene, method: str = "perfect", *, directions: int = 256,
                  resolution: int = 128, points: int = 16384, splat_scale: float = DEFAULT_SPLAT_SCALE,
-                 splat_radius: float | None = None, node_budget: int = DEFAULT_NODE_BUDGET,
-                 initial_capacity: int | None = None, max_atlas_size: int | None = None, textures: bool | None = None):
+                 splat_radius: float | None = None, sampler: str = DEFAULT_SAMPLER, splatter: str = "compute",
+                 merge: bool = True, node_budget: int = DEFAULT_NODE_BUDGET, initial_capacity: int | None = None,
+                 max_atlas_size: int | None = None, textures: bool | None = None, count_covered: bool = False):
         if method not in METHODS:
-            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+            raise ValueError(f"method must be one of {tuple(METHODS)}, got {method!r}")
+        if sampler not in SAMPLERS or splatter not in SPLATTERS:
+            raise ValueError(f"sampler must be one of {tuple(SAMPLERS)} and splatter one of {SPLATTERS}, got {sampler!r}, {splatter!r}")
         for name, value in (("directions", directions), ("resolution", resolution), ("points", points)):
             if value < 1:
                 raise ValueError(f"{name} must be at least 1, got {value}")
@@ -79,6 +104,9 @@ class BundleTracer:
         self.gpu_scene = gpu_scene
         self.method = method
         self.K, self.R, self.N = directions, resolution, points
+        self.sampler, self.splatter, self.merge = sampler, splatter, bool(merge) and method == "imperfect"
+        # The count pass's variant: counting the lines splats cover, too, or not.
+        self.count_variant = {"COUNT_SPLATS": True, **({"COUNT_COVERED": True} if count_covered else {})}
         # The radius at which N disks cover the scene's area once: the unit of splat_scale.
         unit = math.sqrt(gpu_scene.arrays.tri_area.sum() / (math.pi * points))
         self.splat_radius = splat_radius if splat_radius is not None else splat_scale * unit
@@ -88,45 +116,50 @@ class BundleTracer:
         self.node_budget = int(node_budget)
         self.list_count = self.K * self.R * self.R
         if self.list_count >= 2**32 - 1 or (method == "imperfect" and 3 * self.K * self.N >= 2**31):
-            raise ValueError(f"K={self.K}, R={self.R}, N={self.N} exceed the 32-bit list and vertex indices")
+            raise ValueError(f"K={self.K}, R={self.R}, N={self.N} exceed the 32-bit list and point indices")
+        self.linked = method == "perfect" or splatter == "raster"
+        self.capacity = 0  # nodes the linked lists hold (their buffers are made below)
         self._layout(max_atlas_size)
         # 0: the shader variant without texture fetches, for scenes without textures (None: ask the scene).
         self.textures = int(gpu_scene.features.textures if textures is None else textures)
-        self.framebuffer = gl.empty_framebuffer(self.atlas_size)
-        self.vertex_arrays: dict = {}  # by NULL_FRAGMENT: the node pass's and the raw-raster baseline's
-        self.buffers = {
-            "FRAMES": gl.buffer(reserve=BUNDLE_FRAME.itemsize * self.K),
-            "COUNTERS": gl.buffer(reserve=4 * len(COUNTERS)),
-            "HEADS": gl.buffer(reserve=4 * self.list_count),
-            "OFFSETS": gl.buffer(reserve=4 * (self.list_count + 1)),
-        }
-        if method == "imperfect":
-            self.buffers["POINTS"] = gl.buffer(reserve=16 * self.K * self.N)  # uvec4: triangle, b1, b2, -
-            self.buffers["POINTS"].clear()  # triangle 0 for the warm-up draw, before any points exist
-        self.capacity = 0
-        self.sorted_capacity = 0
+        self.defines = {"BUNDLE_METHOD": METHODS[method]}
+        self.buffers: dict = {}
         self._scan_sums: list = []
-        self._grow(initial_capacity if initial_capacity is not None else self.predicted_nodes())
+        self.framebuffer = gl.empty_framebuffer(self.atlas_size) if self.linked else None
+        self.vertex_arrays: dict = {}  # by NULL_FRAGMENT: the node pass's and the raw-raster baseline's
+        lists = 4 * (self.list_count + 1)
+        self._ensure("FRAMES", BUNDLE_FRAME.itemsize * self.K)
+        self._ensure("COUNTERS", 4 * len(COUNTERS))
+        self._ensure("OFFSETS", lists)
+        if method == "imperfect":
+            self._check_budget(self.fixed_bytes, what=f"{self.K * self.N:,} splat points and the list offsets")
+            self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N).clear()  # triangle 0 for a warm-up draw
+            self._ensure("RAW_OFFSETS", lists)
+            self._ensure("LIST_COUNTS", lists)
+        if self.linked:
+            self._ensure("HEADS", 4 * self.list_count)
+            self._grow_linked(initial_capacity if initial_capacity is not None else self.predicted_nodes())
+            self._raster(null_fragment=False)
+        # Compile every compute pass now, not inside the first timed build: a dispatch over no
+        # items makes the driver build its code (llvmpipe does that at the first dispatch).
+        self.bind()
+        for program in self._compute_programs():
+            self._uniforms(program)
+            gl.dispatch(program, 0)
         self.directions: DirectionSet | None = None
         self.stats: dict = {}
-        self._raster(null_fragment=False)
 
-    def _raster(self, null_fragment: bool) -> tuple:
-        """The raster program of the node pass (or of the raw-raster baseline: an empty fragment
-        shader) and its vertex array, made on first use. The first use also draws one triangle
-        with nothing to write to, so the driver compiles the shader variant here and not inside
-        the first timed pass (llvmpipe's first timer query around a compiling draw reports an
-        invalid 2^32 - 1 ns)."""
-        variant = {"NULL_FRAGMENT": True} if null_fragment else {}
-        program = self.gl.program(f"{self.method}_bundles", TEXTURES=self.textures, **variant)
-        if null_fragment not in self.vertex_arrays:
-            vao = self.gpu_scene.vertex_array(program) if self.method == "perfect" else self.gl.vertex_array(program, [])
-            self.vertex_arrays[null_fragment] = vao
-            self.bind()
-            self._common_uniforms(program, capacity=0, direction_base=0)
-            self.gl.draw(vao, moderngl.TRIANGLES, self.framebuffer, depth_test=False, vertices=3, instances=1)
-            self.gl.finish()
-        return program, self.vertex_arrays[null_fragment]
+    def _compute_programs(self) -> list:
+        """The compute passes a build of this tracer runs (the prefix sum aside)."""
+        gl = self.gl
+        if self.method == "perfect":
+            return [gl.program("resolve_lists", COUNT_LISTS=True), gl.program("resolve_lists", SORT_LISTS=True)]
+        passes = [gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler]), gl.program("resolve_lists", COMPACT_LISTS=True)]
+        if self.linked:
+            return passes + [gl.program("resolve_lists", COUNT_LISTS=True),
+                             gl.program("resolve_lists", MERGE_LISTS=True, FROM_LINKED_LISTS=True)]
+        return passes + [gl.program("splat_lists", **self.count_variant), gl.program("splat_lists", SCATTER_SPLATS=True),
+                         gl.program("resolve_lists", MERGE_LISTS=True)]
 
     # -- layout and memory ---------------------------------------------------------------
 
@@ -143,53 +176,66 @@ class BundleTracer:
         self.atlas_size = (self.tiles_per_row * self.R, rows * self.R)
 
     def predicted_nodes(self) -> int:
-        """A first guess of the node count, from the scene's depth complexity (the mean number of
-        surfaces a line through the bounding sphere crosses) and, for splats, the mean number of
-        splats covering a surface point."""
+        """A first guess of the linked lists' size, from the scene's depth complexity (the mean
+        number of surfaces a line through the bounding sphere crosses) and, for splats, the mean
+        number of splats covering a surface point."""
         lines = self.list_count * math.pi / 4  # the lines that meet the sphere
         overlap = max(1.0, self.splat_scale**2) if self.method == "imperfect" else 1.0
         return int(lines * self.gpu_scene.features.depth_complexity * overlap * 1.25) + 1024
 
     @property
-    def budget_nodes(self) -> int:
-        by_driver = self.gl.max_storage_bytes // 8  # the widest per-node array holds 8 bytes
-        return min(self.node_budget // NODE_BYTES, by_driver)
-
-    def _grow(self, nodes: int) -> None:
-        """List buffers for at least ``nodes`` nodes (within the budget); the contents are not kept."""
-        if min(nodes, self.budget_nodes) > self.capacity:
-            self._resize(nodes)
-
-    def _resize(self, nodes: int) -> None:
-        nodes = max(1, min(nodes, self.budget_nodes))
-        for name, width in (("NEXT", 4), ("NODE_DEPTH", 4), ("NODE_PRIM", 4), ("NODE_NORMAL", 4), ("NODE_ALBEDO", 8)):
-            if name in self.buffers:
-                self.buffers[name].release()
-            self.buffers[name] = self.gl.buffer(reserve=width * nodes)
-        self.capacity = nodes
-
-    def _grow_sorted(self, nodes: int) -> None:
-        if nodes <= self.sorted_capacity:
-            return
-        for name in ("SORTED_NODE", "SORTED_DEPTH"):
-            if name in self.buffers:
-                self.buffers[name].release()
-            self.buffers[name] = self.gl.buffer(reserve=4 * max(1, nodes))
-        self.sorted_capacity = nodes
-
-    def _check_budget(self, nodes: int) -> None:
-        if nodes > self.budget_nodes:
-            need = nodes * NODE_BYTES
-            scene = self.gpu_scene.scene.name
-            raise NodeBudgetExceeded(
-                scene, f"{self.method} bundles (K={self.K}, R={self.R}) need {nodes:,} nodes = {format_bytes(need)}, "
-                       f"over the node budget of {format_bytes(self.budget_nodes * NODE_BYTES)}; raise --node-budget "
-                       f"to at least {format_bytes(need)} or lower K, R or the splat size")
+    def fixed_bytes(self) -> int:
+        """What the tracer holds whatever the node count: frames, the per-list arrays and points."""
+        per_list = 4 * (self.list_count + 1) * (3 if self.method == "imperfect" else 1) + (4 * self.list_count if self.linked else 0)
+        points = SPLAT_POINT.itemsize * self.K * self.N if self.method == "imperfect" else 0
+        return BUNDLE_FRAME.itemsize * self.K + per_list + points
 
     @property
-    def gpu_bytes(self) -> int:
-        """Every buffer this tracer holds (nodes, lists, points) plus the scene's."""
-        return sum(b.size for b in self.buffers.values()) + self.gpu_scene.nbytes
+    def memory_bytes(self) -> int:
+        """Everything the tracer holds for nodes now, which the node budget caps."""
+        return sum(b.size for name, b in self.buffers.items() if name != "COUNTERS") + sum(b.size for b in self._scan_sums)
+
+    def _ensure(self, name: str, nbytes: int):
+        """Buffer ``name`` with room for at least ``nbytes`` (its contents are not kept when it grows)."""
+        buffer = self.buffers.get(name)
+        if buffer is None or buffer.size < nbytes:
+            if buffer is not None:
+                buffer.release()
+            buffer = self.buffers[name] = self.gl.buffer(reserve=max(4, int(nbytes)))
+        return buffer
+
+    def _fits(self, nbytes_more: int) -> bool:
+        return self.memory_bytes + nbytes_more <= self.node_budget
+
+    def _check_budget(self, needed: int, what: str) -> None:
+        if needed > self.node_budget:
+            raise NodeBudgetExceeded(
+                self.gpu_scene.scene.name,
+                f"{self.method} bundles (K={self.K}, R={self.R}{f', N={self.N}' if self.method == 'imperfect' else ''}) "
+                f"need {format_bytes(needed)} for {what}, over the node budget of {format_bytes(self.node_budget)}; "
+                f"raise --node-budget to at least {format_bytes(needed)} or lower K, R, N or the splat size")
+
+    def _grow(self, names: tuple[str, ...], node_bytes: int, nodes: int, what: str) -> None:
+        """Grow the per-node buffers ``names`` to ``nodes`` nodes (plus slack while the budget
+        allows), or raise `NodeBudgetExceeded` with the memory all of it needs."""
+        current = sum(self.buffers[n].size for n in names if n in self.buffers)
+        if current >= node_bytes * nodes:
+            return
+        others = self.memory_bytes - current
+        self._check_budget(others + node_bytes * nodes, f"{nodes:,} {what} and what else the build holds")
+        slack = min(int(nodes * CAPACITY_SLACK), (self.node_budget - others) // node_bytes)
+        for name in names:
+            self._ensure(name, node_bytes // len(names) * slack)
+
+    def _grow_linked(self, nodes: int) -> None:
+        """Linked-list buffers for ``nodes`` nodes (a guess, or a measured count)."""
+        nodes = max(1, nodes)
+        budget_nodes = max(1, (self.node_budget - self.fixed_bytes) // LINKED_NODE_BYTES)
+        self.capacity = min(nodes, budget_nodes, self.gl.max_storage_bytes // 4)
+        for name in ("NEXT", "LIST_DEPTH", "LIST_REF"):
+            if name in self.buffers and self.buffers[name].size != 4 * self.capacity:
+                self.buffers.pop(name).release()
+            self._ensure(name, 4 * self.capacity)
 
     # -- the passes ----------------------------------------------------------------------
 
@@ -205,106 +251,184 @@ class BundleTracer:
         start = time.perf_counter()
         timer = PassTimer(self.gl)
         self.buffers["FRAMES"].write(_frames(directions).tobytes())
-        # Size the node buffers from the last frame's measured count: a first guess far too
-        # large (a scene of thin walls has less depth complexity than its bounds suggest) is given back.
-        last = self.stats.get("nodes")
-        if last is not None and self.capacity > 2 * CAPACITY_SLACK * last:
-            self._resize(int(last * CAPACITY_SLACK) + 1)
+        self.buffers["COUNTERS"].clear()
+        if self.method == "imperfect":
+            self.buffers["LIST_COUNTS"].clear()
         self.bind()
-
         if self.method == "imperfect":
             with timer.measure("points"):
                 self._sample_points(directions)
-
-        reruns = 0
-        while True:
+        if self.linked:
+            reruns, raw = self._linked_lists(timer)
+        else:
             with timer.measure("lists"):
-                self._draw_lists(null_fragment=False)
-            nodes = int(np.frombuffer(self.buffers["COUNTERS"].read(4 * len(COUNTERS)), dtype=np.uint32)[COUNTERS["NODES"]])
-            if nodes <= self.capacity:
-                break
-            self._check_budget(nodes)
-            self._grow(max(nodes, int(nodes * CAPACITY_SLACK)))
-            self.bind()
-            reruns += 1
-
-        self._grow_sorted(nodes)
-        self.bind()
+                reruns, raw = 0, self._splat_lists()
         with timer.measure("resolve"):
-            self._resolve()
+            nodes = self._resolve(raw)
         counters = np.frombuffer(self.buffers["COUNTERS"].read(4 * len(COUNTERS)), dtype=np.uint32)
+        if counters[COUNTERS["MISMATCH"]]:
+            raise RuntimeError(f"the splat count and scatter passes found {counters[COUNTERS['MISMATCH']]} lines differently: "
+                               "a driver that rounds the same arithmetic two ways; use splatter='raster'")
         self.directions = directions
-        gpu_ms = timer.milliseconds()
         self.stats = {
             "nodes": nodes,
+            "raw_nodes": raw,
+            # Every line a splat or a triangle covers: without merging, one node each (None: not counted).
+            "covered_nodes": raw if self.linked or not self.merge else
+                             int(counters[COUNTERS["COVERED"]]) if "COUNT_COVERED" in self.count_variant else None,
             "redundant_nodes": int(counters[COUNTERS["REDUNDANT"]]),
-            "redundant_tolerance": self.redundant_tolerance,
+            "redundant_tolerance": self.merge_tolerance if self.merge else 0.0,
+            "merged": self.merge,
             "max_list_length": int(counters[COUNTERS["MAX_LENGTH"]]),
-            "capacity": self.capacity,
+            "capacity": self.capacity if self.linked else raw,
             "overflow_reruns": reruns,
             "node_bytes": nodes * NODE_BYTES,
+            "memory_bytes": self.memory_bytes,
             "gpu_bytes": self.gpu_bytes,
-            "gpu_ms": gpu_ms,
+            "gpu_ms": timer.milliseconds(),
             "gpu_timing": timer.method,
             "wall_ms": (time.perf_counter() - start) * 1e3,
         }
+        if self.method == "imperfect":
+            self.stats.update(sampler=self.sampler, splatter=self.splatter)
         return self.stats
 
     @property
-    def redundant_tolerance(self) -> float:
-        """Depth gap under which a node repeats its predecessor's surface: a splat radius for
-        splats (tangent splats of one surface cross a line within about that of each other), and
-        0 for triangles (only coincident duplicates)."""
-        return self.splat_radius if self.method == "imperfect" else 0.0
+    def merge_tolerance(self) -> float:
+        """How far apart in depth two nodes of one line may be and still be merged as one surface
+        (shaders/resolve_lists.glsl): the depth tolerance under which the bundle metrics call two
+        nodes one surface (`MERGE_TOLERANCE` of the frame radius), so merging removes what they
+        count redundant; negative (nothing merges) without merging. Splats of one plane cross a
+        line at one depth; a wider tolerance (a splat radius) also merged a corner's two walls
+        where one's splats overhang the other, trading holes for fewer nodes: measured on
+        cornell-box (K=32, N=16384, s=1.5), 4.6 % holes against 3.6 %."""
+        return MERGE_TOLERANCE * self.gpu_scene.radius if self.merge else -1.0
 
-    def _common_uniforms(self, program, **overrides) -> None:
-        """Set the raster programs' uniforms (those a variant compiled away are skipped)."""
+    @property
+    def gpu_bytes(self) -> int:
+        """Every buffer this tracer holds plus the scene's."""
+        return sum(b.size for b in self.buffers.values()) + sum(b.size for b in self._scan_sums) + self.gpu_scene.nbytes
+
+    def _uniforms(self, program, **overrides) -> None:
+        """Set the bundle programs' uniforms (those a variant compiled away are skipped)."""
         values = {"radius": self.gpu_scene.radius, "resolution": self.R, "tiles_per_row": self.tiles_per_row,
                   "atlas_size": self.atlas_size, "capacity": self.capacity, "points_per_direction": self.N,
-                  "splat_radius": self.splat_radius, **overrides}
+                  "splat_radius": self.splat_radius, "direction_base": 0, **overrides}
         set_uniforms(program, values)
 
     def _sample_points(self, directions: DirectionSet) -> None:
-        shader = self.gl.program("splat_points")
-        shader["points_per_direction"] = self.N
-        shader["triangle_count"] = self.gpu_scene.triangle_count
-        shader["seed"] = directions.seed & 0xFFFFFFFF
-        shader["frame"] = directions.frame & 0xFFFFFFFF
+        shader = self.gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler])
+        self._uniforms(shader, triangle_count=self.gpu_scene.triangle_count, seed=directions.seed & 0xFFFFFFFF,
+                       frame=directions.frame & 0xFFFFFFFF)
         self.gl.dispatch(shader, self.K * self.N)
+
+    def _raster(self, null_fragment: bool) -> tuple:
+        """The raster program of the linked-list pass (or of the raw-raster baseline: an empty
+        fragment shader) and its vertex array, made on first use. The first use also draws one
+        triangle with nothing to write to, so the driver compiles the shader variant here and not
+        inside the first timed pass (llvmpipe's first timer query around a compiling draw reports an
+        invalid 2^32 - 1 ns)."""
+        variant = {"NULL_FRAGMENT": True} if null_fragment else {}
+        program = self.gl.program(f"{self.method}_bundles", **variant)
+        if null_fragment not in self.vertex_arrays:
+            vao = self.gpu_scene.vertex_array(program) if self.method == "perfect" else self.gl.vertex_array(program, [])
+            self.vertex_arrays[null_fragment] = vao
+            self.bind()
+            self._uniforms(program, capacity=0)
+            self.gl.draw(vao, moderngl.TRIANGLES, self._atlas_framebuffer(), depth_test=False, vertices=3, instances=1)
+            self.gl.finish()
+        return program, self.vertex_arrays[null_fragment]
+
+    def _atlas_framebuffer(self):
+        if self.framebuffer is None:  # the compute splatter's raw-raster baseline
+            self.framebuffer = self.gl.empty_framebuffer(self.atlas_size)
+        return self.framebuffer
 
     def _draw_lists(self, null_fragment: bool) -> None:
         """Every direction's nodes, appended to the pixel lists: one draw per atlas."""
         program, vao = self._raster(null_fragment)
         self.buffers["HEADS"].clear(chunk=b"\xff\xff\xff\xff")
-        self.buffers["COUNTERS"].clear()
         for base in range(0, self.K, self.directions_per_draw):
             count = min(self.directions_per_draw, self.K - base)
-            self._common_uniforms(program, direction_base=base)
+            self._uniforms(program, direction_base=base)
             if self.method == "perfect":
-                self.gl.draw(vao, moderngl.TRIANGLES, self.framebuffer, depth_test=False, instances=count)
+                self.gl.draw(vao, moderngl.TRIANGLES, self._atlas_framebuffer(), depth_test=False, instances=count)
             else:
-                self.gl.draw(vao, moderngl.TRIANGLES, self.framebuffer, depth_test=False, vertices=3 * self.N * count,
-                             first=3 * self.N * base)
+                self.gl.draw(vao, moderngl.TRIANGLES, self._atlas_framebuffer(), depth_test=False,
+                             vertices=3 * self.N * count, first=3 * self.N * base)
 
-    def raw_raster(self, directions: DirectionSet) -> float:
-        """The raw-raster baseline: this build's geometry drawn with an empty fragment shader.
-        Returns its GPU time in ms (benchmarks/bundles.py)."""
-        self.buffers["FRAMES"].write(_frames(directions).tobytes())
-        self.bind()
-        timer = PassTimer(self.gl)
-        with timer.measure("raw"):
-            self._draw_lists(null_fragment=True)
-        return timer.milliseconds()["raw"]
+    def _linked_lists(self, timer: PassTimer) -> tuple[int, int]:
+        """The raster pass into linked lists, run again with buffers that fit until every node has
+        a slot. Returns the re-runs and the node count."""
+        # Size the buffers from the last frame's count: a first guess far too large (a scene of
+        # thin walls has less depth complexity than its bounds suggest) is given back.
+        last = self.stats.get("raw_nodes")
+        if last is not None and self.capacity > 2 * CAPACITY_SLACK * last:
+            self._grow_linked(int(last * CAPACITY_SLACK) + 1)
+            self.bind()
+        reruns = 0
+        while True:
+            self.buffers["COUNTERS"].clear()
+            with timer.measure("lists"):
+                self._draw_lists(null_fragment=False)
+            nodes = int(np.frombuffer(self.buffers["COUNTERS"].read(4), dtype=np.uint32)[0])
+            if nodes <= self.capacity:
+                return reruns, nodes
+            self._check_budget(self.fixed_bytes + nodes * LINKED_NODE_BYTES, f"{nodes:,} nodes in linked lists")
+            self._grow_linked(max(nodes, int(nodes * CAPACITY_SLACK)))
+            self.bind()
+            reruns += 1
 
-    def _resolve(self) -> None:
+    def _splat_lists(self) -> int:
+        """The compute splatter: count, exact allocation, scatter. Returns the raw node count."""
         gl = self.gl
-        count = gl.program("resolve_lists", COUNT_LISTS=True)
-        gl.dispatch(count, self.list_count)
-        self._prefix_sum(self.buffers["OFFSETS"], self.list_count + 1, level=0)
-        self.buffers["OFFSETS"].bind_to_storage_buffer(BINDINGS["OFFSETS"])
-        sort = gl.program("resolve_lists", SORT_LISTS=True)
-        sort["redundant_tolerance"] = self.redundant_tolerance
-        gl.dispatch(sort, self.list_count)
+        count = gl.program("splat_lists", **self.count_variant)
+        self._uniforms(count, nearest_only=self.merge)
+        gl.dispatch(count, self.K * self.N)
+        raw = self._scan_into("RAW_OFFSETS", "LIST_COUNTS")
+        self._grow(("RAW_NODES",), RAW_NODE_BYTES, raw + RAW_SLACK_NODES, "raw splat nodes")
+        # Every list's end (its next list's offset) as the scatter's cursor, counting down.
+        self.gl.copy_buffer(self.buffers["LIST_COUNTS"], self.buffers["RAW_OFFSETS"], 4 * self.list_count, read_offset=4)
+        self.bind()
+        scatter = gl.program("splat_lists", SCATTER_SPLATS=True)
+        self._uniforms(scatter, nearest_only=self.merge)
+        gl.dispatch(scatter, self.K * self.N)
+        return raw
+
+    def _scan_into(self, offsets: str, counts: str | None = None) -> int:
+        """Offsets (exclusive prefix sum, L + 1 entries) of the per-list counts in buffer
+        ``counts`` (copied) or already in ``offsets``; returns the total (one round-trip)."""
+        target = self.buffers[offsets]
+        if counts is not None:
+            self.gl.copy_buffer(target, self.buffers[counts], 4 * (self.list_count + 1))
+        self._prefix_sum(target, self.list_count + 1, level=0)
+        self.bind()
+        return int(np.frombuffer(target.read(4, offset=4 * self.list_count), dtype=np.uint32)[0])
+
+    def _resolve(self, raw: int) -> int:
+        """The build's lists to the sorted CSR (shaders/resolve_lists.glsl); returns its node count."""
+        gl = self.gl
+        if self.linked:  # list lengths, into the offsets the lists sort (perfect) or merge (raster splats) into
+            self.buffers["OFFSETS" if self.method == "perfect" else "RAW_OFFSETS"].bind_to_storage_buffer(BINDINGS["SCAN_DATA"])
+            gl.dispatch(gl.program("resolve_lists", COUNT_LISTS=True), self.list_count)
+        if self.method == "perfect":
+            nodes = self._scan_into("OFFSETS")
+            self._grow(("SORTED_DEPTH", "SORTED_REF"), NODE_BYTES, nodes, "nodes")
+            self.bind()
+            gl.dispatch(gl.program("resolve_lists", SORT_LISTS=True), self.list_count)
+            return nodes
+        if self.linked:
+            self._scan_into("RAW_OFFSETS")
+            self._grow(("RAW_NODES",), RAW_NODE_BYTES, raw + RAW_SLACK_NODES, "raw splat nodes")
+            self.bind()
+        merge = gl.program("resolve_lists", MERGE_LISTS=True, **({"FROM_LINKED_LISTS": True} if self.linked else {}))
+        merge["merge_tolerance"] = self.merge_tolerance
+        gl.dispatch(merge, self.list_count)
+        nodes = self._scan_into("OFFSETS", "LIST_COUNTS")
+        self._grow(("SORTED_DEPTH", "SORTED_REF"), NODE_BYTES, nodes, "nodes")
+        self.bind()
+        gl.dispatch(gl.program("resolve_lists", COMPACT_LISTS=True), self.list_count)
+        return nodes
 
     def _prefix_sum(self, values, count: int, level: int) -> None:
         """Exclusive prefix sum of ``count`` uints of ``values`` in place (shaders/prefix_sum.glsl)."""
@@ -326,45 +450,76 @@ class BundleTracer:
             add["count"] = count
             gl.dispatch(add, count)
 
+    def raw_raster(self, directions: DirectionSet) -> float:
+        """The raw-raster baseline: this build's raster geometry (triangles, or the last build's
+        splats) drawn with an empty fragment shader. Returns its GPU time in ms
+        (benchmarks/bundles.py)."""
+        self.buffers["FRAMES"].write(_frames(directions).tobytes())
+        self._ensure("HEADS", 4 * self.list_count)
+        self.bind()
+        timer = PassTimer(self.gl)
+        with timer.measure("raw"):
+            self._draw_lists(null_fragment=True)
+        return timer.milliseconds()["raw"]
+
     # -- readback ------------------------------------------------------------------------
 
-    def read(self) -> BundleSet:
-        """The last build as a `BundleSet` (host memory)."""
+    def node_refs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The last build's CSR as the GPU holds it: offsets (L + 1,) int64, depth (M,) float32 and
+        reference (M,) uint32 (a triangle, or a splat point)."""
         if self.directions is None:
-            raise RuntimeError("read() before build()")
-        nodes = self.stats["nodes"]
-        b = self.buffers
+            raise RuntimeError("node_refs() before build()")
+        nodes, b = self.stats["nodes"], self.buffers
         offsets = np.frombuffer(b["OFFSETS"].read(4 * (self.list_count + 1)), dtype=np.uint32).astype(np.int64)
-        order = np.frombuffer(b["SORTED_NODE"].read(4 * nodes), dtype=np.uint32)
+        depth = np.frombuffer(b["SORTED_DEPTH"].read(4 * nodes), dtype=np.float32).copy()
+        ref = np.frombuffer(b["SORTED_REF"].read(4 * nodes), dtype=np.uint32).copy()
+        return offsets, depth, ref
 
-        def column(name, words):
-            raw = np.frombuffer(b[name].read(4 * words * nodes), dtype=np.uint32).reshape(nodes, words)
-            return raw[order].reshape(-1) if words == 1 else raw[order]
+    def read_points(self) -> np.ndarray:
+        """The last build's splat points (K N,) as `SPLAT_POINT` records."""
+        return np.frombuffer(self.buffers["POINTS"].read(SPLAT_POINT.itemsize * self.K * self.N), dtype=SPLAT_POINT).copy()
 
-        prim = column("NODE_PRIM", 1)
+    def read(self) -> BundleSet:
+        """The last build as a `BundleSet` (host memory): the nodes with the attributes an eye path
+        sees at them (shaders/expand_nodes.glsl)."""
+        offsets, depth, _ = self.node_refs()
+        nodes = len(depth)
+        attributes = self.gl.buffer(reserve=16 * max(nodes, 1))
+        try:
+            attributes.bind_to_storage_buffer(BINDINGS["NODE_ATTRIBUTES"])
+            self.bind()
+            expand = self.gl.program("expand_nodes", TEXTURES=self.textures, **self.defines)
+            self._uniforms(expand)
+            self.gl.dispatch(expand, self.list_count)
+            words = np.frombuffer(attributes.read(16 * nodes), dtype=np.uint32).reshape(nodes, 4)
+        finally:
+            attributes.release()
+        prim = words[:, 3]
         triangle = (prim & ~np.uint32(SPLAT_BIT)).astype(np.int64)
         arrays, materials = self.gpu_scene.arrays, self.gpu_scene.scene.materials
         material = arrays.tri_material[triangle].astype(np.int32)
         emission = np.array([m.emission for m in materials], dtype=np.float32).reshape(-1, 3)[material]
-        albedo = np.ascontiguousarray(column("NODE_ALBEDO", 2)).view(np.float16)[:, :3].astype(np.float32)
+        albedo = np.ascontiguousarray(words[:, 1:3]).view(np.float16)[:, :3].astype(np.float32)
         ds = self.directions
         params = {**bundle_params(self.gpu_scene.scene, self.method, ds, self.R), "node_budget": self.node_budget, "gl": self.gl.info}
         if self.method == "imperfect":
-            params.update(points=self.N, splat_scale=self.splat_scale, splat_radius=self.splat_radius)
+            params.update(points=self.N, splat_scale=self.splat_scale, splat_radius=self.splat_radius, sampler=self.sampler,
+                          splatter=self.splatter, merged=self.merge)
         return BundleSet(
             method=self.method, directions=ds, centre=self.gpu_scene.centre.copy(), radius=self.gpu_scene.radius,
-            resolution=self.R, offsets=offsets, depth=column("NODE_DEPTH", 1).view(np.float32),
-            normal=decode_normals(column("NODE_NORMAL", 1)), albedo=albedo, emission=emission,
-            prim_id=np.where(prim & SPLAT_BIT, SPLAT_PRIM_ID, triangle).astype(np.int32), material=material,
-            params=params, stats=dict(self.stats))
+            resolution=self.R, offsets=offsets, depth=depth, normal=decode_normals(words[:, 0]), albedo=albedo,
+            emission=emission, prim_id=np.where(prim & SPLAT_BIT, SPLAT_PRIM_ID, triangle).astype(np.int32),
+            material=material, params=params, stats=dict(self.stats))
 
     def release(self) -> None:
         """Free every GL object this tracer made (not the scene upload: its maker owns that)."""
-        for obj in [*self.buffers.values(), *self._scan_sums, *self.vertex_arrays.values(), self.framebuffer]:
+        objects = [*self.buffers.values(), *self._scan_sums, *self.vertex_arrays.values()]
+        for obj in objects + ([self.framebuffer] if self.framebuffer is not None else []):
             obj.release()
         self.buffers.clear()
         self._scan_sums.clear()
         self.vertex_arrays.clear()
+        self.framebuffer = None
 
     def __enter__(self) -> "BundleTracer":
         return self

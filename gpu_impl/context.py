@@ -21,7 +21,7 @@ from pathlib import Path
 import moderngl
 
 from evalkit.core.errors import InputError
-from gpu_impl.layout import BINDINGS, SHADER_CONSTANTS, glsl_literal
+from gpu_impl.layout import BINDINGS, METHODS, SAMPLERS, SHADER_CONSTANTS, glsl_literal
 
 GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
 SHADER_DIR = Path(__file__).parent / "shaders"
@@ -29,17 +29,23 @@ STAGES = {"VERTEX_SHADER": "vertex_shader", "FRAGMENT_SHADER": "fragment_shader"
 
 # Every program in shaders/ with each set of defines the code compiles it with (tests compile them all).
 SHADER_VARIANTS = {
-    "perfect_bundles": [{"TEXTURES": t, **n} for t in (0, 1) for n in ({}, {"NULL_FRAGMENT": True})],
-    "imperfect_bundles": [{"TEXTURES": t, **n} for t in (0, 1) for n in ({}, {"NULL_FRAGMENT": True})],
-    "splat_points": [{}],
-    "resolve_lists": [{"COUNT_LISTS": True}, {"SORT_LISTS": True}],
+    "perfect_bundles": [{}, {"NULL_FRAGMENT": True}],
+    "imperfect_bundles": [{}, {"NULL_FRAGMENT": True}],
+    "splat_points": [{"SAMPLER": sampler} for sampler in SAMPLERS.values()],
+    "splat_lists": [{"COUNT_SPLATS": True}, {"COUNT_SPLATS": True, "COUNT_COVERED": True}, {"SCATTER_SPLATS": True}],
+    "resolve_lists": [{"COUNT_LISTS": True}, {"SORT_LISTS": True}, {"MERGE_LISTS": True},
+                      {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True}, {"COMPACT_LISTS": True}],
     "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],
+    "expand_nodes": [{"BUNDLE_METHOD": method, "TEXTURES": method} for method in METHODS.values()],
     "gbuffer": [{}],
     "shadow_maps": [{}],
-    "node_radiance": [{"SHADOW_LIGHTS": 1, "NODE_SIDES": sides} for sides in (1, 2)],
+    "irradiance": [{"SHADOW_LIGHTS": 1, "NODE_SIDES": sides, "TEXTURES": sides - 1, "BUNDLE_METHOD": method}
+                   for sides in (1, 2) for method in METHODS.values()],
     "primary": [{"SHADOW_LIGHTS": lights, "ENVIRONMENT": env, "TEXTURES": t} for lights, env, t in ((0, 0, 0), (1, 1, 1), (0, 2, 1))],
-    "eye_paths": [{"SHADOW_LIGHTS": lights, "ENVIRONMENT": env, "NODE_SIDES": sides}
-                  for lights, env, sides in ((0, 0, 1), (1, 1, 2), (1, 2, 1))],
+    "eye_paths": [{"SHADOW_LIGHTS": lights, "LAZY_LIGHTING": lazy, "ENVIRONMENT": env, "NODE_SIDES": sides, "TEXTURES": t,
+                   "BUNDLE_METHOD": method}
+                  for lights, lazy, env, sides, t, method in ((0, 0, 0, 1, 0, 0), (1, 0, 1, 2, 1, 1), (1, 1, 2, 1, 1, 0),
+                                                              (1, 1, 2, 2, 1, 1))],
     "resolve_images": [{}],
     "record_strides": [{"RECORD_GROUP": group} for group in (0, 1, 2)],
 }
@@ -149,6 +155,10 @@ class GLContext:
     def empty_framebuffer(self, size: tuple[int, int]):
         """A framebuffer without attachments: the raster passes write only to storage buffers."""
         return self.ctx.empty_framebuffer(size)
+
+    def copy_buffer(self, dst, src, size: int, read_offset: int = 0, write_offset: int = 0) -> None:
+        """Copy ``size`` bytes of ``src`` (from ``read_offset``) into ``dst`` (at ``write_offset``), on the GPU."""
+        self.ctx.copy_buffer(dst, src, size, read_offset=read_offset, write_offset=write_offset)
 
     def vertex_array(self, program, content: list, **kw):
         return self.ctx.vertex_array(program, content, **kw)

@@ -14,11 +14,20 @@ import numpy as np
 
 # Storage-buffer binding points.
 BINDINGS = {
-    "MATERIALS": 0, "TEXELS": 1, "TRIANGLES": 2, "POSITIONS": 3, "NORMALS": 4, "UVS": 5, "INDICES": 6,
-    "AREA_CDF": 7, "FRAMES": 8, "COUNTERS": 9, "HEADS": 10, "NEXT": 11, "NODE_DEPTH": 12, "NODE_PRIM": 13,
-    "NODE_NORMAL": 14, "NODE_ALBEDO": 15, "OFFSETS": 16, "SORTED_NODE": 17, "SORTED_DEPTH": 18, "POINTS": 19,
-    "SCAN_DATA": 20, "SCAN_SUMS": 21, "NODE_RADIANCE": 22, "PATHS": 23, "PATH_SUMS": 24, "IMAGES": 25, "LIGHTS": 26,
-    "SHADOW_VIEWS": 27, "ENVMAP": 28, "ALIVE_PATHS": 29,
+    # the scene (scene_buffers.py)
+    "MATERIALS": 0, "TEXELS": 1, "TRIANGLES": 2, "VERTICES": 3, "INDICES": 4, "AREA_CDF": 5, "CDF_GUIDE": 30,
+    # bundles: frames, splat points, build counters (bundles.py)
+    "FRAMES": 6, "POINTS": 7, "COUNTERS": 8,
+    # linked lists, appended to by the raster passes
+    "HEADS": 9, "NEXT": 10, "LIST_DEPTH": 11, "LIST_REF": 12,
+    # raw (unmerged) lists in exact-size CSR, and per-list counts
+    "RAW_OFFSETS": 13, "RAW_NODES": 14, "LIST_COUNTS": 15,
+    # the sorted CSR the eye paths read
+    "OFFSETS": 17, "SORTED_DEPTH": 18, "SORTED_REF": 19,
+    # prefix sums, and node attributes for the host (read-back only)
+    "SCAN_DATA": 20, "SCAN_SUMS": 21, "NODE_ATTRIBUTES": 22,
+    # the renderer (renderer.py, lights.py)
+    "IRRADIANCE": 23, "PATHS": 24, "PATH_SUMS": 25, "IMAGES": 26, "LIGHTS": 27, "SHADOW_VIEWS": 28, "ALIVE_PATHS": 29,
 }
 
 # Bits and enumerations. np.uint32 values are written as GLSL uint literals (1u), Python ints as
@@ -30,22 +39,33 @@ TRIANGLE_SMOOTH = np.uint32(0x80000000)  # Triangle.material_flags: interpolate 
 TRIANGLE_MATERIAL = np.uint32(0x7FFFFFFF)  # Triangle.material_flags: the material index
 LIGHT_KINDS = {"point": 0.0, "spot": 1.0, "directional": 2.0}  # Light.position.w
 ENVIRONMENT_KINDS = {None: 0, "constant": 1, "envmap": 2}  # the ENVIRONMENT define
-# The build counters (bundle.glsl): nodes appended (including any past the capacity), redundant
-# nodes, the longest list.
-COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2}
+# How a node's reference is read (bundle.glsl): a triangle (perfect bundles) or a splat point.
+METHODS = {"perfect": 0, "imperfect": 1}
+# How imperfect bundles' points are drawn (splat_points.glsl).
+SAMPLERS = {"random": 0, "stratified": 1}
+# The build counters (bundle_build.glsl): nodes appended to linked lists (including any past the
+# capacity), redundant nodes merged away, the longest list, count/scatter mismatches (always 0),
+# and the lines splats cover (the nodes there would be without merging).
+COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4}
+# A raw splat node's reference carries in its top bit which way its surface faces along the line.
+FACING_BIT = np.uint32(0x80000000)
 
 SHADER_CONSTANTS = {
     "SPLAT_BIT": SPLAT_BIT, "MATERIAL_TEXTURED": MATERIAL_TEXTURED, "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,
-    "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH, "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL,
+    "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH, "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL, "FACING_BIT": FACING_BIT,
     **{f"LIGHT_{kind.upper()}": value for kind, value in LIGHT_KINDS.items()},
     **{f"ENVIRONMENT_{'NONE' if kind is None else ('MAP' if kind == 'envmap' else kind.upper())}": value
        for kind, value in ENVIRONMENT_KINDS.items()},
+    **{f"METHOD_{name.upper()}": value for name, value in METHODS.items()},
+    **{f"SAMPLER_{name.upper()}": value for name, value in SAMPLERS.items()},
     **{f"COUNTER_{name}": value for name, value in COUNTERS.items()},
 }
 
 # Records, as the shaders declare them (std430).
 MATERIAL = np.dtype([("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "<u4", 4)])  # scene.glsl: Material
 TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.glsl: Triangle
+VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
+SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4")])  # bundle.glsl: SplatPoint (unorm16 b1, b2)
 BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])  # bundle.glsl: BundleFrame
 LIGHT = np.dtype([("position", "<f4", 4), ("direction", "<f4", 4), ("intensity", "<f4", 4), ("shape", "<f4", 4)])  # lights.glsl: Light
 SHADOW_VIEW = np.dtype([("to_clip", "<f4", (4, 4)), ("tile", "<f4", 4), ("origin", "<f4", 4), ("axis", "<f4", 4)])  # lights.glsl
@@ -54,7 +74,8 @@ PATH = np.dtype([("position", "<f4", 3), ("normal", "<u4"), ("throughput", "<f4"
 PATH_SUMS = np.dtype([("direct", "<f4", 4), ("indirect", "<f4", 4)])  # paths.glsl: PathSums
 
 # Record name -> (dtype, the binding of its array): what tests/test_gl_context.py checks.
-RECORDS = {"Material": (MATERIAL, "MATERIALS"), "Triangle": (TRIANGLE, "TRIANGLES"), "BundleFrame": (BUNDLE_FRAME, "FRAMES"),
+RECORDS = {"Material": (MATERIAL, "MATERIALS"), "Triangle": (TRIANGLE, "TRIANGLES"), "Vertex": (VERTEX, "VERTICES"),
+           "BundleFrame": (BUNDLE_FRAME, "FRAMES"), "SplatPoint": (SPLAT_POINT, "POINTS"),
            "Light": (LIGHT, "LIGHTS"), "ShadowView": (SHADOW_VIEW, "SHADOW_VIEWS"),
            "Path": (PATH, "PATHS"), "PathSums": (PATH_SUMS, "PATH_SUMS")}
 

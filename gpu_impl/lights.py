@@ -100,8 +100,6 @@ class ShadowLights:
             self.framebuffer = gl.framebuffer([self.atlas], self.depth)
             self.program = gl.program("shadow_maps")
             self.vao = gpu_scene.vertex_array(self.program)
-        if self.environment is not None and self.environment.kind == "envmap":
-            self.buffers["ENVMAP"] = gl.buffer(np.ascontiguousarray(self.environment.envmap, dtype=np.float32).tobytes())
 
     # -- views ---------------------------------------------------------------------------
 
@@ -173,6 +171,7 @@ class ShadowLights:
             values["environment_radiance"] = tuple(env.intensity)  # the radiance, or the map's scale
             if env.kind == "envmap":
                 values["envmap_size"] = (env.envmap.shape[1], env.envmap.shape[0])
+                values["envmap_first"] = self.gpu_scene.envmap_first
                 to_local = np.linalg.inv(np.asarray(env.to_world, dtype=np.float64)[:3, :3])
                 values["environment_to_local"] = tuple(to_local.T.ravel())  # column-major
         set_uniforms(program, values)

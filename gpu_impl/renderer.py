@@ -29,13 +29,18 @@ import numpy as np
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene
-from gpu_impl.bundles import CAPACITY_SLACK, DEFAULT_NODE_BUDGET, DEFAULT_SPLAT_SCALE, BundleTracer
+from gpu_impl.bundles import (CAPACITY_SLACK, DEFAULT_NODE_BUDGET, DEFAULT_SAMPLER, DEFAULT_SPLAT_SCALE, SPLATTERS,
+                              BundleTracer, NodeBudgetExceeded, format_bytes)
 from gpu_impl.context import GLContext, PassTimer, set_uniforms
-from gpu_impl.layout import BINDINGS, PATH, PATH_SUMS
+from gpu_impl.layout import BINDINGS, METHODS, PATH, PATH_SUMS, SAMPLERS
 from gpu_impl.lights import ShadowLights
 from gpu_impl.scene_buffers import GpuScene
 
 IMAGES = ("direct", "indirect", "total")
+# Where the shadow-mapped light that bundle nodes reflect is computed: "precomputed" once per node
+# (perfect bundles) or per splat point (imperfect), "lazy" at each path's hits, "auto" whichever
+# costs fewer light evaluations in the frame (shaders/eye_paths.glsl, irradiance.glsl).
+LIGHTING = ("auto", "precomputed", "lazy")
 ATLAS_UNIT, GBUFFER_UNIT = 0, 1  # texture units
 
 # The poster's configuration (docs/ARCHITECTURE.md); --bounces picks 1 or 3.
@@ -51,7 +56,9 @@ class RenderSettings:
     ``spp`` is eye paths per G-buffer sample per frame, so a pixel averages
     ``supersampling^2 * spp * frames`` paths. ``width``/``height`` default to the scene camera's.
     ``self_hit_bias`` is in bundle pixels (see shaders/eye_paths.glsl, BOUNCE); the shadow biases
-    are in shadow-map texels (shaders/lights.glsl).
+    are in shadow-map texels (shaders/lights.glsl). ``sampler`` and ``splatter`` pick how imperfect
+    bundles are made (`gpu_impl.bundles.BundleTracer`), ``lighting`` where node light is computed
+    (`LIGHTING`).
     """
 
     method: str = "perfect"
@@ -60,6 +67,8 @@ class RenderSettings:
     resolution: int = 128
     points: int = 16384
     splat_scale: float = DEFAULT_SPLAT_SCALE
+    sampler: str = DEFAULT_SAMPLER
+    splatter: str = "compute"
     width: int | None = None
     height: int | None = None
     supersampling: int = 1
@@ -76,9 +85,14 @@ class RenderSettings:
     shadow_bias: float = 1.0
     shadow_slope_bias: float = 2.0
     node_budget: int = DEFAULT_NODE_BUDGET
+    lighting: str = "auto"
 
     def validate(self) -> None:
         """Raises ValueError naming the first setting out of range."""
+        for name, known in (("method", tuple(METHODS)), ("sampler", tuple(SAMPLERS)), ("splatter", SPLATTERS),
+                            ("lighting", LIGHTING)):
+            if getattr(self, name) not in known:
+                raise ValueError(f"{name} must be one of {', '.join(known)}, got {getattr(self, name)!r}")
         for name in ("directions", "resolution", "points", "supersampling", "spp", "frames", "shadow_map_size", "shadow_filter"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -135,18 +149,18 @@ class Renderer:
         first = scene.at(self.times[0])
         self.gpu_scene = GpuScene(gl, first, sphere=enclosing_sphere([scene.at(t) for t in self.times]) if self.moving else None)
         self.tracer = BundleTracer(gl, self.gpu_scene, settings.method, directions=settings.directions,
-                                   resolution=settings.resolution, points=settings.points,
-                                   splat_scale=settings.splat_scale, node_budget=settings.node_budget)
+                                   resolution=settings.resolution, points=settings.points, splat_scale=settings.splat_scale,
+                                   sampler=settings.sampler, splatter=settings.splatter, node_budget=settings.node_budget)
         # A static scene seen along the same directions every frame has the same bundles and the
-        # same direct light at their nodes: both are made once.
+        # same irradiance at their nodes or points: both are made once.
         self.reuse_bundles = not settings.rotate_directions and not self.moving
         self.lights = ShadowLights(gl, self.gpu_scene, settings.shadow_map_size, settings.shadow_bias,
                                    settings.shadow_slope_bias, settings.shadow_filter)
         features = self.gpu_scene.features
         # Shader variants from the scene's features: no shadow-map lookups without such lights, no
         # environment lookups without one, a node's back-side radiance only with two-sided materials.
-        self.defines = {**self.lights.defines(), "NODE_SIDES": 2 if features.twosided else 1}
-        textures = {"TEXTURES": int(features.textures)}
+        self.defines = {**self.lights.defines(), "NODE_SIDES": 2 if features.twosided else 1,
+                        "TEXTURES": int(features.textures), **self.tracer.defines}
         # The last bounce pass only collects emission and environment light; without either it adds nothing.
         self.steps = settings.bounces + (1 if features.emitters or features.environment else 0)
         self.gbuffer = gl.texture(self.gbuffer_size, 1, dtype="u4")
@@ -156,20 +170,21 @@ class Renderer:
         self.gbuffer_vao = self.gpu_scene.vertex_array(self.gbuffer_program)
         d = self.defines
         self.programs = {
-            "primary": gl.program("primary", SHADOW_LIGHTS=d["SHADOW_LIGHTS"], ENVIRONMENT=d["ENVIRONMENT"], **textures),
-            "eye_paths": gl.program("eye_paths", **d),
+            "primary": gl.program("primary", SHADOW_LIGHTS=d["SHADOW_LIGHTS"], ENVIRONMENT=d["ENVIRONMENT"], TEXTURES=d["TEXTURES"]),
+            "eye_paths": gl.program("eye_paths", **d, LAZY_LIGHTING=0),
             "resolve_images": gl.program("resolve_images"),
         }
         if d["SHADOW_LIGHTS"]:
-            self.programs["node_radiance"] = gl.program("node_radiance", SHADOW_LIGHTS=1, NODE_SIDES=d["NODE_SIDES"])
+            self.programs["eye_paths_lazy"] = gl.program("eye_paths", **d, LAZY_LIGHTING=1)
+            self.programs["irradiance"] = gl.program("irradiance", **{k: d[k] for k in ("SHADOW_LIGHTS", "NODE_SIDES", "TEXTURES", "BUNDLE_METHOD")})
         self.buffers = {
             "PATHS": gl.buffer(reserve=PATH.itemsize * self.paths),
             "PATH_SUMS": gl.buffer(reserve=PATH_SUMS.itemsize * self.paths),
             "IMAGES": gl.buffer(reserve=2 * 16 * self.width * self.height),  # vec4 direct, then indirect
-            "NODE_RADIANCE": gl.buffer(reserve=4),
+            "IRRADIANCE": gl.buffer(reserve=4),
             "ALIVE_PATHS": gl.buffer(reserve=4),
         }
-        self.radiance_capacity = 0
+        self.irradiance_of = None  # the build whose irradiance the buffer holds (bundles reused: reused too)
         self._posed_at = self.times[0]  # the pose on the GPU
         self.camera = scene.camera.frame(self.gpu_scene.centre, self.width, self.height)
         # Uniforms that stay the same for every frame, set once.
@@ -194,6 +209,7 @@ class Renderer:
         self.buffers["PATH_SUMS"].clear()
         frames, bundle_stats = [], []
         self.skipped_bounces = 0
+        self.lighting_used: list[str] = []
         for f in range(st.frames):
             timer = PassTimer(self.gl)
             if self.moving and (f > 0 or self._posed_at != self.times[0]):
@@ -206,7 +222,7 @@ class Renderer:
                 stats = self.tracer.build(DirectionSet.make(st.directions, seed=st.seed, frame=f if st.rotate_directions else 0,
                                                             jitter=True))
             bundle_stats.append(stats)
-            self._frame(f, timer, shadow_maps=f == 0 or self.moving, node_direct=not reused)
+            self._frame(f, timer, shadow_maps=f == 0 or self.moving, build=0 if reused else f)
             passes = {"bundles": _sum_ms(stats["gpu_ms"].values()), **{f"bundles.{k}": v for k, v in stats["gpu_ms"].items()},
                       **timer.milliseconds()}
             frames.append(passes)
@@ -217,7 +233,7 @@ class Renderer:
         wall = time.perf_counter() - start
         timings = {
             "method": timer.method,
-            "median_ms": {name: _median([fr.get(name) for fr in frames]) for name in frames[0]},
+            "median_ms": {name: _median([fr.get(name) for fr in frames]) for name in dict.fromkeys(k for fr in frames for k in fr)},
             "frames_ms": frames,
             "wall_s": wall,
         }
@@ -232,38 +248,78 @@ class Renderer:
             "max_list_length": max(s["max_list_length"] for s in bundle_stats),
             "paths_per_frame": self.paths, "bounce_passes": self.steps,
             "bounce_passes_skipped": self.skipped_bounces, "bundles_reused": st.frames - 1 if self.reuse_bundles else 0,
+            "lighting_frames": {mode: self.lighting_used.count(mode) for mode in ("precomputed", "lazy") if mode in self.lighting_used},
             "gpu_bytes": self.gpu_bytes,
         }
         return RenderResult(images, timings, stats, self.params(), list(self.scene.warnings))
 
-    def _frame(self, frame: int, timer: PassTimer, shadow_maps: bool, node_direct: bool = True) -> None:
+    def _frame(self, frame: int, timer: PassTimer, shadow_maps: bool, build: int) -> None:
+        """One frame's passes on the bundles of frame ``build`` (this one, or 0 when reused)."""
         st = self.settings
         gl = self.gl
-        self._grow_radiance(self.tracer.stats["nodes"])
         if shadow_maps:
             with timer.measure("shadow_maps"):
                 self.lights.render_shadow_maps()
         self._bind()
-        if self.defines["SHADOW_LIGHTS"] and node_direct:
-            with timer.measure("node_direct"):
-                gl.dispatch(self.programs["node_radiance"], self.tracer.list_count)
         with timer.measure("gbuffer"):
             self._gbuffer(frame)
+        alive = self._alive_paths()
+        program = self.programs["eye_paths"]
+        if self.defines["SHADOW_LIGHTS"]:
+            lazy = self._lighting(alive, build)
+            self.lighting_used.append("lazy" if lazy else "precomputed")
+            program = self.programs["eye_paths_lazy" if lazy else "eye_paths"]
+            if not lazy and self.irradiance_of != build:
+                with timer.measure("irradiance"):
+                    self.buffers["IRRADIANCE"].bind_to_storage_buffer(BINDINGS["IRRADIANCE"])
+                    # One invocation per splat point, or per list (its nodes in turn).
+                    imperfect = st.method == "imperfect"
+                    gl.dispatch(self.programs["irradiance"], self._irradiance_items() if imperfect else self.tracer.list_count)
+                self.irradiance_of = build
         for j in range(1, self.steps + 1):
             # Once every path has ended (throughput zero, or nothing hit), the passes left add nothing.
-            if st.stop_early and self._alive_paths() == 0:
+            if st.stop_early and (alive if j == 1 else self._alive_paths()) == 0:
                 self.skipped_bounces += self.steps - j + 1
                 break
             self.buffers["ALIVE_PATHS"].write(b"\0\0\0\0")
             with timer.measure(f"bounce_{j}"):
-                program = self.programs["eye_paths"]
                 program["bounce"] = j
                 program["frame"] = frame & 0xFFFFFFFF
                 gl.dispatch(program, self.paths)
         with timer.measure("resolve"):
-            program = self.programs["resolve_images"]
-            program["sample_weight"] = 1.0 / (st.supersampling**2 * st.spp * (frame + 1))
-            gl.dispatch(program, self.width * self.height)
+            resolve = self.programs["resolve_images"]
+            resolve["sample_weight"] = 1.0 / (st.supersampling**2 * st.spp * (frame + 1))
+            gl.dispatch(resolve, self.width * self.height)
+
+    def _irradiance_items(self) -> int:
+        """What irradiance.glsl lights: every node (perfect bundles) or every splat point."""
+        return self.tracer.K * self.tracer.N if self.settings.method == "imperfect" else self.tracer.stats["nodes"]
+
+    def _lighting(self, alive: int, build: int) -> bool:
+        """True to light each path's hits where they land, False to precompute the irradiance of
+        every node or splat point: whichever costs fewer light evaluations this frame (the alive
+        paths at most once per bounce, against the items; nothing when the bundles' irradiance is
+        already there), unless ``lighting`` says. Precomputed irradiance counts against the node
+        budget; in "auto" a frame it does not fit in is lit lazily."""
+        mode = self.settings.lighting
+        if mode == "lazy":
+            return True
+        items = self._irradiance_items()
+        needed = 12 * self.defines["NODE_SIDES"] * items
+        if self.tracer.memory_bytes + needed > self.settings.node_budget:
+            if mode == "precomputed":
+                raise NodeBudgetExceeded(self.scene.name, f"precomputed irradiance for {items:,} nodes or points needs "
+                                         f"{format_bytes(needed)} beside the bundles' {format_bytes(self.tracer.memory_bytes)}, "
+                                         f"over the node budget of {format_bytes(self.settings.node_budget)}; raise "
+                                         f"--node-budget or use --lighting lazy")
+            return True
+        if mode == "auto" and self.irradiance_of != build and alive * self.settings.bounces < items:
+            return True
+        if self.buffers["IRRADIANCE"].size < needed:
+            self.buffers["IRRADIANCE"].release()
+            self.buffers["IRRADIANCE"] = self.gl.buffer(reserve=int(needed * CAPACITY_SLACK))
+            self.irradiance_of = None
+        return False
 
     def _gbuffer(self, frame: int) -> None:
         """Rasterize the camera view (this frame's sub-pixel jitter), then the PRIMARY pass."""
@@ -287,14 +343,6 @@ class Renderer:
             buffer.bind_to_storage_buffer(BINDINGS[name])
         self.lights.bind(ATLAS_UNIT)
         self.gbuffer.use(GBUFFER_UNIT)
-
-    def _grow_radiance(self, nodes: int) -> None:
-        if not self.defines["SHADOW_LIGHTS"] or nodes <= self.radiance_capacity:
-            return
-        nodes = int(nodes * CAPACITY_SLACK)  # room for the next frame's slightly different count
-        self.buffers["NODE_RADIANCE"].release()
-        self.buffers["NODE_RADIANCE"] = self.gl.buffer(reserve=12 * self.defines["NODE_SIDES"] * nodes)
-        self.radiance_capacity = nodes
 
     def _read_images(self) -> dict[str, np.ndarray]:
         raw = np.frombuffer(self.buffers["IMAGES"].read(), dtype=np.float32).reshape(2, self.height, self.width, 4)
@@ -320,7 +368,7 @@ class Renderer:
             "gl": self.gl.info,
         }
         if st.method != "imperfect":
-            for key in ("points", "splat_scale", "splat_radius"):
+            for key in ("points", "splat_scale", "splat_radius", "sampler", "splatter"):
                 p.pop(key)
         return p
 

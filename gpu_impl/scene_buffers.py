@@ -7,7 +7,7 @@ import numpy as np
 from evalkit.core.bundleset import FRAME_PADDING
 from evalkit.core.scene import Scene
 from gpu_impl.context import GLContext
-from gpu_impl.layout import BINDINGS, MATERIAL, MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE, TRIANGLE_SMOOTH
+from gpu_impl.layout import BINDINGS, MATERIAL, MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE, TRIANGLE_SMOOTH, VERTEX
 
 
 class GpuScene:
@@ -31,42 +31,67 @@ class GpuScene:
         self.triangle_count = len(a.faces)
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
-        texels, first = [], 0
+        textures = []  # every texture of the scene in one texel buffer: materials', then the environment map's
         for i, m in enumerate(scene.materials):
             materials["albedo"][i, :3] = m.albedo
             materials["emission"][i, :3] = m.emission
             flags = MATERIAL_TWOSIDED if m.twosided else 0
             if m.texture is not None:
                 h, w = m.texture.shape[:2]
-                materials["texture"][i, :3] = (first, w, h)
+                materials["texture"][i, :3] = (sum(t.shape[0] * t.shape[1] for t in textures), w, h)
                 flags |= MATERIAL_TEXTURED
-                texels.append(np.ascontiguousarray(m.texture, dtype=np.float32).reshape(-1))
-                first += h * w
+                textures.append(m.texture)
             materials["texture"][i, 3] = flags
-        texels = np.concatenate(texels) if texels else np.zeros(3, dtype=np.float32)
+        # The environment map's first texel, or None (environment.glsl reads it from the same buffer).
+        envmap = next((light.envmap for light in scene.lights if light.kind == "envmap"), None)
+        self.envmap_first = sum(t.shape[0] * t.shape[1] for t in textures) if envmap is not None else None
+        if envmap is not None:
+            textures.append(envmap)
+        texels = np.concatenate([np.asarray(t, dtype=np.float32).reshape(-1) for t in textures]) if textures else np.zeros(3, np.float32)
 
-        # Inclusive area CDF for area-weighted point sampling, summed in float64. Its last entry is
-        # exactly 1 so every u in [0, 1) finds a triangle. A triangle under float32's resolution
-        # of the CDF (about 6e-8 of the total area) is sampled in proportion to rounding, not area.
-        cdf = np.cumsum(a.tri_area) / a.tri_area.sum()
-        cdf[-1] = 1.0
+        # The inclusive area CDF for area-weighted point sampling (shaders/splat_points.glsl), over
+        # the triangles in the order of a space-filling curve through their centroids, so that
+        # stratifying the CDF stratifies the surface however the mesh orders its triangles. Summed
+        # in float64; its last entry is exactly 1 so every u in [0, 1) finds a triangle. A triangle
+        # under float32's resolution of the CDF (about 6e-8 of the total area) is sampled in
+        # proportion to rounding, not area.
+        order = morton_order(a.positions[a.faces].mean(axis=1))
+        cdf = np.zeros(len(order), dtype=[("cdf", "<f4"), ("triangle", "<u4")])
+        cdf["cdf"] = np.cumsum(a.tri_area[order]) / a.tri_area.sum()
+        cdf["cdf"][-1] = 1.0
+        cdf["triangle"] = order
+        # A guide to the CDF: for u in [b / G, (b + 1) / G), the answer lies between entries
+        # guide[b] and guide[b + 1], so a search takes a step or two instead of log2(T).
+        buckets = 1 << min(20, max(1, int(np.ceil(np.log2(len(order))))))
+        guide = np.searchsorted(cdf["cdf"], np.arange(buckets + 1) / buckets, side="right").clip(0, len(order) - 1)
 
+        # The raster passes draw each triangle with a provoking vertex (its last) of its own, which
+        # hands them the triangle's index as a flat attribute (shaders/perfect_bundles.glsl): on a
+        # CPU rasterizer that costs a fraction of gl_PrimitiveID.
+        self.raster_faces, self.raster_sources = provoking_vertices(a.faces, len(a.positions))
+        raster_triangle = np.zeros(len(self.raster_sources), dtype=np.uint32)
+        raster_triangle[self.raster_faces[:, 2]] = np.arange(len(a.faces), dtype=np.uint32)
         self.buffers = {
             **{name: gl.buffer(data) for name, data in self._geometry(a).items()},
-            "UVS": gl.buffer(a.uvs.astype(np.float32).tobytes()),
             "INDICES": gl.buffer(a.faces.astype(np.uint32).tobytes()),
+            "RASTER_INDICES": gl.buffer(self.raster_faces.astype(np.uint32).tobytes()),
+            "RASTER_TRIANGLE": gl.buffer(raster_triangle.tobytes()),
             "MATERIALS": gl.buffer(materials.tobytes()),
-            "TEXELS": gl.buffer(texels.astype(np.float32).tobytes()),
-            "AREA_CDF": gl.buffer(cdf.astype(np.float32).tobytes()),
+            "TEXELS": gl.buffer(texels.tobytes()),
+            "AREA_CDF": gl.buffer(cdf.tobytes()),
+            "CDF_GUIDE": gl.buffer(guide.astype(np.uint32).tobytes()),
         }
 
     def _geometry(self, a) -> dict[str, bytes]:
-        """The buffers that move with the geometry: positions, vertex normals, triangle records."""
+        """The buffers that move with the geometry: positions (the raster passes' vertices),
+        vertex records (position, normal, uv: what shaders read) and triangle records."""
+        positions = (a.positions - self.centre).astype(np.float32)
+        vertices = np.zeros(len(positions), dtype=VERTEX)
+        vertices["position"], vertices["normal"], vertices["uv"] = positions, a.normals, a.uvs
         triangles = np.zeros(len(a.faces), dtype=TRIANGLE)
         triangles["normal"] = a.tri_normal
         triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(a.tri_smooth, TRIANGLE_SMOOTH, 0).astype(np.uint32)
-        return {"POSITIONS": (a.positions - self.centre).astype(np.float32).tobytes(),
-                "NORMALS": a.normals.astype(np.float32).tobytes(), "TRIANGLES": triangles.tobytes()}
+        return {"POSITIONS": positions[self.raster_sources].tobytes(), "VERTICES": vertices.tobytes(), "TRIANGLES": triangles.tobytes()}
 
     def pose(self, scene: Scene) -> None:
         """Upload ``scene``, the same scene posed at another time (rigid motion: same triangles,
@@ -87,16 +112,19 @@ class GpuScene:
         return sum(b.size for b in self.buffers.values())
 
     def bind(self) -> None:
-        """Bind every scene buffer at its storage binding (context.BINDINGS)."""
+        """Bind every scene buffer shaders read at its storage binding (layout.BINDINGS); positions
+        reach the raster passes through their vertex arrays."""
         for name, buffer in self.buffers.items():
-            buffer.bind_to_storage_buffer(BINDINGS[name])
+            if name in BINDINGS:
+                buffer.bind_to_storage_buffer(BINDINGS[name])
 
     def vertex_array(self, program):
-        """A new vertex array of the indexed triangles for ``program`` (positions only: the raster
-        passes read the rest from storage); the caller owns and releases it."""
+        """A new vertex array of the indexed triangles for ``program``: positions, and on each
+        triangle's provoking vertex its index (``in_triangle``, for a flat varying); the raster
+        passes read the rest from storage. The caller owns and releases it."""
         b = self.buffers
-        content = [(b["POSITIONS"], "3f", "in_position")]
-        return self.gl.vertex_array(program, content, index_buffer=b["INDICES"], index_element_size=4, skip_errors=True)
+        content = [(b["POSITIONS"], "3f", "in_position"), (b["RASTER_TRIANGLE"], "1u", "in_triangle")]
+        return self.gl.vertex_array(program, content, index_buffer=b["RASTER_INDICES"], index_element_size=4, skip_errors=True)
 
     def release(self) -> None:
         for buffer in self.buffers.values():
@@ -108,3 +136,43 @@ class GpuScene:
 
     def __exit__(self, *exc) -> None:
         self.release()
+
+
+def morton_order(points: np.ndarray) -> np.ndarray:
+    """The order of ``points`` (M, 3) along a Morton (Z-order) curve through their bounding box, 21
+    bits per axis: nearby points come out near each other in the order."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    cells = ((points - lo) / np.maximum(hi - lo, 1e-300) * (2**21 - 1)).astype(np.uint64)
+    code = np.zeros(len(points), dtype=np.uint64)
+    for bit in range(21):
+        for axis in range(3):
+            code |= ((cells[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    return np.argsort(code, kind="stable").astype(np.uint32)
+
+
+def provoking_vertices(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles (T, 3) whose last (provoking) vertex belongs to no other triangle's last corner,
+    with their corners rotated (the winding kept), and for every vertex of that layout the scene
+    vertex it copies: each triangle takes one of its own vertices that is still free, and a
+    triangle whose three are taken gets a copy of its first."""
+    T = len(faces)
+    chosen = np.full(T, -1, dtype=np.int64)  # the corner that is provoking
+    taken = np.zeros(vertex_count, dtype=bool)
+    for corner in range(3):
+        open_ = np.nonzero(chosen < 0)[0]
+        vertex = faces[open_, corner]
+        free = ~taken[vertex]
+        _, first = np.unique(vertex[free], return_index=True)  # one triangle per free vertex
+        winners = open_[free][first]
+        chosen[winners] = corner
+        taken[faces[winners, corner]] = True
+    rows = np.arange(T)
+    copies = np.nonzero(chosen < 0)[0]
+    chosen[copies] = 0
+    # Rotate each triangle so its provoking corner comes last: (a, b, c) -> (b, c, a) or (c, a, b).
+    order = (np.arange(3)[None, :] + chosen[:, None] + 1) % 3
+    raster = faces[rows[:, None], order].astype(np.int64)
+    sources = np.concatenate([np.arange(vertex_count), faces[copies, 0]])
+    raster[copies, 2] = vertex_count + np.arange(len(copies))
+    return raster, sources
+

@@ -19,7 +19,8 @@ def test_every_shader_compiles(gl):
 
 
 # The records of gpu_impl/layout.py by RECORD_GROUP of shaders/record_strides.glsl, in its order.
-RECORD_GROUPS = {0: ["Material", "Triangle", "BundleFrame"], 1: ["Light", "ShadowView"], 2: ["Path", "PathSums"]}
+RECORD_GROUPS = {0: ["Material", "Triangle", "Vertex", "BundleFrame", "SplatPoint"], 1: ["Light", "ShadowView"],
+                 2: ["Path", "PathSums"]}
 
 
 def test_python_records_have_the_shaders_strides(gl):

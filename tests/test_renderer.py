@@ -210,3 +210,37 @@ def test_animated_scene_moves_rigidly_and_renders_each_pose(gl):
     assert not np.array_equal(at3.images["total"], render(gl, scene, time=0.0, **kw).images["total"])
     moving = render(gl, scene, time=0.0, time_step=1.5, **{**kw, "frames": 3})  # a new pose every frame
     assert np.isfinite(moving.images["total"]).all() and moving.images["total"].mean() > 0
+
+
+# -- where node light is computed -----------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["perfect", "imperfect"])
+def test_precomputed_and_lazy_lighting_render_the_same_image(gl, images, method):
+    # Precomputed: the irradiance of every node (perfect) or splat point (imperfect) once per frame;
+    # lazy: at each path's hits. Perfect nodes are lit where paths hit them either way; a splat
+    # point is lit at its centre, its hits up to a splat radius away, so shadow edges may move by
+    # that much. Both must agree within the noise of one seed against another.
+    scene = lit_stage(LAMP, SUN)
+    kw = dict(method=method, bounces=2, directions=16, resolution=64, points=8192, frames=4, spp=2, width=48, height=48)
+    precomputed = render(gl, scene, lighting="precomputed", **kw)
+    lazy = render(gl, scene, lighting="lazy", **kw)
+    other_seed = render(gl, scene, lighting="lazy", seed=1, **kw)
+    assert precomputed.stats["lighting_frames"] == {"precomputed": 4} and lazy.stats["lighting_frames"] == {"lazy": 4}
+    assert precomputed.timings["median_ms"]["irradiance"] > 0 and "irradiance" not in lazy.timings["median_ms"]
+    noise = relmse(other_seed.images["indirect"], lazy.images["indirect"])
+    difference = images.relmse_at_most("indirect", precomputed.images["indirect"], lazy.images["indirect"], 0.25 * noise)
+    if method == "perfect":
+        assert difference < 1e-6  # the same points, the same light, up to float32 rounding
+    assert np.array_equal(precomputed.images["direct"], lazy.images["direct"])  # the G-buffer's own light
+
+
+def test_auto_lighting_picks_the_cheaper_way_per_frame(gl):
+    # A small image has few paths: lighting their hits costs less than lighting every node.
+    scene = lit_stage(LAMP)
+    small = render(gl, scene, bounces=1, directions=16, resolution=64, frames=2, width=16, height=16)
+    assert small.stats["lighting_frames"] == {"lazy": 2}
+    # Fixed directions on a static scene: the irradiance made in frame 0 serves every frame.
+    reused = render(gl, scene, bounces=1, directions=4, resolution=16, frames=3, width=64, height=64, spp=4,
+                    rotate_directions=False)
+    assert reused.stats["lighting_frames"] == {"precomputed": 3}
+    assert [fr.get("irradiance") is not None for fr in reused.timings["frames_ms"]] == [True, False, False]

@@ -14,7 +14,8 @@ when that node is within the depth tolerance. Then:
 - the **depth error** of a matched test node is its distance to the nearest exact node.
 
 So test nodes = matched + redundant + spurious, and exact nodes = matched + holes. Node agreement
-is matched / exact nodes. The tolerance is relative to the frame radius, so the numbers do not
+is matched / exact nodes. The spurious rate is per test node; spurious nodes per exact crossing
+compares lists of different density (imperfect bundles with and without merging) on one scale. The tolerance is relative to the frame radius, so the numbers do not
 change with the scene's scale.
 
 The rates are also broken down by direction and by **slope**: |cos| between the bundle direction
@@ -140,6 +141,7 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
         "agreement": 1.0 - holes / max(n_exact, 1),
         "hole_rate": holes / max(n_exact, 1),
         "spurious_rate": spurious / max(n_test, 1),
+        "spurious_per_crossing": spurious / max(n_exact, 1),
         "redundant_rate": redundant / max(n_test, 1),
         "same_prim_rate": float(same_prim.mean()) if len(same_prim) else 1.0,
         "depth_error": {  # of matched test nodes, in units of the frame radius

@@ -107,9 +107,11 @@ def _render(scene: Scene, run: dict) -> tuple[dict, dict, dict]:
 def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
     exact = exact_bundles(scene, run, out)
     gl = gl_context()
+    st = render_settings(run)
     with GpuScene(gl, scene) as gpu_scene, BundleTracer(
-            gl, gpu_scene, run["method"], directions=int(run["directions"]), resolution=int(run["resolution"]),
-            points=int(run["points"]), splat_scale=float(run["splat_scale"])) as tracer:
+            gl, gpu_scene, st.method, directions=st.directions, resolution=st.resolution, points=st.points,
+            splat_scale=st.splat_scale, sampler=st.sampler, splatter=st.splatter, node_budget=st.node_budget,
+            count_covered=True) as tracer:
         directions = DirectionSet.make(int(run["directions"]), seed=int(run["seed"]))
         tracer.build(directions)  # warm-up: the first build compiles and sizes the buffers
         stats = tracer.build(directions)
@@ -120,8 +122,14 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
     vertices = eye_vertices(scene, embree, int(measure["eye_vertices"]), seed=int(run["seed"]))
     hit = next_hit_errors(bundles, embree, vertices, seed=int(run["seed"]))
     floor = next_hit_errors(exact, embree, vertices, seed=int(run["seed"]))
-    row = {k: r[k] for k in ("exact_nodes", "test_nodes", "agreement", "hole_rate", "spurious_rate", "redundant_rate",
-                             "same_prim_rate")}
+    row = {k: r[k] for k in ("exact_nodes", "test_nodes", "agreement", "hole_rate", "spurious_rate", "spurious_per_crossing",
+                             "redundant_rate", "same_prim_rate")}
+    # Per exact crossing: the lines splats cover (the nodes without merging: what the splat size
+    # costs), and the nodes written before and kept after merging.
+    row["raw_nodes"] = stats["raw_nodes"]
+    row["nodes_per_crossing"] = stats["covered_nodes"] / max(r["exact_nodes"], 1)
+    row["written_nodes_per_crossing"] = stats["raw_nodes"] / max(r["exact_nodes"], 1)
+    row["kept_nodes_per_crossing"] = r["test_nodes"] / max(r["exact_nodes"], 1)
     row["depth_error_rms"] = r["depth_error"]["rms"]
     row["worst_direction_hole_rate"] = max(r["per_direction"]["hole_rate"])
     for i, rate in enumerate(r["per_slope"]["hole_rate"]):

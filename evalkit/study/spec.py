@@ -156,8 +156,8 @@ def validate_run(run: dict, where: str) -> None:
             ok = isinstance(value, int) or kind == "float"
         if not ok:
             raise InputError(where, f"{f.name} = {value!r} must be {'true or false' if kind == 'bool' else 'a whole number'}")
-    try:
-        render_settings(run).validate()
+    try:  # a Mitsuba run checks the settings it shares with the renderer
+        render_settings({**run, "method": "perfect"} if run["method"] == "mitsuba" else run).validate()
     except ValueError as e:
         raise InputError(where, str(e)) from None
 

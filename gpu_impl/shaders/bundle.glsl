@@ -1,12 +1,18 @@
 // Ray bundles: the orthographic frames of the K directions, the atlas that draws them all in one
-// call, and the per-pixel linked lists that the raster passes append nodes to.
+// call, the splat points of imperfect bundles, and the sorted lists the eye paths read.
 //
-// A node is stored as structure-of-arrays (one buffer per field): the eye-path lookup's binary
-// search then reads only depths, and no single buffer grows past a driver's storage block limit
-// as quickly. List building costs 24 bytes per node, the sorted CSR index 8 more.
+// A node is 8 bytes: its depth along the bundle direction d and a reference, the triangle
+// (perfect bundles) or the splat point (imperfect ones); BUNDLE_METHOD says which. What an eye
+// path needs at a node (position, normals, albedo, emission) is computed where a path reaches it
+// (bundle_hits.glsl), so nothing else is stored per node. List l holds nodes offsets[l] ..
+// offsets[l + 1] of sorted_depth / sorted_ref, sorted by depth (then reference).
 //
-// The eye-path passes define BUNDLE_LOOKUP: they read the sorted lists and the node fields, and
-// leave out the list-building buffers (a compute shader may use at most 16 storage blocks).
+// Passes that read the sorted lists define BUNDLE_LOOKUP (a compute shader may use at most 16
+// storage blocks, so each include declares only what its passes use).
+
+#if !defined BUNDLE_METHOD
+#error "bundle.glsl needs BUNDLE_METHOD (METHOD_PERFECT or METHOD_IMPERFECT): how node references are read"
+#endif
 
 struct BundleFrame {
     vec4 u;  // xyz: axis u, w: grid jitter along u in pixels
@@ -15,32 +21,39 @@ struct BundleFrame {
 };
 
 layout(std430, binding = BINDING_FRAMES) readonly buffer Frames { BundleFrame frames[]; };
-layout(std430, binding = BINDING_NODE_PRIM) buffer NodePrim { uint node_prim[]; };
-layout(std430, binding = BINDING_NODE_NORMAL) buffer NodeNormal { uint node_normal[]; };
-layout(std430, binding = BINDING_NODE_ALBEDO) buffer NodeAlbedo { uvec2 node_albedo[]; };
-#if defined BUNDLE_LOOKUP
-// The sorted CSR (resolve_lists.glsl): list l holds sorted_node[offsets[l] .. offsets[l + 1]).
-layout(std430, binding = BINDING_OFFSETS) readonly buffer Offsets { uint offsets[]; };
-layout(std430, binding = BINDING_SORTED_NODE) readonly buffer SortedNode { uint sorted_node[]; };
-layout(std430, binding = BINDING_SORTED_DEPTH) readonly buffer SortedDepth { float sorted_depth[]; };
+
+#if BUNDLE_METHOD == METHOD_IMPERFECT
+// A surface point of imperfect bundles: its triangle and barycentrics (b1, b2) as two unorm16, so
+// the point follows its triangle when the geometry moves. Points k N .. (k + 1) N - 1 are
+// direction k's (splat_points.glsl makes them).
+struct SplatPoint {
+    uint triangle;
+    uint barycentrics;
+};
+#if defined SPLAT_POINTS_WRITE
+layout(std430, binding = BINDING_POINTS) writeonly buffer Points { SplatPoint points[]; };
 #else
-layout(std430, binding = BINDING_COUNTERS) buffer Counters { uint counters[]; };
-layout(std430, binding = BINDING_HEADS) buffer Heads { uint heads[]; };
-layout(std430, binding = BINDING_NEXT) buffer Next { uint node_next[]; };
-layout(std430, binding = BINDING_NODE_DEPTH) buffer NodeDepth { float node_depth[]; };
+layout(std430, binding = BINDING_POINTS) readonly buffer Points { SplatPoint points[]; };
+
+vec2 point_barycentrics(uint point) {
+    return unpackUnorm2x16(points[point].barycentrics);
+}
+#endif
+uniform uint points_per_direction;  // N
+uniform float splat_radius;         // in scene units
 #endif
 
-#define NO_NODE 0xFFFFFFFFu
-#define NO_MATERIAL 0xFFFFFFFFu
-// SPLAT_BIT (node_prim: a splat of triangle prim & ~SPLAT_BIT) and COUNTER_* (the counters' slots)
-// come from gpu_impl/layout.py, as every constant the Python side shares.
+#if defined BUNDLE_LOOKUP
+layout(std430, binding = BINDING_OFFSETS) readonly buffer Offsets { uint offsets[]; };
+layout(std430, binding = BINDING_SORTED_DEPTH) readonly buffer SortedDepth { float sorted_depth[]; };
+layout(std430, binding = BINDING_SORTED_REF) readonly buffer SortedRef { uint sorted_ref[]; };
+#endif
 
 uniform float radius;           // the frame radius (bounding sphere, padded)
 uniform int resolution;         // R
 uniform int tiles_per_row;      // atlas layout of this draw's directions
 uniform int direction_base;     // the first direction of this draw
 uniform vec2 atlas_size;        // in pixels
-uniform uint capacity;          // nodes the list buffers hold
 
 ivec2 tile_origin(int k) {
     int slot = k - direction_base;
@@ -59,6 +72,22 @@ vec4 bundle_clip_position(int k, vec3 p) {
     return vec4((vec2(tile_origin(k)) + pixel) / atlas_size * 2.0 - 1.0, 0.0, 1.0);
 }
 
+// Position p in bundle k's pixel grid, with pixel (i, j)'s centre (its line) at (i, j).
+vec2 bundle_grid_position(BundleFrame f, vec3 p) {
+    return (vec2(dot(p, f.u.xyz), dot(p, f.v.xyz)) / radius * 0.5 + 0.5) * float(resolution) - vec2(f.u.w, f.v.w) - 0.5;
+}
+
+// Where the lines of bundle k meet the plane dot(n, p) = w, as depth = dot(plane, (1, i, j)) at
+// line (i, j): a line's origin is s u + t v - radius d with s = radius (2 (i + 0.5 + jitter_u) / R
+// - 1) (line_origin), so its depth (w - dot(n, origin)) / dot(n, d) is affine in (i, j). Exact to
+// float32 at every line, where a depth interpolated between vertices would carry their snapping to
+// the raster grid. dot(n, d) must not be 0.
+vec3 depth_plane(BundleFrame f, vec3 n, float w) {
+    float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz), R = float(resolution);
+    return vec3(w + radius * (nu * (1.0 - 2.0 * (0.5 + f.u.w) / R) + nv * (1.0 - 2.0 * (0.5 + f.v.w) / R) + nd),
+                -2.0 * radius * nu / R, -2.0 * radius * nv / R) / nd;
+}
+
 #if defined FRAGMENT_SHADER
 // This fragment's bundle pixel, or (-1, -1) for a pixel centre beyond the R x R grid (a line the
 // bundle does not have; only round-off at the sphere's rim gets there).
@@ -67,7 +96,6 @@ ivec2 fragment_pixel(int k) {
     if (any(lessThan(pixel, ivec2(0))) || any(greaterThanEqual(pixel, ivec2(resolution)))) return ivec2(-1);
     return pixel;
 }
-
 #endif
 
 uint pixel_list(int k, ivec2 pixel) {
@@ -81,21 +109,12 @@ vec3 line_origin(int k, ivec2 pixel) {
     return st.x * f.u.xyz + st.y * f.v.xyz - radius * f.d.xyz;
 }
 
-vec3 unpack_albedo(uvec2 bits) {
-    return vec3(unpackHalf2x16(bits.x), unpackHalf2x16(bits.y).x);
+// List l's direction and pixel.
+int list_direction(uint l) {
+    return int(l / uint(resolution * resolution));
 }
 
-#if !defined BUNDLE_LOOKUP
-// Append a node to a list. The counter always counts, but a node is written (and linked) only
-// when its slot exists: linking first would corrupt the list. The host reads the counter and
-// re-runs the pass with a buffer that fits, so no node is ever lost.
-void append_node(uint list, float depth, uint prim, uint normal, vec3 albedo) {
-    uint index = atomicAdd(counters[COUNTER_NODES], 1u);
-    if (index >= capacity) return;
-    node_depth[index] = depth;
-    node_prim[index] = prim;
-    node_normal[index] = normal;
-    node_albedo[index] = uvec2(packHalf2x16(albedo.rg), packHalf2x16(vec2(albedo.b, 0.0)));
-    node_next[index] = atomicExchange(heads[list], index);
+ivec2 list_pixel(uint l) {
+    uint cell = l % uint(resolution * resolution);
+    return ivec2(cell % uint(resolution), cell / uint(resolution));
 }
-#endif

@@ -1,6 +1,9 @@
 // Shared by every shader: invocation ids for 1-D compute passes, normal and colour packing, and
 // a counter-based random number generator.
 
+// The index that points nowhere: the end of a linked list, a path that found no node.
+#define NO_NODE 0xFFFFFFFFu
+
 #if defined COMPUTE_SHADER
 // A 1-D work item index over a 2-D dispatch (GLContext.dispatch spreads large passes over y).
 uint linear_id() {

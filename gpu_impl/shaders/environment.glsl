@@ -5,7 +5,8 @@
 // ENVIRONMENT is one of ENVIRONMENT_NONE, ENVIRONMENT_CONSTANT, ENVIRONMENT_MAP (gpu_impl/layout.py).
 
 #if ENVIRONMENT == ENVIRONMENT_MAP
-layout(std430, binding = BINDING_ENVMAP) readonly buffer Envmap { float envmap[]; };  // (H, W, 3) linear rgb
+// The map is (H, W, 3) linear rgb in the scene's texel buffer (scene.glsl), from envmap_first on.
+uniform uint envmap_first;
 uniform ivec2 envmap_size;        // W, H
 uniform mat3 environment_to_local;
 #endif
@@ -14,8 +15,7 @@ uniform vec3 environment_radiance;  // the constant's radiance, or the map's sca
 
 #if ENVIRONMENT == ENVIRONMENT_MAP
 vec3 envmap_texel(int x, int y) {
-    int i = 3 * (y * envmap_size.x + x);
-    return vec3(envmap[i], envmap[i + 1], envmap[i + 2]);
+    return texel(envmap_first, uint(envmap_size.x), x, y);
 }
 #endif
 

@@ -3,13 +3,22 @@
 // lies in the hemisphere of the shading normal, is a uniform hemisphere sample (pdf 1 / (2 pi)),
 // so the throughput gains albedo / pi * cos / pdf = 2 albedo cos. The next vertex is the nearest
 // node beyond the vertex on the bundle line through it, found by binary search of the sorted
-// list: no ray is traced and no visibility is tested.
+// list: no ray is traced and no visibility is tested. What the node is (normal, albedo, emission)
+// is worked out there (bundle_hits.glsl). The shadow-mapped light it reflects is its precomputed
+// irradiance (PRECOMPUTED_IRRADIANCE: irradiance.glsl) or, when that would cost more, evaluated
+// here at the hit (the renderer decides per frame).
 
 #define BUNDLE_LOOKUP
-#define SCENE_MATERIALS_ONLY
+#if SHADOW_LIGHTS && !LAZY_LIGHTING
+#define PRECOMPUTED_IRRADIANCE
+#endif
 #include "common.glsl"
 #include "scene.glsl"
 #include "bundle.glsl"
+#include "bundle_hits.glsl"
+#if LAZY_LIGHTING
+#include "lights.glsl"
+#endif
 #include "environment.glsl"
 #include "paths.glsl"
 
@@ -26,10 +35,12 @@ uniform uint seed;
 uniform uint frame;
 uniform float self_hit_bias;    // in bundle pixels, see below
 
-vec3 node_radiance_at(uint index, uint side) {
-    uint i = radiance_index(index, side);
-    return vec3(node_radiance[i], node_radiance[i + 1u], node_radiance[i + 2u]);
+#if defined PRECOMPUTED_IRRADIANCE
+vec3 irradiance_at(uint item, uint side) {
+    uint i = irradiance_index(item, side);
+    return vec3(irradiance[i], irradiance[i + 1u], irradiance[i + 2u]);
 }
+#endif
 
 void main() {
     uint id = linear_id();
@@ -94,10 +105,9 @@ void main() {
 #endif
         alive = false;
     } else {
-        uint node = sorted_node[hit];
-        vec3 nn = decode_normal(node_normal[node]);
-        uint triangle = node_prim[node] & ~SPLAT_BIT;
-        uint m = triangle_material(triangle);
+        BundleHit node = list_node_hit(origin, f.d.xyz, hit);
+        vec3 nn = node.normal;
+        uint m = triangle_material(node.triangle);
         bool front = dot(nn, omega) < 0.0;
         if (front) {
             emitted = throughput * materials[m].emission.rgb;
@@ -108,13 +118,19 @@ void main() {
         }
         if (alive) {
 #if SHADOW_LIGHTS
-            reflected = throughput * node_radiance_at(hit, front ? 0u : 1u);
+#if LAZY_LIGHTING
+            vec3 e = light_irradiance(node.position, nn);
+#else
+            // Per node (perfect bundles) or per splat point (imperfect).
+            vec3 e = irradiance_at(BUNDLE_METHOD == METHOD_IMPERFECT ? sorted_ref[hit] : hit, front ? 0u : 1u);
 #endif
-            path.position = origin + sorted_depth[hit] * f.d.xyz;
+            reflected = throughput * node.albedo * INV_PI * e;
+#endif
+            path.position = node.position;
             path.normal = encode_normal(nn);
-            vec3 g = triangle_normal(triangle);  // a splat lies in its triangle's plane too
+            vec3 g = triangle_normal(node.triangle);  // a splat lies in its triangle's plane too
             path.geometric = encode_normal(dot(g, omega) < 0.0 ? g : -g);
-            path.albedo = unpack_albedo(node_albedo[node]);
+            path.albedo = node.albedo;
         }
     }
     if (bounce == 1) sums[id].direct.rgb += emitted; else sums[id].indirect.rgb += emitted;

@@ -2,7 +2,8 @@
 // frame's K bundles at random and follows its line to the next surface, so no ray is ever traced.
 // The passes of one frame (gpu_impl/renderer.py), each its own program:
 //
-//   node_radiance.glsl   direct light reflected by every bundle node (shadow maps), in CSR order;
+//   irradiance.glsl      the shadow-mapped light reaching every node or splat point, when that is
+//                        cheaper than lighting each path's hits where it lands (eye_paths.glsl);
 //   primary.glsl         the G-buffer samples: exact camera-ray hits, emission seen directly and
 //                        direct light, and the first path vertex;
 //   eye_paths.glsl       one bounce of every path (run once per bounce);
@@ -35,12 +36,13 @@ layout(std430, binding = BINDING_PATH_SUMS) buffer Sums { PathSums sums[]; };
 // Paths still alive after a bounce pass: when none is, the passes left are skipped.
 layout(std430, binding = BINDING_ALIVE_PATHS) buffer AlivePaths { uint alive_paths; };
 
-#if defined BUNDLE_LOOKUP
-// Per node in CSR order, NODE_SIDES rgb triples: the direct light the node's front (and, for a
-// two-sided material, its back) reflects. Absent without shadow-mapped lights.
-layout(std430, binding = BINDING_NODE_RADIANCE) buffer NodeRadiance { float node_radiance[]; };
+#if defined PRECOMPUTED_IRRADIANCE
+// The irradiance (rgb) reaching each node (perfect bundles, CSR order) or each splat point
+// (imperfect bundles), from the shadow-mapped lights, on its front and, with NODE_SIDES 2 (a
+// two-sided material), its back: irradiance.glsl writes it, the eye paths read it.
+layout(std430, binding = BINDING_IRRADIANCE) buffer Irradiance { float irradiance[]; };
 
-uint radiance_index(uint node, uint side) {
-    return 3u * (node * uint(NODE_SIDES) + side);
+uint irradiance_index(uint item, uint side) {
+    return 3u * (item * uint(NODE_SIDES) + side);
 }
 #endif

@@ -6,8 +6,7 @@
 #include "common.glsl"
 
 #if RECORD_GROUP == 0
-#define SCENE_MATERIALS_ONLY
-#define BUNDLE_LOOKUP
+#define BUNDLE_METHOD METHOD_IMPERFECT
 #include "scene.glsl"
 #include "bundle.glsl"
 #elif RECORD_GROUP == 1
@@ -26,7 +25,9 @@ void main() {
 #if RECORD_GROUP == 0
     lengths[0] = uint(materials.length());
     lengths[1] = uint(triangles.length());
-    lengths[2] = uint(frames.length());
+    lengths[2] = uint(vertices.length());
+    lengths[3] = uint(frames.length());
+    lengths[4] = uint(points.length());
 #elif RECORD_GROUP == 1
     lengths[0] = uint(lights.length());
     lengths[1] = uint(shadow_views.length());

@@ -1,100 +1,226 @@
-// Linked lists to sorted CSR: COUNT_LISTS measures each list, prefix_sum.glsl turns the lengths
-// into offsets, and SORT_LISTS writes each list's node indices and depths in order, sorted by
-// depth, then primitive, then the remaining node words. Sorting on every field makes equal node sets give
-// equal lists, whatever order the rasterizer's threads appended them in.
+// From the lists a build made to the sorted CSR the eye paths read (bundle.glsl). Each pass runs
+// one invocation per list:
 //
-// SORT_LISTS also counts redundant nodes: a node that follows one facing the same way within
-// redundant_tolerance in depth. With splats that is one surface seen through overlapping splats.
+//   COUNT_LISTS    linked lists: each list's length into counts[] (the prefix sum's buffer);
+//   SORT_LISTS     perfect bundles: linked lists to the sorted CSR at offsets[] (nothing merged);
+//   MERGE_LISTS    imperfect bundles: each list sorted and its redundant nodes merged, written to
+//                  the front of its raw slot range, its merged length to list_counts[]. The list
+//                  comes from the linked lists (FROM_LINKED_LISTS: the raster splatter) or is the
+//                  raw slot range itself (the compute splatter);
+//   COMPACT_LISTS  imperfect bundles: the merged lists, moved to the sorted CSR at offsets[] (the
+//                  prefix sum of the merged lengths).
+//
+// Lists are sorted by depth, then by reference (node keys, bundle_build.glsl): equal node sets
+// give equal lists, whatever order the rasterizer's threads or the scatter's atomics put them in.
+// The sorted CSR holds references without FACING_BIT.
+//
+// Merging (merge_tolerance >= 0): overlapping splats of one plane each put a node on the lines
+// they share, at one depth up to float32 rounding. A run of nodes facing the same way along the
+// line (FACING_BIT) within merge_tolerance of the run's first node is one surface crossing and
+// keeps one node, the run's middle one (its median depth).
+// Surfaces facing opposite ways (a thin slab's two sides) are never merged. COUNTER_REDUNDANT
+// counts what is merged away (perfect bundles: coincident duplicates, which are all kept).
 
+#extension GL_ARB_gpu_shader_int64 : require
 #include "common.glsl"
-#include "bundle.glsl"
+#if defined COUNT_LISTS || defined SORT_LISTS || defined FROM_LINKED_LISTS
+#define LINKED_LISTS
+#endif
+#if defined MERGE_LISTS || defined COMPACT_LISTS
+#define RAW_LISTS
+#endif
+#define NODE_KEYS
+#include "bundle_build.glsl"
 
 #if defined COMPUTE_SHADER
 
 layout(local_size_x = LOCAL_SIZE) in;
 
-layout(std430, binding = BINDING_OFFSETS) buffer Offsets { uint offsets[]; };  // lengths, then CSR offsets
-layout(std430, binding = BINDING_SORTED_NODE) buffer SortedNode { uint sorted_node[]; };
-layout(std430, binding = BINDING_SORTED_DEPTH) buffer SortedDepth { float sorted_depth[]; };
+uniform uint invocations;  // K R^2 lists
 
-uniform uint invocations;  // K * R * R lists
-uniform float redundant_tolerance;
+#if defined SORT_LISTS || defined COMPACT_LISTS
+layout(std430, binding = BINDING_OFFSETS) readonly buffer Offsets { uint offsets[]; };
+layout(std430, binding = BINDING_SORTED_DEPTH) buffer SortedDepth { float sorted_depth[]; };
+layout(std430, binding = BINDING_SORTED_REF) buffer SortedRef { uint sorted_ref[]; };
+#endif
 
 #if defined COUNT_LISTS
+
+layout(std430, binding = BINDING_SCAN_DATA) writeonly buffer Counts { uint counts[]; };
 
 void main() {
     uint list = linear_id();
     if (list >= invocations) return;
     uint length = 0u;
     for (uint n = heads[list]; n != NO_NODE; n = node_next[n]) length++;
-    offsets[list] = length;
-    if (list == 0u) offsets[invocations] = 0u;  // the scan turns it into the node count
+    counts[list] = length;
+    if (list == 0u) counts[invocations] = 0u;  // the scan turns it into the node count
 }
 
-#elif defined SORT_LISTS
+#elif defined SORT_LISTS || defined MERGE_LISTS
 
-// A strict total order on nodes: depth, then primitive, then normal and albedo bits.
-bool node_less(uint a, uint b) {
-    if (node_depth[a] != node_depth[b]) return node_depth[a] < node_depth[b];
-    if (node_prim[a] != node_prim[b]) return node_prim[a] < node_prim[b];
-    if (node_normal[a] != node_normal[b]) return node_normal[a] < node_normal[b];
-    if (node_albedo[a].x != node_albedo[b].x) return node_albedo[a].x < node_albedo[b].x;
-    return node_albedo[a].y < node_albedo[b].y;
+// Lists of up to NETWORK nodes are sorted in registers by a sorting network (Batcher's odd-even
+// merge sort: every index a constant, so nothing is addressed indirectly, which a CPU rasterizer
+// runs many times faster); its first 19 compare-exchanges sort 8 keys, the first 63 sort 16, all
+// 191 sort 32, and a list runs only as many as its length needs. Longer lists (a deep stack of
+// surfaces, heavily overlapping splats) are insertion-sorted in place, in global memory.
+#define NETWORK 32u
+uint64_t key[NETWORK];
+#define PADDING 0xFFFFFFFFFFFFFFFFul  // sorts last
+
+// M(i) for i = 0 .. NETWORK - 1 (and backwards), written out so that every index is a constant, in
+// blocks of 8, 8 and 16 that run only as far as the list's `length` reaches.
+#define NODES_0(M) M(0u) M(1u) M(2u) M(3u) M(4u) M(5u) M(6u) M(7u)
+#define NODES_8(M) M(8u) M(9u) M(10u) M(11u) M(12u) M(13u) M(14u) M(15u)
+#define NODES_16(M) M(16u) M(17u) M(18u) M(19u) M(20u) M(21u) M(22u) M(23u) M(24u) M(25u) M(26u) M(27u) M(28u) M(29u) M(30u) M(31u)
+#define FOR_NODES(M) NODES_0(M) if (length > 8u) { NODES_8(M) } if (length > 16u) { NODES_16(M) }
+#define FOR_NODES_BACKWARDS(M) if (length > 16u) { M(31u) M(30u) M(29u) M(28u) M(27u) M(26u) M(25u) M(24u) M(23u) M(22u) \
+    M(21u) M(20u) M(19u) M(18u) M(17u) M(16u) } if (length > 8u) { M(15u) M(14u) M(13u) M(12u) M(11u) M(10u) M(9u) M(8u) } \
+    M(7u) M(6u) M(5u) M(4u) M(3u) M(2u) M(1u) M(0u)
+
+#define CE(a, b) { uint64_t lower = min(key[a], key[b]); key[b] = max(key[a], key[b]); key[a] = lower; }
+
+void sort_network(uint length) {
+    CE(0, 1) CE(2, 3) CE(0, 2) CE(1, 3) CE(1, 2) CE(4, 5) CE(6, 7) CE(4, 6) CE(5, 7) CE(5, 6)
+    CE(0, 4) CE(2, 6) CE(2, 4) CE(1, 5) CE(3, 7) CE(3, 5) CE(1, 2) CE(3, 4) CE(5, 6)
+    if (length > 8u) {
+        CE(8, 9) CE(10, 11) CE(8, 10) CE(9, 11) CE(9, 10) CE(12, 13) CE(14, 15) CE(12, 14) CE(13, 15) CE(13, 14)
+        CE(8, 12) CE(10, 14) CE(10, 12) CE(9, 13) CE(11, 15) CE(11, 13) CE(9, 10) CE(11, 12) CE(13, 14) CE(0, 8)
+        CE(4, 12) CE(4, 8) CE(2, 10) CE(6, 14) CE(6, 10) CE(2, 4) CE(6, 8) CE(10, 12) CE(1, 9) CE(5, 13)
+        CE(5, 9) CE(3, 11) CE(7, 15) CE(7, 11) CE(3, 5) CE(7, 9) CE(11, 13) CE(1, 2) CE(3, 4) CE(5, 6)
+        CE(7, 8) CE(9, 10) CE(11, 12) CE(13, 14)
+    }
+    if (length > 16u) {
+        CE(16, 17) CE(18, 19) CE(16, 18) CE(17, 19) CE(17, 18) CE(20, 21) CE(22, 23) CE(20, 22) CE(21, 23) CE(21, 22)
+        CE(16, 20) CE(18, 22) CE(18, 20) CE(17, 21) CE(19, 23) CE(19, 21) CE(17, 18) CE(19, 20) CE(21, 22) CE(24, 25)
+        CE(26, 27) CE(24, 26) CE(25, 27) CE(25, 26) CE(28, 29) CE(30, 31) CE(28, 30) CE(29, 31) CE(29, 30) CE(24, 28)
+        CE(26, 30) CE(26, 28) CE(25, 29) CE(27, 31) CE(27, 29) CE(25, 26) CE(27, 28) CE(29, 30) CE(16, 24) CE(20, 28)
+        CE(20, 24) CE(18, 26) CE(22, 30) CE(22, 26) CE(18, 20) CE(22, 24) CE(26, 28) CE(17, 25) CE(21, 29) CE(21, 25)
+        CE(19, 27) CE(23, 31) CE(23, 27) CE(19, 21) CE(23, 25) CE(27, 29) CE(17, 18) CE(19, 20) CE(21, 22) CE(23, 24)
+        CE(25, 26) CE(27, 28) CE(29, 30) CE(0, 16) CE(8, 24) CE(8, 16) CE(4, 20) CE(12, 28) CE(12, 20) CE(4, 8)
+        CE(12, 16) CE(20, 24) CE(2, 18) CE(10, 26) CE(10, 18) CE(6, 22) CE(14, 30) CE(14, 22) CE(6, 10) CE(14, 18)
+        CE(22, 26) CE(2, 4) CE(6, 8) CE(10, 12) CE(14, 16) CE(18, 20) CE(22, 24) CE(26, 28) CE(1, 17) CE(9, 25)
+        CE(9, 17) CE(5, 21) CE(13, 29) CE(13, 21) CE(5, 9) CE(13, 17) CE(21, 25) CE(3, 19) CE(11, 27) CE(11, 19)
+        CE(7, 23) CE(15, 31) CE(15, 23) CE(7, 11) CE(15, 19) CE(23, 27) CE(3, 5) CE(7, 9) CE(11, 13) CE(15, 17)
+        CE(19, 21) CE(23, 25) CE(27, 29) CE(1, 2) CE(3, 4) CE(5, 6) CE(7, 8) CE(9, 10) CE(11, 12) CE(13, 14)
+        CE(15, 16) CE(17, 18) CE(19, 20) CE(21, 22) CE(23, 24) CE(25, 26) CE(27, 28) CE(29, 30)
+    }
 }
 
-// node_less with a's depth already at hand: depths decide almost every comparison.
-bool node_less_at(float depth_a, uint a, float depth_b, uint b) {
-    return depth_a != depth_b ? depth_a < depth_b : node_less(a, b);
-}
+#if defined SORT_LISTS
+// The list's keys go to the sorted CSR.
+#define OUT_KEY(i) node_key(sorted_depth[i], sorted_ref[i])
+#define SET_OUT_KEY(i, k) { uint64_t set_key = k; sorted_depth[i] = key_depth(set_key); sorted_ref[i] = key_ref(set_key); }
+#else
+// The list's keys go to the front of its raw slot range.
+#define OUT_KEY(i) raw_nodes[i]
+#define SET_OUT_KEY(i, k) raw_nodes[i] = k;
+uniform float merge_tolerance;  // in scene units; negative: merge nothing
 
-// Lists up to this long are sorted in private memory; longer ones (rare: a deep stack of
-// surfaces or heavily overlapping splats) in their CSR slots in global memory.
-#define PRIVATE_LIST 64u
+// Whether `next` starts a new run after a run that started with `start`.
+bool starts_run(uint64_t next, uint64_t start) {
+    return merge_tolerance < 0.0 || ((key_ref(next) ^ key_ref(start)) & FACING_BIT) != 0u
+        || key_depth(next) - key_depth(start) > merge_tolerance;
+}
+#endif
+
+// Insert `k` into the sorted keys at first .. first + count of the output, in global memory.
+void insert_global(uint first, uint count, uint64_t k) {
+    uint j = count;
+    for (; j > 0u && k < OUT_KEY(first + j - 1u); j--) SET_OUT_KEY(first + j, OUT_KEY(first + j - 1u))
+    SET_OUT_KEY(first + j, k)
+}
 
 void main() {
     uint list = linear_id();
     if (list >= invocations) return;
-    uint first = offsets[list];
-    uint length = offsets[list + 1u] - first;
-    if (length <= PRIVATE_LIST) {
-        float depth[PRIVATE_LIST];
-        uint node[PRIVATE_LIST];
+#if defined SORT_LISTS
+    uint first = offsets[list], length = offsets[list + 1u] - first;
+#else
+    uint first = raw_offsets[list], length = raw_offsets[list + 1u] - first;
+#if !defined FROM_LINKED_LISTS
+    if (list_counts[list] != first) atomicAdd(counters[COUNTER_MISMATCH], 1u);  // the scatter's cursor is off the list's start
+#endif
+#endif
+    uint kept = length, redundant = 0u;
+    if (length == 0u) {
+    } else if (length <= NETWORK) {
+        // Load (padding sorts last), sort in registers.
+#if defined LINKED_LISTS
         uint n = heads[list];
-        for (uint i = 0u; i < length; i++, n = node_next[n]) {
-            float d = node_depth[n];
-            uint j = i;
-            for (; j > 0u && node_less_at(d, n, depth[j - 1u], node[j - 1u]); j--) {
-                depth[j] = depth[j - 1u];
-                node[j] = node[j - 1u];
-            }
-            depth[j] = d;
-            node[j] = n;
-        }
-        for (uint i = 0u; i < length; i++) {
-            sorted_node[first + i] = node[i];
-            sorted_depth[first + i] = depth[i];
-        }
+#define LOAD(i) { bool here = i < length; key[i] = here ? node_key(list_depth[n], list_ref[n]) : PADDING; if (here) n = node_next[n]; }
+#else
+#define LOAD(i) { key[i] = i < length ? raw_nodes[first + i] : PADDING; }
+#endif
+        FOR_NODES(LOAD)
+        sort_network(length);
+#if defined SORT_LISTS
+        float previous = 0.0;
+#define STORE(i) if (i < length) { float depth = key_depth(key[i]); if (i > 0u && depth == previous) redundant++; previous = depth; \
+            sorted_depth[first + i] = depth; sorted_ref[first + i] = key_ref(key[i]) & ~FACING_BIT; }
+        FOR_NODES(STORE)  // counting coincident duplicates, all kept
+#else
+        // Runs (see the top) and each run's middle node, with constant indices only: the nodes
+        // that start a run (a bit each), then backwards the middle of each run, then those written.
+        uint starts = 1u;
+        uint64_t start = key[0];
+#define RUN_START(i) if (i > 0u && i < length && starts_run(key[i], start)) { starts |= 1u << i; start = key[i]; }
+        FOR_NODES(RUN_START)
+        uint middles = 0u, end = length - 1u;
+#define MIDDLE(i) if (i < length) { if (i + 1u < length && (starts & (2u << i)) != 0u) end = i; \
+            if (i == (uint(findMSB(starts & (0xFFFFFFFFu >> (31u - i)))) + end) / 2u) middles |= 1u << i; }
+        FOR_NODES_BACKWARDS(MIDDLE)
+        kept = 0u;
+#define KEEP(i) if ((middles & (1u << i)) != 0u) { raw_nodes[first + kept] = key[i]; kept++; }
+        FOR_NODES(KEEP)
+        redundant = length - kept;
+#endif
     } else {
-        uint i = 0u;
-        for (uint n = heads[list]; n != NO_NODE; n = node_next[n], i++) {
-            float d = node_depth[n];
-            uint j = i;
-            for (; j > 0u && node_less_at(d, n, sorted_depth[first + j - 1u], sorted_node[first + j - 1u]); j--) {
-                sorted_node[first + j] = sorted_node[first + j - 1u];
-                sorted_depth[first + j] = sorted_depth[first + j - 1u];
-            }
-            sorted_node[first + j] = n;
-            sorted_depth[first + j] = d;
+        // A long list: sorted in place, in global memory.
+#if defined LINKED_LISTS
+        uint n = heads[list];
+        for (uint i = 0u; i < length; i++, n = node_next[n]) insert_global(first, i, node_key(list_depth[n], list_ref[n]));
+#else
+        for (uint i = 1u; i < length; i++) insert_global(first, i, raw_nodes[first + i]);
+#endif
+#if defined SORT_LISTS
+        for (uint i = 0u; i < length; i++) {
+            if (i > 0u && sorted_depth[first + i] == sorted_depth[first + i - 1u]) redundant++;
+            sorted_ref[first + i] &= ~FACING_BIT;
         }
+#else
+        // Each run's middle node to the front; the write index never passes the read index.
+        kept = 0u;
+        uint start = 0u;
+        for (uint i = 1u; i <= length; i++) {
+            if (i == length || starts_run(raw_nodes[first + i], raw_nodes[first + start])) {
+                uint64_t middle = raw_nodes[first + (start + i - 1u) / 2u];
+                raw_nodes[first + kept] = middle;
+                kept++;
+                start = i;
+            }
+        }
+        redundant = length - kept;
+#endif
     }
-    uint redundant = 0u;
-    for (uint i = 1u; i < length; i++) {
-        if (sorted_depth[first + i] - sorted_depth[first + i - 1u] <= redundant_tolerance
-            && dot(decode_normal(node_normal[sorted_node[first + i]]),
-                   decode_normal(node_normal[sorted_node[first + i - 1u]])) > 0.0) redundant++;
-    }
+#if defined MERGE_LISTS
+    list_counts[list] = kept;
+#endif
     if (redundant > 0u) atomicAdd(counters[COUNTER_REDUNDANT], redundant);
-    atomicMax(counters[COUNTER_MAX_LENGTH], length);
+    atomicMax(counters[COUNTER_MAX_LENGTH], kept);
+}
+
+#elif defined COMPACT_LISTS
+
+void main() {
+    uint list = linear_id();
+    if (list >= invocations) return;
+    uint from = raw_offsets[list], to = offsets[list], length = list_counts[list];
+    for (uint i = 0u; i < length; i++) {
+        uint64_t k = raw_nodes[from + i];
+        sorted_depth[to + i] = key_depth(k);
+        sorted_ref[to + i] = key_ref(k) & ~FACING_BIT;
+    }
 }
 
 #endif

@@ -1,6 +1,6 @@
 // The scene as the GPU sees it (gpu_impl/scene_buffers.py uploads it): indexed triangles with
-// per-triangle records, and diffuse materials whose textures are sampled here, in the shader, with
-// Mitsuba's convention so GL and the references agree texel for texel.
+// per-triangle and per-vertex records, and diffuse materials whose textures are sampled here, in
+// the shader, with Mitsuba's convention so GL and the references agree texel for texel.
 
 struct Material {
     vec4 albedo;     // rgb; used when the material has no texture
@@ -11,6 +11,13 @@ struct Material {
 struct Triangle {
     float normal_x, normal_y, normal_z;  // unit geometric normal, counter-clockwise front
     uint material_flags;                 // material index | TRIANGLE_SMOOTH
+};
+
+// Scalars, not vec3s: std430 would pad each vec3 to 16 bytes.
+struct Vertex {
+    float x, y, z;     // position relative to the bundle centre
+    float nx, ny, nz;  // normal; zero where a mesh has none
+    float u, v;
 };
 // The flags MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE_SMOOTH and the mask TRIANGLE_MATERIAL
 // come from gpu_impl/layout.py.
@@ -37,16 +44,14 @@ bool material_twosided(uint m) {
 // SCENE_MATERIALS_ONLY leaves out the vertex and texel buffers, for passes that need only the
 // per-triangle records (a compute shader may use at most 16 storage blocks).
 #if !defined SCENE_MATERIALS_ONLY
-layout(std430, binding = BINDING_POSITIONS) readonly buffer Positions { float positions[]; };  // relative to the bundle centre
-layout(std430, binding = BINDING_NORMALS) readonly buffer Normals { float normals[]; };        // zero where a mesh has none
-layout(std430, binding = BINDING_UVS) readonly buffer Uvs { float uvs[]; };
+layout(std430, binding = BINDING_VERTICES) readonly buffer Vertices { Vertex vertices[]; };
 layout(std430, binding = BINDING_INDICES) readonly buffer Indices { uint indices[]; };
 layout(std430, binding = BINDING_TEXELS) readonly buffer Texels { float texels[]; };  // linear rgb
 
 uvec3 triangle_vertices(uint t) { return uvec3(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u]); }
-vec3 vertex_position(uint i) { return vec3(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]); }
-vec3 vertex_normal(uint i) { return vec3(normals[3u * i], normals[3u * i + 1u], normals[3u * i + 2u]); }
-vec2 vertex_uv(uint i) { return vec2(uvs[2u * i], uvs[2u * i + 1u]); }
+vec3 vertex_position(uint i) { return vec3(vertices[i].x, vertices[i].y, vertices[i].z); }
+vec3 vertex_normal(uint i) { return vec3(vertices[i].nx, vertices[i].ny, vertices[i].nz); }
+vec2 vertex_uv(uint i) { return vec2(vertices[i].u, vertices[i].v); }
 
 // The shading normal at barycentrics (b1, b2): interpolated vertex normals, or the geometric
 // normal for a mesh without them (as Mitsuba shades).
@@ -59,6 +64,15 @@ vec3 shading_normal(uint t, uvec3 v, float b1, float b2) {
 vec2 surface_uv(uvec3 v, float b1, float b2) {
     vec2 uv0 = vertex_uv(v.x);
     return uv0 + b1 * (vertex_uv(v.y) - uv0) + b2 * (vertex_uv(v.z) - uv0);
+}
+
+// The barycentrics (b1, b2) of p projected onto the plane of the triangle with corner p0 and
+// edges e1, e2: outside [0, 1] beyond the triangle, so a splat that overhangs its triangle
+// continues the triangle's affine uv map.
+vec2 plane_barycentrics(vec3 p0, vec3 e1, vec3 e2, vec3 p) {
+    vec3 q = p - p0;
+    float a = dot(e1, e1), b = dot(e1, e2), c = dot(e2, e2);
+    return vec2(c * dot(q, e1) - b * dot(q, e2), a * dot(q, e2) - b * dot(q, e1)) / (a * c - b * b);
 }
 
 vec3 texel(uint first, uint width, int x, int y) {

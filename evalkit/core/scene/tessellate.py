@@ -74,3 +74,32 @@ def box(lo: np.ndarray, hi: np.ndarray, subdivisions: int = 1, inward: bool = Fa
             faces.append(f + sum(len(p) for p in positions))
             positions.append(grid.reshape(-1, 3))
     return np.concatenate(positions), np.concatenate(faces)
+
+
+def subdivide(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | None, uvs: np.ndarray | None, n: int):
+    """Every triangle split into n^2 (each edge into n parts) in its own plane, with normals and
+    uvs interpolated linearly (normals renormalized). The same surface with n^2 times the
+    triangles; new vertices are not shared between the original triangles.
+
+    Returns (positions, faces, normals, uvs)."""
+    # Barycentrics (b1, b2) of the (n + 1)(n + 2) / 2 grid points of one triangle, and its n^2 faces.
+    points = [(i, j) for i in range(n + 1) for j in range(n + 1 - i)]
+    index = {p: k for k, p in enumerate(points)}
+    local = []
+    for i in range(n):
+        for j in range(n - i):
+            local.append((index[(i, j)], index[(i + 1, j)], index[(i, j + 1)]))
+            if i + j < n - 1:
+                local.append((index[(i + 1, j)], index[(i + 1, j + 1)], index[(i, j + 1)]))
+    b = np.array(points, dtype=np.float64) / n
+    weights = np.stack([1.0 - b[:, 0] - b[:, 1], b[:, 0], b[:, 1]], axis=1)  # (P, 3)
+
+    def interpolate(attribute):
+        return np.einsum("pc,fcd->fpd", weights, attribute[faces]).reshape(-1, attribute.shape[1])
+
+    new_faces = (np.arange(len(faces))[:, None, None] * len(points) + np.array(local)[None]).reshape(-1, 3)
+    new_normals = None
+    if normals is not None:
+        new_normals = interpolate(normals)
+        new_normals /= np.linalg.norm(new_normals, axis=1, keepdims=True)
+    return interpolate(positions), new_faces, new_normals, (interpolate(uvs) if uvs is not None else None)

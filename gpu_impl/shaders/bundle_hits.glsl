@@ -1,0 +1,44 @@
+// What a node is, computed where it is needed (an eye path reaching it, the direct light at it, the
+// host reading a BundleSet) from its depth, its reference and the scene (scene.glsl, bundle.glsl):
+// nodes store nothing else.
+//
+// Perfect bundles: the node is on its triangle; normal and uv come from the hit's barycentrics.
+// Imperfect bundles: the node is on its splat, the disk in its point's triangle's plane. The
+// normal is the point's (one per splat); the uv continues the triangle's affine uv map to the hit,
+// inside the splat or beyond the triangle's edge, so textures keep their detail inside a splat
+// (the poster's per-corner texture coordinates, evaluated exactly).
+
+struct BundleHit {
+    uint triangle;
+    vec3 position;  // relative to the bundle centre
+    vec3 normal;    // shading normal
+    vec3 albedo;
+};
+
+BundleHit bundle_hit(vec3 position, uint ref) {
+    BundleHit hit;
+    hit.position = position;
+#if BUNDLE_METHOD == METHOD_IMPERFECT
+    hit.triangle = points[ref].triangle;
+#else
+    hit.triangle = ref;
+#endif
+    uvec3 v = triangle_vertices(hit.triangle);
+    vec3 p0 = vertex_position(v.x);
+    vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, position);
+#if BUNDLE_METHOD == METHOD_IMPERFECT
+    vec2 centre = point_barycentrics(ref);
+    hit.normal = shading_normal(hit.triangle, v, centre.x, centre.y);
+#else
+    hit.normal = shading_normal(hit.triangle, v, b.x, b.y);
+#endif
+    hit.albedo = material_albedo(triangle_material(hit.triangle), surface_uv(v, b.x, b.y));
+    return hit;
+}
+
+#if defined BUNDLE_LOOKUP
+// Node `index` of list l (which lies on line `origin` + t d).
+BundleHit list_node_hit(vec3 origin, vec3 d, uint index) {
+    return bundle_hit(origin + sorted_depth[index] * d, sorted_ref[index]);
+}
+#endif

@@ -1,0 +1,61 @@
+// The shadow-mapped light (lights.glsl) reaching every bundle node (perfect bundles: one
+// invocation per list, its nodes in CSR order) or every splat point (imperfect bundles: at the
+// point, with the splat's normal, the light of every node its splat makes), on the front and, for
+// a two-sided material, the back. The renderer runs it only when that costs less than lighting
+// each path's hits where they land (gpu_impl/renderer.py); the eye paths multiply it by the albedo
+// they find at the hit.
+
+#define BUNDLE_LOOKUP
+#define PRECOMPUTED_IRRADIANCE
+#include "common.glsl"
+#include "scene.glsl"
+#include "bundle.glsl"
+#include "bundle_hits.glsl"
+#include "lights.glsl"
+#include "paths.glsl"
+
+#if defined COMPUTE_SHADER
+#if !SHADOW_LIGHTS
+#error "irradiance.glsl without SHADOW_LIGHTS: no shadow-mapped light reaches anything, the pass is skipped"
+#endif
+
+layout(local_size_x = LOCAL_SIZE) in;
+
+uniform uint invocations;  // K R^2 lists (perfect) or K N points (imperfect)
+
+void store_irradiance(uint item, vec3 position, vec3 normal, uint triangle) {
+    vec3 front = light_irradiance(position, normal);
+    uint i = irradiance_index(item, 0u);
+    irradiance[i] = front.r;
+    irradiance[i + 1u] = front.g;
+    irradiance[i + 2u] = front.b;
+#if NODE_SIDES == 2
+    vec3 back = material_twosided(triangle_material(triangle)) ? light_irradiance(position, -normal) : vec3(0.0);
+    i = irradiance_index(item, 1u);
+    irradiance[i] = back.r;
+    irradiance[i + 1u] = back.g;
+    irradiance[i + 2u] = back.b;
+#endif
+}
+
+void main() {
+    uint id = linear_id();
+    if (id >= invocations) return;
+#if BUNDLE_METHOD == METHOD_IMPERFECT
+    uint t = points[id].triangle;
+    vec2 b = point_barycentrics(id);
+    uvec3 v = triangle_vertices(t);
+    vec3 p0 = vertex_position(v.x);
+    vec3 centre = p0 + b.x * (vertex_position(v.y) - p0) + b.y * (vertex_position(v.z) - p0);
+    store_irradiance(id, centre, shading_normal(t, v, b.x, b.y), t);
+#else
+    int k = list_direction(id);
+    vec3 origin = line_origin(k, list_pixel(id)), d = frames[k].d.xyz;
+    for (uint i = offsets[id]; i < offsets[id + 1u]; i++) {
+        BundleHit hit = list_node_hit(origin, d, i);
+        store_irradiance(i, hit.position, hit.normal, hit.triangle);
+    }
+#endif
+}
+
+#endif

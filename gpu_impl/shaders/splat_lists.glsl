@@ -1,0 +1,150 @@
+// Imperfect ray bundles without the rasterizer (--splatter compute, the default): each splat, the
+// disk of radius splat_radius around its point in the point's triangle's plane, finds the bundle
+// lines that cross it in its own direction's bundle, row by row of the bundle's pixel grid.
+//
+// COUNT_SPLATS counts every list's nodes (list_counts); a prefix sum makes them raw_offsets; then,
+// with list_counts set to every list's end, SCATTER_SPLATS writes each node into its list's slot
+// range (its key: depth, and the point | FACING_BIT), counting list_counts back down to the list's
+// start. The lists come out exactly as large as they need to be:
+// no linked list, no overflow. The merge (resolve_lists.glsl) sorts them, so the order in which
+// nodes land in a list does not matter. Both passes run the same code to find the lines (precise
+// arithmetic); should they ever disagree, the scatter counts the mismatch and the host says so.
+//
+// A line (i, j) crosses the splat's plane at q; it is in the splat when |q - c| <= r. With
+// (du, dv) the offset of the line from the centre c across the bundle and n the plane's normal,
+// |q - c|^2 = du^2 + dv^2 + (n_u du + n_v dv)^2 / n_d^2, so in pixels, with everything times n_d^2,
+// (n_d^2 + n_u^2) du^2 + 2 n_u n_v du dv + (n_d^2 + n_v^2) dv^2 <= (r n_d)^2: an ellipse, whose rows
+// are solved for their span of columns. The depth at a line is the splat plane's (depth_plane),
+// the same as the raster splatter's.
+
+#extension GL_ARB_gpu_shader_int64 : require
+#define BUNDLE_METHOD METHOD_IMPERFECT
+#define RAW_LISTS
+#define NODE_KEYS
+#include "common.glsl"
+#include "scene.glsl"
+#include "bundle.glsl"
+#include "bundle_build.glsl"
+
+#if defined COMPUTE_SHADER
+
+layout(local_size_x = LOCAL_SIZE) in;
+
+uniform uint invocations;  // K N points
+uniform bool nearest_only;  // merging: only the nearest of a triangle's splats puts a node on a line
+
+// A splat seen nearly edge-on covers no line centre (its ellipse has no width); one exactly
+// edge-on has no depth plane.
+#define MIN_COS 1e-7
+
+// Splats of one triangle that overlap put the same node (its plane's depth) on every line they
+// share, which the merge would then remove. With nearest_only, a splat leaves a line to a nearer
+// splat of the same triangle among the NEIGHBOURS points on either side of it in its direction's
+// point order (the stratified sampler's order runs along a space-filling curve, so those are
+// mostly its neighbours on the surface). The nearer splat covers the line too, so no hole is made.
+// A neighbour j is nearer the line at offset q from this splat's centre c_i when
+// (q - e)' M (q - e) < q' M q, e = c_j - c_i, M the ellipse's matrix: dot(q, 2 M e) > e' M e, linear in
+// q. The two splats work it out with different rounding, so a splat defers only by a clear
+// MARGIN of the ellipse's size: near a tie both keep the line (a redundant node, which the merge
+// removes), never neither.
+#define NEIGHBOURS 4
+#define NEIGHBOUR_SLOTS 8  // 2 NEIGHBOURS
+#define MARGIN 1e-3
+
+// The splat of point `id`: its nodes counted or written; returns the lines it covers (before
+// leaving any to a nearer splat).
+uint splat(uint id) {
+    uint t = points[id].triangle;
+    vec2 b = point_barycentrics(id);
+    uvec3 v = triangle_vertices(t);
+    vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;
+    vec3 centre = p0 + b.x * e1 + b.y * e2;
+    vec3 n = triangle_normal(t);
+    int k = int(id / points_per_direction);
+    BundleFrame f = frames[k];
+    float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz);
+    if (abs(nd) < MIN_COS) return 0u;
+    vec3 plane = depth_plane(f, n, dot(n, centre));
+    uint ref = id | (nd > 0.0 ? FACING_BIT : 0u);
+
+    // The ellipse in the pixel grid: centre c, and A dx^2 + 2 B dx dy + C dy^2 <= E.
+    precise vec2 c = bundle_grid_position(f, centre);
+    float rp = splat_radius * 0.5 * float(resolution) / radius;  // the radius in pixels
+    precise float A = nd * nd + nu * nu, B = nu * nv, C = nd * nd + nv * nv, E = rp * rp * nd * nd;
+    // The neighbours on this triangle (the same plane, so the same ellipse): the linear test of
+    // each, dot(q, gradient) > threshold with q the line's offset from this centre in pixels.
+    vec2 gradient[NEIGHBOUR_SLOTS];
+    float threshold[NEIGHBOUR_SLOTS];
+    bool neighbours = false;
+    uint first_point = uint(k) * points_per_direction, end_point = first_point + points_per_direction;
+    // The triangle's edges in pixels: a neighbour's offset is linear in its barycentrics' offset.
+    float pixels = 0.5 * float(resolution) / radius;
+    mat2 edges = pixels * mat2(dot(e1, f.u.xyz), dot(e1, f.v.xyz), dot(e2, f.u.xyz), dot(e2, f.v.xyz));
+    for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
+        uint j = id + uint(slot < NEIGHBOURS ? slot - NEIGHBOURS : slot - NEIGHBOURS + 1);
+        bool here = nearest_only && j >= first_point && j < end_point && points[j].triangle == t;
+        vec2 e = edges * ((here ? point_barycentrics(j) : b) - b);
+        gradient[slot] = 2.0 * vec2(A * e.x + B * e.y, B * e.x + C * e.y);
+        threshold[slot] = here ? A * e.x * e.x + 2.0 * B * e.x * e.y + C * e.y * e.y + MARGIN * E : 3.4e38;
+        neighbours = neighbours || here;
+    }
+    // Rows: |dy| <= rp sqrt(1 - n_v^2), the ellipse's half-height.
+    precise float half_height = rp * sqrt(max(0.0, 1.0 - nv * nv));
+    int y0 = max(0, int(ceil(c.y - half_height))), y1 = min(resolution - 1, int(floor(c.y + half_height)));
+    uint covered = 0u;
+    for (int y = y0; y <= y1; y++) {
+        precise float dy = float(y) - c.y;
+        precise float disc = B * B * dy * dy - A * (C * dy * dy - E);
+        if (disc < 0.0) continue;
+        precise float root = sqrt(disc);
+        int x0 = max(0, int(ceil(c.x + (-B * dy - root) / A)));
+        int x1 = min(resolution - 1, int(floor(c.x + (-B * dy + root) / A)));
+        covered += uint(max(0, x1 - x0 + 1));
+        for (int x = x0; x <= x1; x++) {
+            if (neighbours) {
+                vec2 q = vec2(float(x) - c.x, dy);
+                bool nearer = false;  // a splat of this triangle nearer the line
+                for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) nearer = nearer || dot(q, gradient[slot]) > threshold[slot];
+                if (nearer) continue;
+            }
+            uint list = pixel_list(k, ivec2(x, y));
+#if defined COUNT_SPLATS
+            atomicAdd(list_counts[list], 1u);
+#else
+            // This node takes the slot below the cursor. More nodes than counted would take the
+            // list before's slots: the merge finds the cursors off their lists' starts, and the
+            // host says so. Only the first list could go below slot 0.
+            uint cursor = atomicAdd(list_counts[list], 0xFFFFFFFFu);
+            if (cursor == 0u) {
+                atomicAdd(counters[COUNTER_MISMATCH], 1u);
+                continue;
+            }
+            raw_nodes[cursor - 1u] = node_key(dot(plane, vec3(1.0, float(x), float(y))), ref);
+#endif
+        }
+    }
+    return covered;
+}
+
+#if defined COUNT_COVERED
+shared uint covered_by_group;
+#endif
+
+void main() {
+    uint id = linear_id();
+#if defined COUNT_COVERED
+    // Every line a splat covers, summed (COUNTER_COVERED): the nodes there would be without
+    // merging, what the splat size costs (studies ask for it: a workgroup barrier costs a CPU
+    // rasterizer more than the sum is worth in a plain build). One atomic per workgroup.
+    if (gl_LocalInvocationIndex == 0u) covered_by_group = 0u;
+    barrier();
+    uint covered = id < invocations ? splat(id) : 0u;
+    atomicAdd(covered_by_group, covered);
+    barrier();
+    if (gl_LocalInvocationIndex == 0u) atomicAdd(counters[COUNTER_COVERED], covered_by_group);
+#else
+    if (id < invocations) splat(id);
+#endif
+}
+
+#endif
