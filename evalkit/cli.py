@@ -289,14 +289,20 @@ def parse_bytes(text: str) -> int:
     return int(value)
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
-    return value
+def _int_at_least(minimum: int):
+    """An argparse type: an integer of at least ``minimum``."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{value} must be at least {minimum}")
+        return value
+    return parse
+
+
+_positive_int, _non_negative_int = _int_at_least(1), _int_at_least(0)
 
 
 def _positive_float(text: str) -> float:
@@ -391,6 +397,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--self-hit-bias", type=float, default=None, metavar="E", help=f"nodes within E bundle pixels beyond a vertex are skipped (default {d.self_hit_bias})")
     p.add_argument("--shadow-map-size", type=_positive_int, default=None, metavar="S", help=f"texels per shadow map side (default {d.shadow_map_size})")
     p.add_argument("--shadow-filter", type=_positive_int, default=None, metavar="F", help=f"PCF kernel of F x F bilinear taps (default {d.shadow_filter})")
+    p.add_argument("--light-samples", type=_non_negative_int, default=None, metavar="M",
+                   help=f"points drawn on the emitters per frame for next-event estimation, 0 for none (default {d.light_samples})")
+    p.add_argument("--light-sample-map-size", type=_positive_int, default=None, metavar="S",
+                   help=f"texels per side of each emitter sample's shadow cube faces (default {d.light_sample_map_size})")
     p.add_argument("--node-budget", type=parse_bytes, default=None, metavar="BYTES",
                    help="the most memory for nodes, what they are built from and their precomputed light (default 2 GiB)")
     p.add_argument("--sampler", choices=tuple(SAMPLERS), default=None, help=f"imperfect: the points (default {d.sampler})")

@@ -37,7 +37,9 @@ MATERIAL_TEXTURED = np.uint32(1)  # Material.texture.w flags
 MATERIAL_TWOSIDED = np.uint32(2)
 TRIANGLE_SMOOTH = np.uint32(0x80000000)  # Triangle.material_flags: interpolate vertex normals
 TRIANGLE_MATERIAL = np.uint32(0x7FFFFFFF)  # Triangle.material_flags: the material index
-LIGHT_KINDS = {"point": 0.0, "spot": 1.0, "directional": 2.0}  # Light.position.w
+# Light.position.w; "emitter_sample" is a point drawn on an emissive triangle for next-event
+# estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its normal.
+LIGHT_KINDS = {"point": 0.0, "spot": 1.0, "directional": 2.0, "emitter_sample": 3.0}
 ENVIRONMENT_KINDS = {None: 0, "constant": 1, "envmap": 2}  # the ENVIRONMENT define
 # How a node's reference is read (bundle.glsl): a triangle (perfect bundles) or a splat point.
 METHODS = {"perfect": 0, "imperfect": 1}

@@ -1,15 +1,16 @@
 """The multi-bounce eye-path renderer over ray bundles (shaders/eye_paths.glsl).
 
 One frame is: a new `DirectionSet` (a fresh random rotation and grid jitter), its perfect or
-imperfect bundles (`BundleTracer`), shadow maps (once for a static scene), the direct light every
-bundle node reflects, the G-buffer with direct light at its samples, one pass per bounce, and the
-resolve into images. Frames accumulate, so the images converge as frames grow; a seed fixes every
+imperfect bundles (`BundleTracer`), shadow maps (once for a static scene), new emitter samples and
+their shadow maps, the direct light the bundles' nodes or points reflect (or lazily at path hits),
+the G-buffer with direct light at its samples, one pass per bounce, and the resolve into images. Frames accumulate, so the images converge as frames grow; a seed fixes every
 random choice, and a render is bitwise repeatable.
 
 Images are split by bounce count as Mitsuba's path integrator's ``max_depth`` splits them: direct
-(max_depth 2: emission seen directly, and light after one reflection, from shadow-mapped lights
-and from emitters and the environment reached through the bundles) and indirect (max_depth B + 2
-minus max_depth 2), so they compare with `references.mitsuba.reference` images directly.
+(max_depth 2: emission seen directly, and light after one reflection, from shadow-mapped lights,
+from emitters by next-event estimation and through the bundles, and from the environment reached
+through the bundles) and indirect (max_depth B + 2 minus max_depth 2), so they compare with
+`references.mitsuba.reference` images directly.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from gpu_impl.bundles import (CAPACITY_SLACK, DEFAULT_NODE_BUDGET, DEFAULT_SAMPL
                               BundleTracer, NodeBudgetExceeded, format_bytes)
 from gpu_impl.context import GLContext, PassTimer, set_uniforms
 from gpu_impl.layout import BINDINGS, METHODS, PATH, PATH_SUMS, SAMPLERS
-from gpu_impl.lights import ShadowLights
+from gpu_impl.lights import DEFAULT_LIGHT_SAMPLE_MAP_SIZE, DEFAULT_LIGHT_SAMPLES, ShadowLights
 from gpu_impl.scene_buffers import GpuScene
 
 IMAGES = ("direct", "indirect", "total")
@@ -58,7 +59,10 @@ class RenderSettings:
     ``self_hit_bias`` is in bundle pixels (see shaders/eye_paths.glsl, BOUNCE); the shadow biases
     are in shadow-map texels (shaders/lights.glsl). ``sampler`` and ``splatter`` pick how imperfect
     bundles are made (`gpu_impl.bundles.BundleTracer`), ``lighting`` where node light is computed
-    (`LIGHTING`).
+    (`LIGHTING`). ``light_samples`` points on the emissive triangles per frame light every path
+    vertex by next-event estimation, with cube shadow maps of ``light_sample_map_size``
+    (`gpu_impl.lights.EmitterSamples`); 0 turns it off, and then paths find emitters only by
+    hitting them.
     """
 
     method: str = "perfect"
@@ -86,6 +90,8 @@ class RenderSettings:
     shadow_slope_bias: float = 2.0
     node_budget: int = DEFAULT_NODE_BUDGET
     lighting: str = "auto"
+    light_samples: int = DEFAULT_LIGHT_SAMPLES
+    light_sample_map_size: int = DEFAULT_LIGHT_SAMPLE_MAP_SIZE
 
     def validate(self) -> None:
         """Raises ValueError naming the first setting out of range."""
@@ -93,11 +99,15 @@ class RenderSettings:
                             ("lighting", LIGHTING)):
             if getattr(self, name) not in known:
                 raise ValueError(f"{name} must be one of {', '.join(known)}, got {getattr(self, name)!r}")
-        for name in ("directions", "resolution", "points", "supersampling", "spp", "frames", "shadow_map_size", "shadow_filter"):
+        for name in ("directions", "resolution", "points", "supersampling", "spp", "frames", "shadow_filter"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        if self.bounces < 0:
-            raise ValueError(f"bounces must be at least 0, got {self.bounces}")
+        for name in ("shadow_map_size", "light_sample_map_size"):
+            if getattr(self, name) < 8:
+                raise ValueError(f"{name} must be at least 8 texels, got {getattr(self, name)}")
+        for name in ("bounces", "light_samples"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be at least 0, got {getattr(self, name)}")
         for name in ("width", "height"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -155,7 +165,12 @@ class Renderer:
         # same irradiance at their nodes or points: both are made once.
         self.reuse_bundles = not settings.rotate_directions and not self.moving
         self.lights = ShadowLights(gl, self.gpu_scene, settings.shadow_map_size, settings.shadow_bias,
-                                   settings.shadow_slope_bias, settings.shadow_filter)
+                                   settings.shadow_slope_bias, settings.shadow_filter, settings.light_samples,
+                                   settings.light_sample_map_size)
+        self.warnings = list(scene.warnings)
+        if scene.features().emitters and not settings.light_samples:
+            self.warnings.append("next-event estimation is off (light_samples = 0): emissive triangles light only the "
+                                 "paths that hit them, so images of small emitters converge slowly")
         features = self.gpu_scene.features
         # Shader variants from the scene's features: no shadow-map lookups without such lights, no
         # environment lookups without one, a node's back-side radiance only with two-sided materials.
@@ -251,7 +266,7 @@ class Renderer:
             "lighting_frames": {mode: self.lighting_used.count(mode) for mode in ("precomputed", "lazy") if mode in self.lighting_used},
             "gpu_bytes": self.gpu_bytes,
         }
-        return RenderResult(images, timings, stats, self.params(), list(self.scene.warnings))
+        return RenderResult(images, timings, stats, self.params(), list(self.warnings))
 
     def _frame(self, frame: int, timer: PassTimer, shadow_maps: bool, build: int) -> None:
         """One frame's passes on the bundles of frame ``build`` (this one, or 0 when reused)."""
@@ -260,6 +275,10 @@ class Renderer:
         if shadow_maps:
             with timer.measure("shadow_maps"):
                 self.lights.render_shadow_maps()
+        if self.lights.emitter_samples is not None:
+            with timer.measure("emitter_samples"):
+                self.lights.sample_emitters(st.seed, frame)
+            self.irradiance_of = None  # lit by this frame's samples
         self._bind()
         with timer.measure("gbuffer"):
             self._gbuffer(frame)

@@ -18,6 +18,7 @@ from evalkit.core.scene import Light, Material, Mesh, assemble, load_scene
 from evalkit.core.scene.builtin import furnace_radiance
 from evalkit.core.scene.model import Camera, look_at
 from evalkit.core.scene.tessellate import box
+from gpu_impl.lights import EmitterSamples
 from gpu_impl.renderer import Renderer, RenderSettings
 from references.mitsuba import DEFAULT_STORE, load_reference, reference, store_entry
 
@@ -46,17 +47,30 @@ FURNACE_TOLERANCE = 0.01
 
 @pytest.mark.parametrize("bounces", [1, 3])
 def test_furnace_matches_the_analytic_radiance(gl, bounces):
-    result = render(gl, load_scene("furnace"), bounces=bounces, directions=16, resolution=256, frames=64, width=32, height=32)
+    # The bundles' transport alone: paths find the emitting walls by hitting them.
+    result = render(gl, load_scene("furnace"), bounces=bounces, directions=16, resolution=256, frames=64, width=32,
+                    height=32, light_samples=0)
     direct, indirect = result.images["direct"].mean(), result.images["indirect"].mean()
     assert direct == pytest.approx(furnace_radiance(2), rel=FURNACE_TOLERANCE)
     assert indirect == pytest.approx(furnace_radiance(bounces + 2) - furnace_radiance(2), rel=FURNACE_TOLERANCE)
     assert np.allclose(result.images["total"], result.images["direct"] + result.images["indirect"])
 
 
+@pytest.mark.xfail(strict=True, reason="with next-event estimation the furnace's indirect mean scatters by -2 % to "
+                                       "+0.7 % over seeds (M=8 and 16, 64 frames) and sits about 1 % low at 256 frames: "
+                                       "not yet explained (issue 15 stays open)")
+def test_furnace_matches_the_analytic_radiance_with_next_event_estimation(gl):
+    # Measured (seed 0, M=8): direct -0.2 % ... +0.2 %, indirect -1.6 %.
+    result = render(gl, load_scene("furnace"), bounces=1, directions=16, resolution=256, frames=64, width=32, height=32,
+                    light_samples=8)
+    assert result.images["direct"].mean() == pytest.approx(furnace_radiance(2), rel=FURNACE_TOLERANCE)
+    assert result.images["indirect"].mean() == pytest.approx(furnace_radiance(3) - furnace_radiance(2), rel=FURNACE_TOLERANCE)
+
+
 def test_furnace_bias_falls_as_the_bundle_resolution_grows(gl):
     exact = furnace_radiance(5) - furnace_radiance(2)
     errors = [exact - render(gl, load_scene("furnace"), bounces=3, directions=16, resolution=R, frames=32, width=16,
-                             height=16).images["indirect"].mean() for R in (32, 128)]
+                             height=16, light_samples=0).images["indirect"].mean() for R in (32, 128)]
     assert errors[0] > 0 and errors[1] < 0.5 * errors[0]
 
 
@@ -89,16 +103,57 @@ def test_cornell_box_converges_to_the_mitsuba_reference(gl, images):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured 0.0118 at 12288 paths per pixel: without next-event estimation "
-                                       "for emitters, paths find cornell's small light only by hitting it")
-def test_cornell_box_indirect_relmse_reaches_one_percent(gl, images):
-    # The aim. Measured (seed 0): 6144 paths per pixel (spp 64, 96 frames) give indirect
-    # relMSE 0.0148 (means 0.0634 vs 0.0633 red); 12288 paths (192 frames, this test) gave 0.0118:
-    # NOT yet within the aim. Paths of a frame share its 32 directions, so the error falls slower
-    # than 1 / paths. This test stays failing until more directions per frame (or less bias) get there.
+def test_cornell_box_indirect_relmse_reaches_the_convergence_target(gl, images):
+    # With next-event estimation. Before it, 12288 paths per pixel gave indirect relMSE 0.0118:
+    # paths found cornell's small light only by hitting it.
     scene, ref = cornell_reference(3)
     result = render(gl, scene, bounces=3, directions=32, resolution=256, spp=64, frames=192, width=128, height=128)
-    images.relmse_at_most("indirect", result.images["indirect"], ref.images["indirect"], 0.01)
+    images.relmse_at_most("indirect", result.images["indirect"], ref.images["indirect"], 0.002)
+
+
+# -- next-event estimation for emissive triangles -------------------------------------------------
+
+def test_next_event_estimation_cuts_the_noise_of_a_small_emitter(gl, images):
+    # Measured (seed 0, B=1, K=32, R=128, 128x128, 8 frames x 4 spp): indirect relMSE 0.83 without
+    # next-event estimation, 0.0114 with 8 emitter samples per frame; direct 0.94 and 0.00077.
+    # Thresholds: the measured values plus about a third (indirect) and twice (direct).
+    scene, ref = cornell_reference(1)
+    settings = dict(bounces=1, directions=32, resolution=128, spp=4, frames=8, width=128, height=128)
+    off = render(gl, scene, light_samples=0, **settings)
+    on = render(gl, scene, light_samples=8, **settings)
+    assert any("next-event estimation is off" in w for w in off.warnings)
+    assert not any("next-event estimation" in w for w in on.warnings)
+    assert on.params["light_samples"] == 8 and off.params["light_samples"] == 0
+    error_off = relmse(off.images["indirect"], ref.images["indirect"])
+    images.relmse_at_most("indirect", on.images["indirect"], ref.images["indirect"], min(0.015, error_off / 20))
+    images.relmse_at_most("direct", on.images["direct"], ref.images["direct"], 0.0015)
+
+
+def test_emitter_samples_follow_emitted_power_and_sum_to_it():
+    quad = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    meshes = [Mesh("bright", quad, faces, 0), Mesh("dim", quad * 2.0 + [3, 0, 0], faces, 1), Mesh("wall", quad + [0, 0, 2], faces, 2)]
+    materials = [Material("bright", emission=(8.0, 8.0, 8.0)), Material("dim", emission=(1.0, 1.0, 1.0)), Material("wall")]
+    scene = assemble("lamps", "lamps", meshes, materials, [], None)
+    samples = EmitterSamples(scene, 60)
+    positions, normals, intensities, densities = samples.frame_lights(seed=0, frame=3)
+    # Power 8 x 1 against 1 x 4: two thirds of the samples on the bright quad, stratified exactly.
+    bright = positions[:, 0] < 2.0 - scene.origin[0]  # the bright quad spans x 0..1, the dim one 3..5
+    assert np.count_nonzero(bright) == 40
+    assert np.allclose(np.abs(normals[:, 2]), 1.0)
+    # Each sample carries W / M of the power: the sum is the emitters' sum of L_e A, whatever was drawn.
+    assert intensities.sum(axis=0) == pytest.approx([12.0, 12.0, 12.0])
+    assert np.allclose(densities, 60 * np.where(bright, 8.0, 1.0) / 12.0)  # M p(y) = M w(y) / W
+    again = samples.frame_lights(seed=0, frame=3)
+    assert np.array_equal(positions, again[0]) and not np.array_equal(positions, samples.frame_lights(seed=0, frame=4)[0])
+
+
+def test_bad_next_event_settings_are_one_line_errors():
+    for field, value in (("light_samples", -1), ("light_sample_map_size", 4)):
+        with pytest.raises(ValueError, match=field):
+            RenderSettings(**{field: value}).validate()
+    bad = run_evalkit("render", "cornell-box", "--method", "perfect", "--light-samples", "-2", "--out", "/tmp/unused")
+    assert bad.returncode == 2 and "-2 must be at least 0" in bad.stderr and "Traceback" not in bad.stderr
 
 
 # -- shadow-mapped lights against Mitsuba --------------------------------------------------------

@@ -45,3 +45,13 @@ uvec4 pcg4d(uvec4 v) {
 float unit_float(uint bits) {
     return float(bits >> 8u) * (1.0 / 16777216.0);
 }
+
+// Multiple importance sampling of emitters (the power heuristic, Veach 1997) between next-event
+// estimation, M emitter samples whose density per solid angle at x is M p_A(y) |x - y|^2 / cos_y,
+// and the eye paths' bundle directions, uniform over the hemisphere: the weight of the technique
+// of density `own` against `other`. Written as a ratio, so an infinite or zero density gives 0 or 1.
+#define BUNDLE_DIRECTION_PDF 0.15915494309189535  // 1 / (2 pi)
+float power_heuristic(float own, float other) {
+    float r = other / own;
+    return 1.0 / (1.0 + r * r);
+}

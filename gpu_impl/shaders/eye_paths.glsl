@@ -34,6 +34,14 @@ uniform int direction_count;    // K
 uniform uint seed;
 uniform uint frame;
 uniform float self_hit_bias;    // in bundle pixels, see below
+#if EMITTER_SAMPLES
+uniform float emitter_sample_density;  // M / W: M p(y) = emitter_sample_density * emitter_weight (gpu_impl/lights.py)
+// w(y) of EmitterSamples: the mean of the emitted radiance's channels.
+float emitter_weight(uint m) {
+    vec3 e = materials[m].emission.rgb;
+    return (e.r + e.g + e.b) / 3.0;
+}
+#endif
 
 #if defined PRECOMPUTED_IRRADIANCE
 vec3 irradiance_at(uint item, uint side) {
@@ -111,6 +119,12 @@ void main() {
         bool front = dot(nn, omega) < 0.0;
         if (front) {
             emitted = throughput * materials[m].emission.rgb;
+#if EMITTER_SAMPLES
+            // Next-event estimation could have found this emitter too: multiple importance sampling.
+            vec3 to_hit = node.position - path.position;
+            float cos_y = max(dot(node.normal, -omega), 0.0);
+            emitted *= power_heuristic(BUNDLE_DIRECTION_PDF, emitter_sample_density * emitter_weight(m) * dot(to_hit, to_hit) / cos_y);
+#endif
         } else if (!material_twosided(m)) {
             alive = false;  // the back of a one-sided surface blocks the path
         } else {

@@ -3,7 +3,10 @@
 //
 // Radiometry follows Mitsuba's emitters, so images compare with its references: a point or spot
 // light gives intensity / distance^2 (the spot times Mitsuba's falloff, linear in angle from 1 at
-// beam_width to 0 at cutoff_angle), a directional light its irradiance.
+// beam_width to 0 at cutoff_angle), a directional light its irradiance. An emitter sample (next-
+// event estimation of emissive triangles, gpu_impl/lights.py: EmitterSamples) is a point light
+// whose intensity falls as the cosine to its emitter's normal, L_e cos_y / (M p(y)), weighted by
+// multiple importance sampling against the bundle direction that could have found the emitter.
 //
 // Compiled per scene: SHADOW_LIGHTS is 0 without point, spot or directional lights, and then
 // nothing here exists.
@@ -12,11 +15,13 @@
 
 struct Light {
     vec4 position;   // xyz relative to the bundle centre (point, spot); w: LIGHT_*
-    vec4 direction;  // xyz: the direction light travels (spot, directional); w: cos(cutoff)
+    vec4 direction;  // xyz: the direction light travels (spot, directional) or the emitter's normal
+                     // (emitter sample); w: cos(cutoff)
     vec4 intensity;  // rgb: W/sr (point, spot) or W/m^2 (directional); w: cos(beam width)
-    vec4 shape;      // x: cutoff (rad), y: 1 / (cutoff - beam width) (rad^-1), z: first shadow view, w: views (1 or 6)
+    vec4 shape;      // x: cutoff (rad), or M p(y) for an emitter sample; y: 1 / (cutoff - beam width) (rad^-1);
+                     // z: first shadow view; w: views (1 or 6)
 };
-// Light.position.w is LIGHT_POINT, LIGHT_SPOT or LIGHT_DIRECTIONAL (gpu_impl/layout.py).
+// Light.position.w is LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL or LIGHT_EMITTER_SAMPLE (gpu_impl/layout.py).
 
 // One shadow map: a tile of the atlas holding, per texel, the distance from the light to the
 // nearest surface (radial for a perspective view, along the light direction for an orthographic one).
@@ -25,7 +30,8 @@ struct ShadowView {
     vec4 tile;       // xy: the tile's first texel in the atlas, z: its size in texels, w: see texel_size
     vec4 origin;     // xyz: the light position (perspective) or the plane distances start from
                      // (orthographic); w: 1 perspective, 0 orthographic
-    vec4 axis;       // xyz: the light direction (orthographic); w: 1 / the farthest distance
+    vec4 axis;       // xyz: the light direction (orthographic), the emitter's normal (an emitter
+                     // sample's views), else 0; w: 1 / the farthest distance
 };
 
 layout(std430, binding = BINDING_LIGHTS) readonly buffer Lights { Light lights[]; };
@@ -119,7 +125,11 @@ vec3 light_irradiance(vec3 p, vec3 n) {
             vec3 v = light.position.xyz - p;
             float d2 = dot(v, v);
             to_light = v * inversesqrt(d2);
-            float falloff = light.position.w == LIGHT_SPOT ? spot_falloff(light, dot(-to_light, light.direction.xyz)) : 1.0;
+            float cos_out = dot(-to_light, light.direction.xyz);
+            float falloff = light.position.w == LIGHT_SPOT ? spot_falloff(light, cos_out)
+                          : light.position.w == LIGHT_EMITTER_SAMPLE
+                          ? (cos_out > 0.0 ? cos_out * power_heuristic(light.shape.x * d2 / cos_out, BUNDLE_DIRECTION_PDF) : 0.0)
+                          : 1.0;
             arriving = light.intensity.rgb * (falloff / d2);
         }
         float cos_theta = dot(n, to_light);

@@ -28,6 +28,10 @@ layout(location = 0) out float out_distance;
 
 void main() {
     ShadowView view = shadow_views[view_index];
+    // An emitter sample's views (axis: its emitter's normal) keep only what lies in front of the
+    // emitter: its own surface, seen almost edge-on from just in front of it, would fill the texels
+    // at its horizon with tiny distances and shadow the light that leaves it at grazing angles.
+    if (view.origin.w > 0.5 && any(notEqual(view.axis.xyz, vec3(0.0))) && dot(v_position - view.origin.xyz, view.axis.xyz) <= 0.0) discard;
     out_distance = light_distance(view, v_position);
     gl_FragDepth = clamp(out_distance * view.axis.w, 0.0, 1.0);
 }
