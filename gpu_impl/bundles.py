@@ -204,9 +204,6 @@ class BundleTracer:
             buffer = self.buffers[name] = self.gl.buffer(reserve=max(4, int(nbytes)))
         return buffer
 
-    def _fits(self, nbytes_more: int) -> bool:
-        return self.memory_bytes + nbytes_more <= self.node_budget
-
     def _check_budget(self, needed: int, what: str) -> None:
         if needed > self.node_budget:
             raise NodeBudgetExceeded(

@@ -33,7 +33,7 @@ GUARD_TEXELS = 2
 DEFAULT_LIGHT_SAMPLES = 8
 DEFAULT_LIGHT_SAMPLE_MAP_SIZE = 256
 # An emitter sample sits this far (times the bounding radius) in front of its triangle, so that its
-# own shadow map does not see the triangle's plane edge-on at distance zero.
+# own surface lies behind it and its shadow views leave that surface out (shaders/shadow_maps.glsl).
 EMITTER_OFFSET = 1e-5
 
 
@@ -49,28 +49,20 @@ class EmitterSamples:
     """
 
     def __init__(self, scene, count: int):
-        self.count = int(count)
-        corners, normals, radiance = [], [], []
-        for mesh in scene.meshes:
-            material = scene.materials[mesh.material]
-            if not material.emissive:
-                continue
-            corners.append(mesh.positions[mesh.faces])
-            normals.append(None if mesh.normals is None else mesh.normals[mesh.faces])
-            radiance.append(np.broadcast_to(np.asarray(material.emission, dtype=np.float64), (len(mesh.faces), 3)))
-        self.triangles = np.concatenate(corners) if corners else np.zeros((0, 3, 3))
+        """``scene`` must have emitters (the importers refuse emitters of zero area)."""
+        self.scene, self.count = scene, int(count)
+        emitters = [m for m in scene.meshes if scene.materials[m.material].emissive]
+        self.triangles = np.concatenate([m.positions[m.faces] for m in emitters])
         # Vertex normals per corner where the mesh has them (Mitsuba's emitters use the shading normal).
-        self.corner_normals = (None if not corners or all(n is None for n in normals) else
-                               np.concatenate([_face_normals(c) [:, None, :].repeat(3, axis=1) if n is None else n
-                                               for c, n in zip(corners, normals)]))
-        self.radiance = np.concatenate(radiance) if radiance else np.zeros((0, 3))
-        e1 = self.triangles[:, 1] - self.triangles[:, 0]
-        e2 = self.triangles[:, 2] - self.triangles[:, 0]
-        self.areas = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+        self.corner_normals = (None if all(m.normals is None for m in emitters) else
+                               np.concatenate([_face_normals(m.positions[m.faces])[:, None, :].repeat(3, axis=1)
+                                               if m.normals is None else m.normals[m.faces] for m in emitters]))
+        self.radiance = np.concatenate([np.broadcast_to(np.asarray(scene.materials[m.material].emission, dtype=np.float64),
+                                                        (len(m.faces), 3)) for m in emitters])
         self.weights = self.radiance.mean(axis=1)
-        power = self.weights * self.areas
+        power = self.weights * np.concatenate([m.triangle_areas() for m in emitters])
         self.total = float(power.sum())  # W in p(y) = w(y) / W
-        self.cdf = np.cumsum(power) / self.total if self.total > 0 else np.zeros(0)
+        self.cdf = np.cumsum(power) / self.total
 
     @property
     def density_scale(self) -> float:
@@ -186,16 +178,14 @@ class ShadowLights:
             first = len(views)
             views += self._views(light)
             records.append(self._record(light, first, len(views) - first))
-        self.fixed_views = len(views)  # the emitter samples' views follow, 6 each, redrawn every frame
-        self.fixed_lights = len(records)
-        self.views = views + [None] * (6 * samples)
-        self.drawn = list(range(len(views)))  # the views render_shadow_maps draws
+        # The emitter samples' lights and views (6 each, redrawn every frame) follow these.
+        self.fixed_lights, self.fixed_views = len(records), len(views)
         self.buffers = {}
         self.atlas = self.framebuffer = None
         if self.count:
             sizes = [self.map_size] * len(views) + [self.sample_map_size] * (6 * samples)
             self.tiles, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"))
-            self.view_records = np.zeros(len(self.views), dtype=SHADOW_VIEW)
+            self.view_records = np.zeros(len(sizes), dtype=SHADOW_VIEW)
             for i, view in enumerate(views):
                 self._set_view(i, view, self.map_size)
             self.records = np.zeros(self.count, dtype=LIGHT)
@@ -220,6 +210,8 @@ class ShadowLights:
         """Draw this frame's emitter samples and render their shadow maps (nothing without them)."""
         if self.emitter_samples is None:
             return
+        if self.emitter_samples.scene is not self.gpu_scene.scene:  # posed since: the emitters may have moved
+            self.emitter_samples = EmitterSamples(self.gpu_scene.scene, self.emitter_samples.count)
         positions, normals, intensities, densities = self.emitter_samples.frame_lights(seed, frame)
         r = self.gpu_scene.radius
         positions = positions - self.gpu_scene.centre + EMITTER_OFFSET * r * normals
@@ -227,9 +219,9 @@ class ShadowLights:
         for m, (position, normal, intensity, density) in enumerate(zip(positions, normals, intensities, densities)):
             first = self.fixed_views + 6 * m
             far = float(np.linalg.norm(position)) + r
-            for f, view in enumerate(self._cube_views(position, far, self.sample_map_size)):
+            # The emitter's normal as the views' axis: shaders/shadow_maps.glsl keeps only what is in front.
+            for f, view in enumerate(self._cube_views(position, far, self.sample_map_size, axis=normal)):
                 self._set_view(first + f, view, self.sample_map_size)
-                self.view_records["axis"][first + f, :3] = normal  # shaders/shadow_maps.glsl: only what is in front
                 if _faces_front(CUBE_FACES[f], normal):
                     drawn.append(first + f)
             kind = LIGHT_KINDS["emitter_sample"]
@@ -260,11 +252,11 @@ class ShadowLights:
         return self._cube_views(position, far, s)
 
     @staticmethod
-    def _cube_views(position: np.ndarray, far: float, size: int) -> list:
+    def _cube_views(position: np.ndarray, far: float, size: int, axis: np.ndarray = np.zeros(3)) -> list:
         near = max(far * 1e-5, 1e-30)
         tan_half = 1.0 + 2.0 * GUARD_TEXELS / size
         return [(perspective(tan_half, near, far) @ look_at_view(position, np.array(face, dtype=np.float64)),
-                 2.0 * tan_half / size, position, True, np.zeros(3), far) for face in CUBE_FACES]
+                 2.0 * tan_half / size, position, True, axis, far) for face in CUBE_FACES]
 
     def _record(self, light: Light, first_view: int, views: int) -> tuple:
         """The light's `LIGHT` record (shaders/lights.glsl: Light)."""
@@ -284,9 +276,9 @@ class ShadowLights:
         """Draw the scene into the tile of every shadow view of the point, spot and directional lights."""
         if self.framebuffer is None:
             return
-        self._draw(self.drawn, clear=False)
+        self._draw(range(self.fixed_views), clear=False)
 
-    def _draw(self, views: list[int], clear: bool) -> None:
+    def _draw(self, views, clear: bool) -> None:
         """Draw the scene into the given views' tiles; ``clear``: clear only those tiles first,
         else the whole atlas (the first draw)."""
         if not views:

@@ -168,7 +168,7 @@ class Renderer:
                                    settings.shadow_slope_bias, settings.shadow_filter, settings.light_samples,
                                    settings.light_sample_map_size)
         self.warnings = list(scene.warnings)
-        if scene.features().emitters and not settings.light_samples:
+        if self.gpu_scene.features.emitters and not settings.light_samples:
             self.warnings.append("next-event estimation is off (light_samples = 0): emissive triangles light only the "
                                  "paths that hit them, so images of small emitters converge slowly")
         features = self.gpu_scene.features

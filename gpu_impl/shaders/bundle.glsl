@@ -38,6 +38,30 @@ layout(std430, binding = BINDING_POINTS) readonly buffer Points { SplatPoint poi
 vec2 point_barycentrics(uint point) {
     return unpackUnorm2x16(points[point].barycentrics);
 }
+
+// A splat point on its source triangle (scene.glsl): the triangle, its vertex indices and edges
+// e1, e2 from its first corner, the point's barycentrics b and the point p0 + b.x e1 + b.y e2, the
+// splat's centre. Every pass that places a splat takes its centre from here, so they agree bitwise.
+struct SplatSource {
+    uint triangle;
+    uvec3 vertices;
+    vec3 e1;
+    vec3 e2;
+    vec2 b;
+    vec3 centre;
+};
+
+SplatSource splat_source(uint point) {
+    SplatSource s;
+    s.triangle = points[point].triangle;
+    s.vertices = triangle_vertices(s.triangle);
+    vec3 p0 = vertex_position(s.vertices.x);
+    s.e1 = vertex_position(s.vertices.y) - p0;
+    s.e2 = vertex_position(s.vertices.z) - p0;
+    s.b = point_barycentrics(point);
+    s.centre = p0 + s.b.x * s.e1 + s.b.y * s.e2;
+    return s;
+}
 #endif
 uniform uint points_per_direction;  // N
 uniform float splat_radius;         // in scene units

@@ -24,13 +24,10 @@ flat out int v_direction;
 void main() {
     uint splat = uint(gl_VertexID) / 3u;
     uint corner = uint(gl_VertexID) % 3u;
-    uint t = points[splat].triangle;
-    vec2 b = point_barycentrics(splat);
-    uvec3 i = triangle_vertices(t);
-    vec3 p0 = vertex_position(i.x), e1 = vertex_position(i.y) - p0, e2 = vertex_position(i.z) - p0;
-    vec3 center = p0 + b.x * e1 + b.y * e2;
-    vec3 n = triangle_normal(t);
-    vec3 tangent = normalize(e1);
+    SplatSource s = splat_source(splat);
+    vec3 center = s.centre;
+    vec3 n = triangle_normal(s.triangle);
+    vec3 tangent = normalize(s.e1);
     vec3 bitangent = cross(n, tangent);
 
     // The equilateral triangle around the unit disk has its corners at distance 2.

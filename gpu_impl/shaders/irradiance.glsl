@@ -42,12 +42,8 @@ void main() {
     uint id = linear_id();
     if (id >= invocations) return;
 #if BUNDLE_METHOD == METHOD_IMPERFECT
-    uint t = points[id].triangle;
-    vec2 b = point_barycentrics(id);
-    uvec3 v = triangle_vertices(t);
-    vec3 p0 = vertex_position(v.x);
-    vec3 centre = p0 + b.x * (vertex_position(v.y) - p0) + b.y * (vertex_position(v.z) - p0);
-    store_irradiance(id, centre, shading_normal(t, v, b.x, b.y), t);
+    SplatSource s = splat_source(id);
+    store_irradiance(id, s.centre, shading_normal(s.triangle, s.vertices, s.b.x, s.b.y), s.triangle);
 #else
     int k = list_direction(id);
     vec3 origin = line_origin(k, list_pixel(id)), d = frames[k].d.xyz;

@@ -54,11 +54,10 @@ uniform bool nearest_only;  // merging: only the nearest of a triangle's splats 
 // The splat of point `id`: its nodes counted or written; returns the lines it covers (before
 // leaving any to a nearer splat).
 uint splat(uint id) {
-    uint t = points[id].triangle;
-    vec2 b = point_barycentrics(id);
-    uvec3 v = triangle_vertices(t);
-    vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;
-    vec3 centre = p0 + b.x * e1 + b.y * e2;
+    SplatSource s = splat_source(id);
+    uint t = s.triangle;
+    vec2 b = s.b;
+    vec3 e1 = s.e1, e2 = s.e2, centre = s.centre;
     vec3 n = triangle_normal(t);
     int k = int(id / points_per_direction);
     BundleFrame f = frames[k];
