@@ -56,9 +56,9 @@ def test_furnace_matches_the_analytic_radiance(gl, bounces):
     assert np.allclose(result.images["total"], result.images["direct"] + result.images["indirect"])
 
 
-@pytest.mark.xfail(strict=True, reason="with next-event estimation the furnace's indirect mean scatters by -2 % to "
-                                       "+0.7 % over seeds (M=8 and 16, 64 frames) and sits about 1 % low at 256 frames: "
-                                       "not yet explained (issue 15 stays open)")
+@pytest.mark.xfail(strict=True, reason="every pixel shares a frame's 8 emitter samples, so the indirect mean scatters "
+                                       "by 1 % over seeds at 64 frames (seeds 0-5: -0.25 % +- 0.43 %): seed 0 is -1.6 %; "
+                                       "issue 15 stays open")
 def test_furnace_matches_the_analytic_radiance_with_next_event_estimation(gl):
     # Measured (seed 0, M=8): direct -0.2 % ... +0.2 %, indirect -1.6 %.
     result = render(gl, load_scene("furnace"), bounces=1, directions=16, resolution=256, frames=64, width=32, height=32,
@@ -158,13 +158,13 @@ def test_bad_next_event_settings_are_one_line_errors():
 
 # -- shadow-mapped lights against Mitsuba --------------------------------------------------------
 
-def lit_stage(*lights: Light):
-    """A floor with a box on it, lit by ``lights``, seen from above at an angle."""
+def lit_stage(*lights: Light, eye=(0.0, 4.0, 4.5), target=(0.0, 0.3, 0.0), fov=45.0, size=64):
+    """A floor with a box on it, lit by ``lights``, seen from above at an angle (by default)."""
     floor = np.array([[-2.0, 0, -2], [2, 0, -2], [2, 0, 2], [-2, 0, 2]])
     meshes = [Mesh("floor", floor, np.array([[0, 2, 1], [0, 3, 2]]), 0),
               Mesh("box", *box(np.array([-0.5, 0.0, -0.5]), np.array([0.5, 1.0, 0.5])), 1)]
     materials = [Material("floor", albedo=(0.7, 0.7, 0.7)), Material("box", albedo=(0.8, 0.3, 0.2))]
-    camera = Camera(look_at([0.0, 4.0, 4.5], [0.0, 0.3, 0.0], [0, 1, 0]), fov=45.0, fov_axis="x", width=64, height=64)
+    camera = Camera(look_at(list(eye), list(target), [0, 1, 0]), fov=fov, fov_axis="x", width=size, height=size)
     return assemble("stage", "stage", meshes, materials, list(lights), camera)
 
 
@@ -187,6 +187,46 @@ def test_shadow_mapped_direct_light_matches_mitsuba(gl, tmp_path, images, light)
     assert ref.images["direct"].mean() > 0.02
     images.relmse_at_most("direct", result.images["direct"], ref.images["direct"], DIRECT_RELMSE)
     assert not result.images["indirect"].any()  # bounces=0: no indirect light at all
+
+
+# -- environment light against Mitsuba -----------------------------------------------------------
+
+def sky_stage(light: Light, size: int = 32):
+    """The stage seen from low down: the sky fills the top of the image (its top 3/16)."""
+    return lit_stage(light, eye=(0.0, 1.6, 4.5), target=(0.0, 0.7, 0.0), fov=60.0, size=size)
+
+
+SKY = Light("constant", (0.9, 1.0, 1.2))
+_TURN = np.array([[np.cos(0.6), 0, np.sin(0.6), 0], [0, 1, 0, 0], [-np.sin(0.6), 0, np.cos(0.6), 0], [0, 0, 0, 1.0]])
+# Random texels: any misplaced texel shows. Turned about y, so the map's frame is checked too.
+ENVMAP = Light("envmap", (1.5, 1.5, 1.5), envmap=(0.2 + np.random.default_rng(7).random((8, 16, 3))).astype(np.float32),
+               to_world=_TURN)
+
+# Measured (seed 0, 32x32, B=1, K=16, R=128, 256 frames; Mitsuba 1024 spp), relMSE with both
+# images divided by the reference's mean (indirect light is dim: relMSE's 0.01 floor would hide
+# it): direct constant 6.7e-4, envmap 8.6e-4; indirect in 4x4 blocks 7.9e-3 and 8.6e-3, means
+# 0.962 and 0.969 of Mitsuba's (a path may take the bundle it arrived along again, 1 bounce in K,
+# back to the surface it came from instead of the sky: issue 15); the sky pixels 3.4e-6 (7.2e-4,
+# and direct 3.5e-3, with texel rows at (j + 0.5) / H, the convention before Mitsuba's was
+# checked). Thresholds: 3x (sky: 10x), and the mean within 6 %.
+ENVIRONMENT_DIRECT_RELMSE, ENVIRONMENT_INDIRECT_BLOCK_RELMSE, SKY_RELMSE = 0.0026, 0.026, 3.4e-5
+
+
+def normalized(image: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return image / ref.mean(), ref / ref.mean()
+
+
+@pytest.mark.parametrize("light", [SKY, ENVMAP], ids=["constant", "envmap"])
+def test_environment_light_matches_mitsuba(gl, tmp_path, images, light):
+    scene = sky_stage(light)
+    ref = reference(scene, bounces=1, spp=1024, width=32, height=32, store=tmp_path, progress=lambda line: None)
+    result = render(gl, scene, bounces=1, directions=16, resolution=128, frames=256, width=32, height=32)
+    images.relmse_at_most("direct", *normalized(result.images["direct"], ref.images["direct"]), ENVIRONMENT_DIRECT_RELMSE)
+    indirect = normalized(block_mean(result.images["indirect"], 4), block_mean(ref.images["indirect"], 4))
+    images.relmse_at_most("indirect-4x4-blocks", *indirect, ENVIRONMENT_INDIRECT_BLOCK_RELMSE)
+    assert indirect[0].mean() == pytest.approx(1.0, abs=0.06)
+    # Where the camera sees the sky, the image is the environment's lookup itself: no noise.
+    images.relmse_at_most("sky", result.images["direct"][:6], ref.images["direct"][:6], SKY_RELMSE)
 
 
 def test_bounce_accounting_matches_mitsubas_max_depth(gl, tmp_path):

@@ -21,8 +21,9 @@ vec3 envmap_texel(int x, int y) {
 
 // The radiance arriving along -dir from the environment (dir: the direction a path leaves in).
 // The lat-long map uses Mitsuba's orientation, u = atan2(x, -z) / (2 pi), v = acos(y) / pi in
-// the map's local frame, with texel centres at ((i + 0.5) / W, (j + 0.5) / H), bilinear,
-// wrapped in u and clamped in v.
+// the map's local frame, and Mitsuba's texel positions (its envmap plugin, checked against its
+// emitter's eval by tests/test_renderer.py): column i at u = (i + 0.5) / W, wrapped, but row j at
+// v = j / (H - 1), so the first and last rows sit on the poles; bilinear between them.
 vec3 environment(vec3 dir) {
 #if ENVIRONMENT == ENVIRONMENT_CONSTANT
     return environment_radiance;
@@ -30,7 +31,7 @@ vec3 environment(vec3 dir) {
     vec3 v = normalize(environment_to_local * dir);
     vec2 uv = vec2(atan(v.x, -v.z) * (0.5 / 3.141592653589793), acos(clamp(v.y, -1.0, 1.0)) / 3.141592653589793);
     uv.x -= floor(uv.x);
-    vec2 p = uv * vec2(envmap_size) - 0.5;
+    vec2 p = vec2(uv.x * float(envmap_size.x) - 0.5, uv.y * float(envmap_size.y - 1));
     vec2 f = floor(p), w = p - f;
     int x0 = (int(f.x) % envmap_size.x + envmap_size.x) % envmap_size.x, x1 = (x0 + 1) % envmap_size.x;
     int y0 = clamp(int(f.y), 0, envmap_size.y - 1), y1 = clamp(int(f.y) + 1, 0, envmap_size.y - 1);
