@@ -51,10 +51,14 @@ SAMPLERS = {"random": 0, "stratified": 1}
 COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4}
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
+# Path.bundle (paths.glsl) past the bundle indices: the path has ended, or is at its camera vertex.
+PATH_ENDED = np.uint32(0xFFFFFFFF)
+PATH_FROM_CAMERA = np.uint32(0xFFFFFFFE)
 
 SHADER_CONSTANTS = {
     "SPLAT_BIT": SPLAT_BIT, "MATERIAL_TEXTURED": MATERIAL_TEXTURED, "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,
     "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH, "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL, "FACING_BIT": FACING_BIT,
+    "PATH_ENDED": PATH_ENDED, "PATH_FROM_CAMERA": PATH_FROM_CAMERA,
     **{f"LIGHT_{kind.upper()}": value for kind, value in LIGHT_KINDS.items()},
     **{f"ENVIRONMENT_{'NONE' if kind is None else ('MAP' if kind == 'envmap' else kind.upper())}": value
        for kind, value in ENVIRONMENT_KINDS.items()},
@@ -71,7 +75,7 @@ SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4")])  # bundle
 BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])  # bundle.glsl: BundleFrame
 LIGHT = np.dtype([("position", "<f4", 4), ("direction", "<f4", 4), ("intensity", "<f4", 4), ("shape", "<f4", 4)])  # lights.glsl: Light
 SHADOW_VIEW = np.dtype([("to_clip", "<f4", (4, 4)), ("tile", "<f4", 4), ("origin", "<f4", 4), ("axis", "<f4", 4)])  # lights.glsl
-PATH = np.dtype([("position", "<f4", 3), ("normal", "<u4"), ("throughput", "<f4", 3), ("alive", "<u4"),
+PATH = np.dtype([("position", "<f4", 3), ("normal", "<u4"), ("throughput", "<f4", 3), ("bundle", "<u4"),
                  ("albedo", "<f4", 3), ("geometric", "<u4")])  # paths.glsl: Path
 PATH_SUMS = np.dtype([("direct", "<f4", 4), ("indirect", "<f4", 4)])  # paths.glsl: PathSums
 

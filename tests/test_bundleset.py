@@ -5,19 +5,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evalkit.core.bundleset import BundleSet, DirectionSet, orthonormal_frames, spherical_fibonacci
+from evalkit.core.bundleset import BundleSet, DirectionSet, orthonormal_frames
 from evalkit.core.errors import InputError
 
 
-def test_fibonacci_directions_cover_the_sphere_evenly():
-    d = spherical_fibonacci(256)
+def test_directions_are_independent_and_uniform_over_the_sphere():
+    sets = [DirectionSet.make(16, seed=3, frame=f).directions for f in range(2000)]
+    d = np.concatenate(sets)
     assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
-    assert np.allclose(d.mean(axis=0), 0.0, atol=0.01)
-    # Every direction on the sphere is within a small angle of one of the set's.
-    probes = np.random.default_rng(0).normal(size=(4000, 3))
-    probes /= np.linalg.norm(probes, axis=1, keepdims=True)
-    nearest = np.degrees(np.arccos(np.clip((probes @ d.T).max(axis=1), -1, 1)))
-    assert nearest.max() < 10.0  # about 1.4x the mean spacing sqrt(4 pi / 256) = 12.7 deg / 2
+    # Uniform: each coordinate is uniform in [-1, 1] (Archimedes), so each octant holds 1/8.
+    octants = np.bincount((d > 0) @ np.array([1, 2, 4]), minlength=8) / len(d)
+    assert np.abs(octants - 0.125).max() < 0.008  # 4.5 standard deviations of 32,000 draws
+    # Independent within a set: the cosine between two of a frame's directions is uniform in
+    # [-1, 1] too. An evenly spread set has no pair closer than its spacing (cos near 1).
+    cos = np.concatenate([(s @ s.T)[np.triu_indices(16, 1)] for s in sets])
+    assert np.mean(cos > 0.9) == pytest.approx(0.05, abs=0.003)
 
 
 def test_frames_are_right_handed_and_orthonormal_even_at_the_poles(rng):

@@ -208,3 +208,17 @@ def test_cli_exact_bundles_and_compare_bundles(tmp_path):
     assert bad.returncode == 2 and "not on the same lines" in bad.stderr and bad.stderr.count("\n") == 1
     missing = run_evalkit("compare-bundles", str(tmp_path / "nope.npz"), str(tmp_path / "exact.npz"))
     assert missing.returncode == 2 and "nope.npz: no such file" in missing.stderr
+
+
+def test_cached_exact_bundles_on_other_lines_are_made_again(tmp_path):
+    # A study's cache from before a change of the direction generator holds the same K, R and seed
+    # on other lines; comparing GL bundles with it would fail, so it is rebuilt.
+    from evalkit.study.artefacts import exact_bundles
+
+    scene, run = load_scene("cornell-box"), {"directions": 4, "resolution": 16, "seed": 1}
+    made = exact_bundles(scene, run, tmp_path)
+    cache = next((tmp_path / "cache").glob("exact-*.npz"))
+    ExactTracer(scene).bundles(DirectionSet.make(4, seed=2), 16).save(cache)
+    again = exact_bundles(scene, run, tmp_path)
+    assert again.directions.same_as(made.directions) and again.node_count == made.node_count
+    assert BundleSet.load(cache).directions.same_as(made.directions)

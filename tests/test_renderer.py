@@ -38,39 +38,56 @@ def block_mean(image: np.ndarray, b: int) -> np.ndarray:
 
 # -- furnace: every surface emits 1 and reflects 0.5, so bounce j adds 0.5^j exactly --------------
 
-# Measured (seed 0, 32x32, K=16, R=256, 64 frames): direct 1.4979 (-0.14 %), indirect B=1 0.24902
-# (-0.39 %), B=3 0.43521 (-0.52 %). Perfect bundles lose light only where a bundle line, up to a
-# pixel beside the vertex, passes outside a concave edge of the cube: O(1/R) (4 % at R=64 for
-# B=3). The target is 1 %.
+# The frame's K directions are independent, so every frame's image mean scatters by about 9 %
+# (the mean of 2 cos over 16 random directions): 1024 frames bring that to 0.3 %. Measured (16x16,
+# K=16, R=128, 1024 frames, seeds 0-2, no NEE): indirect B=1 -0.47 %, -0.52 %, -1.05 %; B=3
+# -0.73 %, -0.97 %, -1.36 % (R=256, seed 0: -0.60 %). What is left is light lost where a line
+# beside the vertex leaves the cube at a concave edge (it falls with R) and the scatter. The target
+# is 1 %: met by seed 0 at R=128, not by the mean of seeds 0-2 at B=3 (-1.02 % +- 0.18 %).
 FURNACE_TOLERANCE = 0.01
+
+
+def furnace_ratio(gl, resolution, frames, bounces=1, light_samples=0):
+    """The furnace's (16x16, K=16) direct and indirect image means over the analytic values."""
+    result = render(gl, load_scene("furnace"), bounces=bounces, directions=16, resolution=resolution, frames=frames,
+                    width=16, height=16, light_samples=light_samples)
+    assert np.allclose(result.images["total"], result.images["direct"] + result.images["indirect"])
+    return (result.images["direct"].mean() / furnace_radiance(2),
+            result.images["indirect"].mean() / (furnace_radiance(bounces + 2) - furnace_radiance(2)))
 
 
 @pytest.mark.parametrize("bounces", [1, 3])
 def test_furnace_matches_the_analytic_radiance(gl, bounces):
     # The bundles' transport alone: paths find the emitting walls by hitting them.
-    result = render(gl, load_scene("furnace"), bounces=bounces, directions=16, resolution=256, frames=64, width=32,
-                    height=32, light_samples=0)
-    direct, indirect = result.images["direct"].mean(), result.images["indirect"].mean()
-    assert direct == pytest.approx(furnace_radiance(2), rel=FURNACE_TOLERANCE)
-    assert indirect == pytest.approx(furnace_radiance(bounces + 2) - furnace_radiance(2), rel=FURNACE_TOLERANCE)
-    assert np.allclose(result.images["total"], result.images["direct"] + result.images["indirect"])
+    direct, indirect = furnace_ratio(gl, 128, 1024, bounces)
+    assert direct == pytest.approx(1.0, abs=FURNACE_TOLERANCE)
+    assert indirect == pytest.approx(1.0, abs=FURNACE_TOLERANCE)
 
 
-@pytest.mark.xfail(strict=True, reason="every pixel shares a frame's 8 emitter samples, so the indirect mean scatters "
-                                       "by 1 % over seeds at 64 frames (seeds 0-5: -0.25 % +- 0.43 %): seed 0 is -1.6 %; "
-                                       "issue 15 stays open")
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="seed 0 is -1.09 % with next-event estimation (M=8, R=128, 1024 frames): the "
+                                       "frame's shared emitter samples add their scatter to the edge loss above "
+                                       "(issue 15 stays open)")
 def test_furnace_matches_the_analytic_radiance_with_next_event_estimation(gl):
-    # Measured (seed 0, M=8): direct -0.2 % ... +0.2 %, indirect -1.6 %.
-    result = render(gl, load_scene("furnace"), bounces=1, directions=16, resolution=256, frames=64, width=32, height=32,
-                    light_samples=8)
-    assert result.images["direct"].mean() == pytest.approx(furnace_radiance(2), rel=FURNACE_TOLERANCE)
-    assert result.images["indirect"].mean() == pytest.approx(furnace_radiance(3) - furnace_radiance(2), rel=FURNACE_TOLERANCE)
+    direct, indirect = furnace_ratio(gl, 128, 1024, light_samples=8)
+    assert direct == pytest.approx(1.0, abs=FURNACE_TOLERANCE)
+    assert indirect == pytest.approx(1.0, abs=FURNACE_TOLERANCE)
+
+
+def test_no_light_is_lost_behind_concave_edges(gl):
+    # A vertex near a concave edge (the floor by a wall) takes a line up to a bundle pixel beside
+    # it, which may pass behind the wall: it met the wall's back and the path ended. Skipping nodes
+    # whose plane the vertex cannot reach (shaders/eye_paths.glsl) keeps that light. At R = 32,
+    # 1024 frames, seed 0, B=1: indirect -5.7 % before, -1.26 % after (lines that leave the cube
+    # beside the edge still lose light, O(1/R)).
+    direct, indirect = furnace_ratio(gl, 32, 1024)
+    assert indirect == pytest.approx(1.0, abs=0.02)
 
 
 def test_furnace_bias_falls_as_the_bundle_resolution_grows(gl):
-    exact = furnace_radiance(5) - furnace_radiance(2)
-    errors = [exact - render(gl, load_scene("furnace"), bounces=3, directions=16, resolution=R, frames=32, width=16,
-                             height=16, light_samples=0).images["indirect"].mean() for R in (32, 128)]
+    # The light still lost at concave edges is O(1/R). Measured (seed 0, B=1, 1024 frames):
+    # indirect -2.82 % at R = 16, -0.65 % at R = 64; 1024 frames keep the scatter (0.3 %) below it.
+    errors = [1.0 - furnace_ratio(gl, R, 1024)[1] for R in (16, 64)]
     assert errors[0] > 0 and errors[1] < 0.5 * errors[0]
 
 
@@ -204,12 +221,11 @@ ENVMAP = Light("envmap", (1.5, 1.5, 1.5), envmap=(0.2 + np.random.default_rng(7)
 
 # Measured (seed 0, 32x32, B=1, K=16, R=128, 256 frames; Mitsuba 1024 spp), relMSE with both
 # images divided by the reference's mean (indirect light is dim: relMSE's 0.01 floor would hide
-# it): direct constant 6.7e-4, envmap 8.6e-4; indirect in 4x4 blocks 7.9e-3 and 8.6e-3, means
-# 0.962 and 0.969 of Mitsuba's (a path may take the bundle it arrived along again, 1 bounce in K,
-# back to the surface it came from instead of the sky: issue 15); the sky pixels 3.4e-6 (7.2e-4,
-# and direct 3.5e-3, with texel rows at (j + 0.5) / H, the convention before Mitsuba's was
-# checked). Thresholds: 3x (sky: 10x), and the mean within 6 %.
-ENVIRONMENT_DIRECT_RELMSE, ENVIRONMENT_INDIRECT_BLOCK_RELMSE, SKY_RELMSE = 0.0026, 0.026, 3.4e-5
+# it): direct constant 5.6e-4, envmap 6.9e-4; indirect in 4x4 blocks 4.4e-3 and 5.3e-3,
+# means 1.012 and 1.018 of Mitsuba's; the sky pixels 3.4e-6 (7.2e-4 with texel rows at
+# (j + 0.5) / H, the convention before Mitsuba's was checked). Thresholds: 3x (sky: 10x), and
+# the mean within 6 % (frame-to-frame noise: about 2 %).
+ENVIRONMENT_DIRECT_RELMSE, ENVIRONMENT_INDIRECT_BLOCK_RELMSE, SKY_RELMSE = 0.002, 0.016, 3.4e-5
 
 
 def normalized(image: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -227,6 +243,17 @@ def test_environment_light_matches_mitsuba(gl, tmp_path, images, light):
     assert indirect[0].mean() == pytest.approx(1.0, abs=0.06)
     # Where the camera sees the sky, the image is the environment's lookup itself: no noise.
     images.relmse_at_most("sky", result.images["direct"][:6], ref.images["direct"][:6], SKY_RELMSE)
+
+
+def test_no_path_turns_back_along_the_bundle_it_arrived_by(gl, tmp_path):
+    # With K = 4, a path that may take its last bundle again does so at 1 bounce in 4, back to the
+    # surface it came from and not to the sky: the indirect light fell 13 % short of Mitsuba's
+    # (0.869, mean of seeds 0-3 at 256 frames). Measured now (seeds 0-3, this test's settings):
+    # ratio 0.992, 1.028, 1.012, 0.989: frame-to-frame noise of about 2 %.
+    scene = sky_stage(SKY, size=16)
+    ref = reference(scene, bounces=1, spp=4096, width=16, height=16, store=tmp_path, progress=lambda line: None)
+    result = render(gl, scene, bounces=1, directions=4, resolution=64, frames=1024, width=16, height=16)
+    assert result.images["indirect"].mean() / ref.images["indirect"].mean() == pytest.approx(1.0, abs=0.05)
 
 
 def test_bounce_accounting_matches_mitsubas_max_depth(gl, tmp_path):

@@ -64,12 +64,14 @@ def test_fixed_directions_reuse_bundles_on_static_scenes_and_the_change_is_bound
     rotating = render(gl, scene, settings)
     assert fixed.stats["bundles_reused"] == 7 and rotating.stats["bundles_reused"] == 0
     assert all(frame["bundles"] == 0.0 for frame in fixed.timings["frames_ms"][1:])
-    # The change: 8 frames share frame 0's 32 directions, so their paths are correlated. Measured
-    # indirect relMSE (seed 0, 64 paths per pixel): 0.728 with fixed directions against 0.634
-    # rotating (1.15x); asserted within 2x.
+    # The change: 8 frames share frame 0's 32 directions, so the image keeps that one set's error.
+    # Measured indirect relMSE, fixed over rotating (64 paths per pixel, seeds 0-7): 2.08 (seed 0:
+    # 0.0212 against 0.0102), 1.36, 1.78, 3.02, 1.73, 1.82, 1.57, 1.64. Independent directions
+    # vary more from set to set than the evenly spread set they replaced (1.26 to 1.53). Asserted
+    # within 4x, above the worst seed.
     e_fixed = relmse(fixed.images["indirect"], ref.images["indirect"]).value
     e_rotating = relmse(rotating.images["indirect"], ref.images["indirect"]).value
-    assert e_fixed < 2 * e_rotating, images.keep("indirect-fixed", fixed.images["indirect"], ref.images["indirect"],
+    assert e_fixed < 4 * e_rotating, images.keep("indirect-fixed", fixed.images["indirect"], ref.images["indirect"],
                                                  f"relMSE fixed {e_fixed:.4g} against rotating {e_rotating:.4g}")
     moving = render(gl, load_scene("atrium-animated"), replace(SMALL, rotate_directions=False, time_step=0.5, bounces=1))
     assert moving.stats["bundles_reused"] == 0  # a moving scene rebuilds its bundles every frame

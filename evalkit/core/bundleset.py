@@ -35,15 +35,6 @@ SPLAT_PRIM_ID = -1  # a node made by a point splat has no single triangle
 FORMAT_VERSION = 1
 
 
-def spherical_fibonacci(count: int) -> np.ndarray:
-    """``count`` unit vectors (count, 3) float64, spread evenly over the sphere."""
-    i = np.arange(count, dtype=np.float64) + 0.5
-    z = 1.0 - 2.0 * i / count
-    phi = i * math.pi * (3.0 - math.sqrt(5.0))  # the golden angle
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-
 def orthonormal_frames(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Right-handed frames (u, v) with u x v = d for unit vectors d (K, 3), without a singularity
     (Duff et al., "Building an orthonormal basis, revisited", JCGT 2017)."""
@@ -56,22 +47,17 @@ def orthonormal_frames(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, v
 
 
-def random_rotation(rng: np.random.Generator) -> np.ndarray:
-    """A uniformly distributed 3x3 rotation (Shoemake's unit quaternion from three uniforms)."""
-    u1, u2, u3 = rng.random(3)
-    a, b = math.sqrt(1.0 - u1), math.sqrt(u1)
-    w, x, y, z = a * math.sin(2 * math.pi * u2), a * math.cos(2 * math.pi * u2), b * math.sin(2 * math.pi * u3), b * math.cos(2 * math.pi * u3)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
 @dataclass(frozen=True, eq=False)
 class DirectionSet:
-    """K bundle directions for one frame: spherical Fibonacci points under a seeded random rotation,
-    each with its orthographic frame and a grid jitter in bundle pixels (|jitter| <= 0.5).
+    """K bundle directions for one frame, drawn independently and uniformly over the sphere, each
+    with its orthographic frame and a grid jitter in bundle pixels (|jitter| <= 0.5).
+
+    Independent, not an evenly spread set: an eye path's next bundle is any of the frame's others
+    (shaders/eye_paths.glsl), and only independent directions make that next direction independent
+    of the last, as a path tracer's are. An evenly spread set (spherical Fibonacci points under a
+    random rotation) has no pair of directions closer than its spacing, so paths turned back
+    towards the surface they came from too rarely: +2.3 % indirect light under a constant sky at
+    K = 16, and +0.9 % (or -0.6 % excluding the last bundle) on cornell-box at K = 32, B = 3.
 
     directions, axis_u, axis_v: (K, 3) float64, unit, right-handed (u x v = d).
     jitter: (K, 2) float64, the shift of the grid along (u, v) in pixels.
@@ -90,8 +76,9 @@ class DirectionSet:
         if count < 1:
             raise ValueError(f"a direction set needs at least one direction, got {count}")
         rng = np.random.default_rng([seed, frame])
-        d = spherical_fibonacci(count) @ random_rotation(rng).T
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        z, phi = 1.0 - 2.0 * rng.random(count), 2.0 * math.pi * rng.random(count)
+        r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+        d = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
         u, v = orthonormal_frames(d)
         shift = rng.uniform(-0.5, 0.5, (count, 2)) if jitter else np.zeros((count, 2))
         return DirectionSet(d, u, v, shift, int(seed), int(frame))
@@ -99,6 +86,11 @@ class DirectionSet:
     @property
     def count(self) -> int:
         return len(self.directions)
+
+    def same_as(self, other: DirectionSet) -> bool:
+        """Whether both sets hold the same directions and grid jitter, so the same lines."""
+        return (self.count == other.count and np.allclose(self.directions, other.directions, rtol=0, atol=1e-12)
+                and np.allclose(self.jitter, other.jitter, rtol=0, atol=1e-12))
 
 
 def line_origins(directions: DirectionSet, k: int, centre: np.ndarray, radius: float, resolution: int) -> np.ndarray:

@@ -43,7 +43,7 @@ def frame_mismatch(test: BundleSet, exact: BundleSet) -> str | None:
     a, b = test.directions, exact.directions
     if a.count != b.count or test.resolution != exact.resolution:
         return f"K={a.count}, R={test.resolution} against K={b.count}, R={exact.resolution}"
-    if not (np.allclose(a.directions, b.directions, rtol=0, atol=1e-12) and np.allclose(a.jitter, b.jitter, rtol=0, atol=1e-12)):
+    if not a.same_as(b):
         return f"different direction sets (seed {a.seed} frame {a.frame} against seed {b.seed} frame {b.frame}, or jitter)"
     scale = max(exact.radius, 1e-300)
     if abs(test.radius - exact.radius) > 1e-9 * scale or np.abs(test.centre - exact.centre).max() > 1e-9 * scale:

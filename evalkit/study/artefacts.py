@@ -51,10 +51,13 @@ def reference_for(scene: Scene, run: dict, measure: dict, out: Path, progress=pr
 def exact_bundles(scene: Scene, run: dict, out: Path) -> BundleSet:
     """Embree's exact bundles on the run's lines (frame 0 of its seed), cached in the study folder."""
     path = out / "cache" / f"exact-{scene.name}-{scene.content_hash()[:12]}-K{run['directions']}-R{run['resolution']}-seed{run['seed']}.npz"
-    if path.is_file():
-        return BundleSet.load(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     directions = DirectionSet.make(int(run["directions"]), seed=int(run["seed"]))
+    if path.is_file():
+        cached = BundleSet.load(path)
+        # A cache made before the direction generator changed holds other lines: made again.
+        if cached.directions.same_as(directions):
+            return cached
+    path.parent.mkdir(parents=True, exist_ok=True)
     bundles = exact_tracer(scene).bundles(directions, int(run["resolution"]))
     tmp = path.with_suffix(".tmp.npz")
     bundles.save(tmp)

@@ -21,7 +21,7 @@ struct Path {
     vec3 position;    // the current vertex, relative to the bundle centre
     uint normal;      // its shading normal (encode_normal), turned to the side the path is on
     vec3 throughput;
-    uint alive;       // 0 once the path has ended
+    uint bundle;      // the bundle it arrived along; PATH_FROM_CAMERA at vertex 0, PATH_ENDED once it has ended
     vec3 albedo;      // of the current vertex
     uint geometric;   // its geometric normal (encode_normal), on the same side
 };

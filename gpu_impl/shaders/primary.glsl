@@ -30,7 +30,7 @@ void main() {
     vec2 film = (vec2(xy) + subpixel) / vec2(gbuffer_size);  // (0, 0) is the image's top left
     vec3 dir = normalize(camera_to_world * vec3((1.0 - 2.0 * film.x) * tan_half_fov.x, (1.0 - 2.0 * film.y) * tan_half_fov.y, 1.0));
     uint visible = texelFetch(gbuffer, xy, 0).r;
-    Path path = Path(vec3(0.0), 0u, vec3(0.0), 0u, vec3(0.0), 0u);
+    Path path = Path(vec3(0.0), 0u, vec3(0.0), PATH_ENDED, vec3(0.0), 0u);
     vec3 direct = vec3(0.0);
     if (visible == 0u) {
 #if ENVIRONMENT != ENVIRONMENT_NONE
@@ -55,7 +55,7 @@ void main() {
             direct += albedo * INV_PI * light_irradiance(camera_origin + depth * dir, n);
 #endif
             vec3 g = triangle_normal(t);
-            path = Path(camera_origin + depth * dir, encode_normal(n), vec3(1.0), 1u, albedo,
+            path = Path(camera_origin + depth * dir, encode_normal(n), vec3(1.0), PATH_FROM_CAMERA, albedo,
                         encode_normal(dot(g, dir) < 0.0 ? g : -g));
             atomicAdd(alive_paths, 1u);
         }
