@@ -55,9 +55,10 @@ class DirectionSet:
     Independent, not an evenly spread set: an eye path's next bundle is any of the frame's others
     (shaders/eye_paths.glsl), and only independent directions make that next direction independent
     of the last, as a path tracer's are. An evenly spread set (spherical Fibonacci points under a
-    random rotation) has no pair of directions closer than its spacing, so paths turned back
-    towards the surface they came from too rarely: +2.3 % indirect light under a constant sky at
-    K = 16, and +0.9 % (or -0.6 % excluding the last bundle) on cornell-box at K = 32, B = 3.
+    random rotation) has no pair of directions closer than its spacing, so with the last bundle
+    excluded paths turned back towards the surface they came from too rarely: +2.3 % indirect
+    light under a constant sky at K = 16, -0.6 % on cornell-box at K = 32, B = 3
+    (docs/MEASURED_FACTS.md).
 
     directions, axis_u, axis_v: (K, 3) float64, unit, right-handed (u x v = d).
     jitter: (K, 2) float64, the shift of the grid along (u, v) in pixels.
