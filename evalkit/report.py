@@ -61,6 +61,34 @@ def pareto_front(rows: list[dict], x: str, y: str) -> list[dict]:
     return front
 
 
+def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
+    """Each bundle setting (the mean of ``y`` and median of ``x`` over its seeds) beside Mitsuba's
+    ``y`` at the same ``x`` in the same scene: Mitsuba's seed means interpolated linearly in log x
+    and log y. A setting outside Mitsuba's range of x is not compared (no extrapolation). ``ratio``
+    below 1 means the bundles are the more accurate at matched time."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        if _number(r.get(x)) and _number(r.get(y)) and r[x] > 0 and r[y] > 0:
+            groups.setdefault((r["scene"], r["method"], run_id({k: r[k] for k in RUN_DEFAULTS if k != "seed"})), []).append(r)
+    points = {key: (float(np.median([r[x] for r in g])), float(np.mean([r[y] for r in g])), g) for key, g in groups.items()}
+    result = []
+    for (scene, method, _), (tx, ty, members) in points.items():
+        mitsuba = sorted((px, py) for (s, m, _), (px, py, _) in points.items() if s == scene and m == "mitsuba")
+        if method == "mitsuba" or len(mitsuba) < 2:
+            continue
+        row = {"scene": scene, "method": method, **{k: members[0][k] for k in ("frames", "spp", "directions", "resolution")},
+               "seeds": len(members), x: tx, y: ty}
+        if mitsuba[0][0] <= tx <= mitsuba[-1][0]:
+            lx, ly = np.log([p[0] for p in mitsuba]), np.log([p[1] for p in mitsuba])
+            row[f"mitsuba_{y}"] = float(np.exp(np.interp(math.log(tx), lx, ly)))
+            row["ratio"] = ty / row[f"mitsuba_{y}"]
+            row["more_accurate"] = "bundles" if row["ratio"] < 1 else "mitsuba"
+        else:
+            row["more_accurate"] = f"not compared: {x} outside Mitsuba's {mitsuba[0][0]:.3g} to {mitsuba[-1][0]:.3g}"
+        result.append(row)
+    return sorted(result, key=lambda r: (r["scene"], r["method"], r[x]))
+
+
 def _number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
@@ -166,9 +194,17 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
         parts.append(f"<h2>{html.escape(title)}</h2><img src='plots/plot{i}.png'>")
         if spec.get("pareto"):
             ys = spec["y"] if isinstance(spec["y"], list) else [spec["y"]]
-            front = pareto_front(ok, spec["x"], ys[0])
-            parts.append("<p>Pareto front (no run is both faster and more accurate):</p>"
+            facet = spec.get("facet", "scene")
+            front = [r for fv in dict.fromkeys(r.get(facet) for r in ok)
+                     for r in pareto_front([r for r in ok if r.get(facet) == fv], spec["x"], ys[0])]
+            parts.append("<p>Pareto front per panel (no run is both faster and more accurate):</p>"
                          + table_html(front, ["run_id", *varying(study), spec["x"], ys[0]]))
+            matched = matched_time_rows(ok, spec["x"], ys[0])
+            if matched:
+                parts.append(f"<p>At matched {html.escape(spec['x'])}: each bundle setting's mean {html.escape(ys[0])} over "
+                             f"its seeds beside Mitsuba's, interpolated in log-log between Mitsuba's settings of the same "
+                             f"scene (ratio below 1: the bundles are the more accurate).</p>"
+                             + table_html(matched, list(dict.fromkeys(k for r in matched for k in r))))
 
     bv = bias_variance_rows(study, ok, out)
     if bv:

@@ -47,10 +47,10 @@ def block_mean(image: np.ndarray, b: int) -> np.ndarray:
 FURNACE_TOLERANCE = 0.01
 
 
-def furnace_ratio(gl, resolution, frames, bounces=1, light_samples=0):
+def furnace_ratio(gl, resolution, frames, bounces=1, light_samples=0, seed=0):
     """The furnace's (16x16, K=16) direct and indirect image means over the analytic values."""
     result = render(gl, load_scene("furnace"), bounces=bounces, directions=16, resolution=resolution, frames=frames,
-                    width=16, height=16, light_samples=light_samples)
+                    width=16, height=16, light_samples=light_samples, seed=seed)
     assert np.allclose(result.images["total"], result.images["direct"] + result.images["indirect"])
     return (result.images["direct"].mean() / furnace_radiance(2),
             result.images["indirect"].mean() / (furnace_radiance(bounces + 2) - furnace_radiance(2)))
@@ -65,11 +65,13 @@ def test_furnace_matches_the_analytic_radiance(gl, bounces):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="seed 0 is -1.09 % with next-event estimation (M=8, R=128, 1024 frames): the "
-                                       "frame's shared emitter samples add their scatter to the edge loss above "
-                                       "(issue 15 stays open)")
 def test_furnace_matches_the_analytic_radiance_with_next_event_estimation(gl):
-    direct, indirect = furnace_ratio(gl, 128, 1024, light_samples=8)
+    # Every wall emits: multiple importance sampling splits each wall's light between the emitter
+    # samples and the bundle paths. The frame's 8 shared samples make seeds scatter, so the test
+    # takes four. Measured (R=128, 1024 frames, B=1, indirect, seeds 0-3): -0.42, -0.10, -1.51,
+    # -0.88 % (mean -0.73 %); before the bundle paths' weight took the distance to the emitter's
+    # plane (shaders/eye_paths.glsl), -1.09, -0.77, -2.16, -1.55 %. Direct: -0.20 to +0.08 %.
+    direct, indirect = np.mean([furnace_ratio(gl, 128, 1024, light_samples=8, seed=seed) for seed in range(4)], axis=0)
     assert direct == pytest.approx(1.0, abs=FURNACE_TOLERANCE)
     assert indirect == pytest.approx(1.0, abs=FURNACE_TOLERANCE)
 
@@ -126,6 +128,27 @@ def test_cornell_box_indirect_relmse_reaches_the_convergence_target(gl, images):
     scene, ref = cornell_reference(3)
     result = render(gl, scene, bounces=3, directions=32, resolution=256, spp=64, frames=192, width=128, height=128)
     images.relmse_at_most("indirect", result.images["indirect"], ref.images["indirect"], 0.002)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("bounces", [1, 3])
+def test_cornell_box_at_256_directions_converges_to_within_one_percent(gl, images, bounces):
+    # The paper's K. The indirect mean's bias is O(1/R), and positive on cornell-box (K=256, 64
+    # frames x 16 paths, seeds 0-3, B=1, per channel): +1.9 to +2.3 % at R = 64, +0.9 to +1.1 % at
+    # R = 128, +0.3 to +0.4 % at R = 256; B=3 at R = 128: +1.0 to +1.1 %. This test (seed 0, R = 256):
+    # B=1 +0.83 / +0.37 / +0.59 %, relMSE 0.00038 (0.0062 at 4 frames); B=3 +0.85 / +0.32 / +0.51 %,
+    # relMSE 0.00062 (0.0099), the same before and after the emitter-plane weight. Noise falls with
+    # paths down to that bias. docs/MEASURED_FACTS.md says
+    # where the bias comes from.
+    scene, ref = cornell_reference(bounces)
+    settings = dict(bounces=bounces, directions=256, resolution=256, spp=16, width=128, height=128)
+    few = render(gl, scene, frames=4, **settings)
+    many = render(gl, scene, frames=64, **settings)
+    test, reference = many.images["indirect"], ref.images["indirect"]
+    ratio = test.reshape(-1, 3).mean(axis=0) / reference.reshape(-1, 3).mean(axis=0)
+    assert np.all(np.abs(ratio - 1) <= 0.01), images.keep("indirect", test, reference, f"indirect mean ratio {ratio}")
+    assert relmse(test, reference) < 0.5 * relmse(few.images["indirect"], reference)
+    images.relmse_at_most("indirect", test, reference, 0.002)
 
 
 # -- next-event estimation for emissive triangles -------------------------------------------------

@@ -10,8 +10,9 @@ import pytest
 
 from conftest import run_evalkit
 from evalkit.core.errors import InputError
+from evalkit.report import matched_time_rows
 from evalkit.study.executors import run_study
-from evalkit.study.spec import load_study, run_id, study_from_dict
+from evalkit.study.spec import RUN_DEFAULTS, load_study, run_id, study_from_dict
 
 # Tiny runs: 32x32, K=4 directions of R=32 lines, one frame; references of 64 spp in the study's
 # own store (the committed ones are 128x128).
@@ -150,3 +151,19 @@ def test_runs_build_imperfect_bundles_with_their_own_sampler(tmp_path):
     assert rows["random"]["hole_rate"] == pytest.approx(0.105, rel=0.2)
     assert rows["stratified"]["hole_rate"] < 0.5 * rows["random"]["hole_rate"]
     assert all(r["nodes_per_crossing"] == pytest.approx(1.5**2, rel=0.05) for r in rows.values())
+
+
+def test_matched_time_compares_each_bundle_setting_with_mitsuba_at_the_same_time():
+    def row(scene, method, wall_s, error, seed, **kw):
+        return {**RUN_DEFAULTS, "scene": scene, "method": method, "seed": seed, "wall_s": wall_s, "total_relmse": error, **kw}
+    # Mitsuba's error falls as 1 / time: 1 at 1 s, 0.25 at 4 s, so 0.5 at 2 s in log-log.
+    rows = [row("a", "mitsuba", 1.0, 1.0, s, spp=4) for s in (0, 1)] + [row("a", "mitsuba", 4.0, 0.25, s, spp=16) for s in (0, 1)]
+    rows += [row("a", "perfect", 2.0, e, s, frames=2) for s, e in ((0, 0.2), (1, 0.4))]   # mean 0.3
+    rows += [row("a", "perfect", 9.0, 0.1, 0, frames=8)]                                  # beyond Mitsuba's times
+    rows += [row("b", "perfect", 2.0, 0.3, 0)]                                            # no Mitsuba in scene b
+    matched = matched_time_rows(rows, "wall_s", "total_relmse")
+    assert [(r["scene"], r["frames"]) for r in matched] == [("a", 2), ("a", 8)]
+    assert matched[0]["seeds"] == 2 and matched[0]["total_relmse"] == pytest.approx(0.3)
+    assert matched[0]["mitsuba_total_relmse"] == pytest.approx(0.5)
+    assert matched[0]["ratio"] == pytest.approx(0.6) and matched[0]["more_accurate"] == "bundles"
+    assert "ratio" not in matched[1] and matched[1]["more_accurate"].startswith("not compared: wall_s outside")

@@ -145,9 +145,14 @@ void main() {
             emitted = throughput * materials[m].emission.rgb;
 #if EMITTER_SAMPLES
             // Next-event estimation could have found this emitter too: multiple importance sampling.
-            vec3 to_hit = node.position - path.position;
+            // Its density for omega is that of the point where the ray from the vertex along omega
+            // meets the emitter's plane, at distance t. The node lies on a line up to a bundle pixel
+            // beside the vertex: near a concave edge its distance differs from t many times over, and
+            // with it the two strategies' weights did not sum to 1: the furnace with 8 emitter samples
+            // lost 1.4 % of its indirect light, 0.7 % now (tests/test_renderer.py).
+            float t = dot(node_geometric, node.position - path.position) / dot(node_geometric, omega);
             float cos_y = max(dot(node.normal, -omega), 0.0);
-            emitted *= power_heuristic(BUNDLE_DIRECTION_PDF, emitter_sample_density * emitter_weight(m) * dot(to_hit, to_hit) / cos_y);
+            emitted *= power_heuristic(BUNDLE_DIRECTION_PDF, emitter_sample_density * emitter_weight(m) * t * t / cos_y);
 #endif
         } else if (!material_twosided(m)) {
             alive = false;  // the back of a one-sided surface blocks the path
