@@ -138,8 +138,7 @@ def test_cornell_box_at_256_directions_converges_to_within_one_percent(gl, image
     # R = 128, +0.3 to +0.4 % at R = 256; B=3 at R = 128: +1.0 to +1.1 %. This test (seed 0, R = 256):
     # B=1 +0.83 / +0.37 / +0.59 %, relMSE 0.00038 (0.0062 at 4 frames); B=3 +0.85 / +0.32 / +0.51 %,
     # relMSE 0.00062 (0.0099), the same before and after the emitter-plane weight. Noise falls with
-    # paths down to that bias. docs/MEASURED_FACTS.md says
-    # where the bias comes from.
+    # paths down to that bias. docs/MEASURED_FACTS.md says where the bias comes from.
     scene, ref = cornell_reference(bounces)
     settings = dict(bounces=bounces, directions=256, resolution=256, spp=16, width=128, height=128)
     few = render(gl, scene, frames=4, **settings)
