@@ -61,23 +61,28 @@ def pareto_front(rows: list[dict], x: str, y: str) -> list[dict]:
     return front
 
 
+def setting_id(row: dict) -> str:
+    """The run's id without its seed: runs that differ only in the seed share it."""
+    return run_id({k: row[k] for k in RUN_DEFAULTS if k != "seed"})
+
+
 def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
     """Each bundle setting (the mean of ``y`` and median of ``x`` over its seeds) beside Mitsuba's
     ``y`` at the same ``x`` in the same scene: Mitsuba's seed means interpolated linearly in log x
     and log y. A setting outside Mitsuba's range of x is not compared (no extrapolation). ``ratio``
     below 1 means the bundles are the more accurate at matched time."""
-    groups: dict[tuple, list[dict]] = {}
+    groups: dict[str, list[dict]] = {}
     for r in rows:
         if _number(r.get(x)) and _number(r.get(y)) and r[x] > 0 and r[y] > 0:
-            groups.setdefault((r["scene"], r["method"], run_id({k: r[k] for k in RUN_DEFAULTS if k != "seed"})), []).append(r)
-    points = {key: (float(np.median([r[x] for r in g])), float(np.mean([r[y] for r in g])), g) for key, g in groups.items()}
+            groups.setdefault(setting_id(r), []).append(r)
+    points = [(g[0], float(np.median([r[x] for r in g])), float(np.mean([r[y] for r in g])), len(g)) for g in groups.values()]
     result = []
-    for (scene, method, _), (tx, ty, members) in points.items():
-        mitsuba = sorted((px, py) for (s, m, _), (px, py, _) in points.items() if s == scene and m == "mitsuba")
-        if method == "mitsuba" or len(mitsuba) < 2:
+    for first, tx, ty, seeds in points:
+        mitsuba = sorted((px, py) for f, px, py, _ in points if f["scene"] == first["scene"] and f["method"] == "mitsuba")
+        if first["method"] == "mitsuba" or len(mitsuba) < 2:
             continue
-        row = {"scene": scene, "method": method, **{k: members[0][k] for k in ("frames", "spp", "directions", "resolution")},
-               "seeds": len(members), x: tx, y: ty}
+        row = {k: first[k] for k in ("scene", "method", "frames", "spp", "directions", "resolution")}
+        row.update({"seeds": seeds, x: tx, y: ty})
         if mitsuba[0][0] <= tx <= mitsuba[-1][0]:
             lx, ly = np.log([p[0] for p in mitsuba]), np.log([p[1] for p in mitsuba])
             row[f"mitsuba_{y}"] = float(np.exp(np.interp(math.log(tx), lx, ly)))
@@ -154,8 +159,7 @@ def bias_variance_rows(study: Study, rows: list[dict], out: Path) -> list[dict]:
     groups: dict[str, list[dict]] = {}
     for r in rows:
         if r.get("status") == "ok" and r.get("reference"):
-            key = run_id({k: r[k] for k in RUN_DEFAULTS if k != "seed"})
-            groups.setdefault(key, []).append(r)
+            groups.setdefault(setting_id(r), []).append(r)
     result = []
     for members in groups.values():
         if len(members) < 2:
