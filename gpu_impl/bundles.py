@@ -7,18 +7,18 @@ rest where it is needed. One build is a few passes and two GPU-CPU round-trips, 
 - **perfect**: ``lists``: one instanced draw per atlas of R x R tiles appends every node to its
   pixel's linked list (shaders/perfect_bundles.glsl); round-trip 1 reads the node counter, and past
   the buffer's capacity the pass runs again with a buffer that fits. ``resolve``: list lengths, a
-  prefix sum, and each list sorted into the CSR (shaders/resolve_lists.glsl); round-trip 2 reads
-  the statistics.
+  prefix sum into exact-size slot ranges, and each list sorted into its range
+  (shaders/resolve_lists.glsl); round-trip 2 reads the statistics.
 - **imperfect**, compute splatter (the default): ``points``: N points per direction
   (shaders/splat_points.glsl). ``lists``: every splat counts the lines it covers, a prefix sum makes
-  exact-size lists, round-trip 1 reads their total, and every splat writes its nodes
+  exact-size slot ranges, round-trip 1 reads their total, and every splat writes its nodes
   (shaders/splat_lists.glsl): no linked list, no re-run. ``resolve``: each list sorted and its
-  redundant nodes merged, a prefix sum of the merged lengths, round-trip 2, and the merged lists
-  moved into the CSR.
+  redundant nodes merged in place, at the front of its range; round-trip 2 reads the statistics.
 - **imperfect**, raster splatter (``splatter="raster"``): the poster's splats drawn by the
-  rasterizer into linked lists (shaders/imperfect_bundles.glsl), then the same merge.
+  rasterizer into linked lists (shaders/imperfect_bundles.glsl), then list lengths, a prefix sum
+  and the same merge.
 
-The sorted CSR (``OFFSETS``, ``SORTED_DEPTH``, ``SORTED_REF``) stays on the GPU for the renderer.
+The resolved lists (``LIST_OFFSETS``, ``LIST_COUNTS``, ``NODES``) stay on the GPU for the renderer.
 """
 
 from __future__ import annotations
@@ -32,15 +32,16 @@ import numpy as np
 from evalkit.core.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, bundle_params
 from evalkit.core.errors import InputError
 from gpu_impl.context import LOCAL_SIZE, GLContext, PassTimer, set_uniforms
-from gpu_impl.layout import BINDINGS, BUNDLE_FRAME, COUNTERS, METHODS, SAMPLERS, SPLAT_BIT, SPLAT_POINT
+from gpu_impl.layout import BINDINGS, BUNDLE_FRAME, COUNTERS, FACING_BIT, METHODS, SAMPLERS, SPLAT_BIT, SPLAT_POINT
 from gpu_impl.scene_buffers import GpuScene
 
 SPLATTERS = ("compute", "raster")
-# Bytes per node: the sorted CSR's depth and reference; while linked lists are built, depth,
-# reference and link; raw (unmerged) splat nodes, one 64-bit key (shaders/bundle_build.glsl).
+# Bytes per node: one 64-bit key, depth and reference (shaders/bundle_build.glsl), a slot of a
+# list's range; while linked lists are built, depth, reference and link.
 NODE_BYTES = 8
 LINKED_NODE_BYTES = 12
-RAW_NODE_BYTES = 8
+# The compute splatter's record of the lines a splat covers, from its count pass to its scatter.
+SPLAT_LINES_BYTES = 16
 # The poster used a 1 GB node buffer; the default leaves room for the largest settings it used.
 DEFAULT_NODE_BUDGET = 2 << 30
 # Splat radius in units of sqrt(A / (pi N)), the radius at which N disks cover area A once. With
@@ -59,8 +60,8 @@ MERGE_TOLERANCE = 1e-4
 CAPACITY_SLACK = 1.125
 SCAN_BLOCK = 4 * LOCAL_SIZE  # shaders/prefix_sum.glsl
 # shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size (32), past
-# the list's end: the raw node buffer keeps that many slots beyond the last list.
-RAW_SLACK_NODES = 32
+# the list's end: the node buffer keeps that many slots beyond the last list.
+SLACK_NODES = 32
 
 
 class NodeBudgetExceeded(InputError):
@@ -130,12 +131,13 @@ class BundleTracer:
         lists = 4 * (self.list_count + 1)
         self._ensure("FRAMES", BUNDLE_FRAME.itemsize * self.K)
         self._ensure("COUNTERS", 4 * len(COUNTERS))
-        self._ensure("OFFSETS", lists)
+        self._ensure("LIST_OFFSETS", lists)
+        self._ensure("LIST_COUNTS", lists)
         if method == "imperfect":
-            self._check_budget(self.fixed_bytes, what=f"{self.K * self.N:,} splat points and the list offsets")
+            self._check_budget(self.fixed_bytes, what=f"{self.K * self.N:,} splat points{'' if self.linked else ', their lines'} and the list offsets")
             self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N).clear()  # triangle 0 for a warm-up draw
-            self._ensure("RAW_OFFSETS", lists)
-            self._ensure("LIST_COUNTS", lists)
+        if not self.linked:
+            self._ensure("SPLAT_LINES", SPLAT_LINES_BYTES * self.K * self.N)
         if self.linked:
             self._ensure("HEADS", 4 * self.list_count)
             self._grow_linked(initial_capacity if initial_capacity is not None else self.predicted_nodes())
@@ -154,7 +156,7 @@ class BundleTracer:
         gl = self.gl
         if self.method == "perfect":
             return [gl.program("resolve_lists", COUNT_LISTS=True), gl.program("resolve_lists", SORT_LISTS=True)]
-        passes = [gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler]), gl.program("resolve_lists", COMPACT_LISTS=True)]
+        passes = [gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler])]
         if self.linked:
             return passes + [gl.program("resolve_lists", COUNT_LISTS=True),
                              gl.program("resolve_lists", MERGE_LISTS=True, FROM_LINKED_LISTS=True)]
@@ -185,9 +187,11 @@ class BundleTracer:
 
     @property
     def fixed_bytes(self) -> int:
-        """What the tracer holds whatever the node count: frames, the per-list arrays and points."""
-        per_list = 4 * (self.list_count + 1) * (3 if self.method == "imperfect" else 1) + (4 * self.list_count if self.linked else 0)
-        points = SPLAT_POINT.itemsize * self.K * self.N if self.method == "imperfect" else 0
+        """What the tracer holds whatever the node count: frames, the per-list arrays, the points
+        and (compute splatter) their lines."""
+        per_list = 4 * (self.list_count + 1) * 2 + (4 * self.list_count if self.linked else 0)
+        per_point = SPLAT_POINT.itemsize + (0 if self.linked else SPLAT_LINES_BYTES)
+        points = per_point * self.K * self.N if self.method == "imperfect" else 0
         return BUNDLE_FRAME.itemsize * self.K + per_list + points
 
     @property
@@ -261,8 +265,9 @@ class BundleTracer:
             with timer.measure("lists"):
                 reruns, raw = 0, self._splat_lists()
         with timer.measure("resolve"):
-            nodes = self._resolve(raw)
+            self._resolve(raw)
         counters = np.frombuffer(self.buffers["COUNTERS"].read(4 * len(COUNTERS)), dtype=np.uint32)
+        nodes = int(counters[COUNTERS["KEPT"]]) if self.method == "imperfect" else raw
         if counters[COUNTERS["MISMATCH"]]:
             raise RuntimeError(f"the splat count and scatter passes found {counters[COUNTERS['MISMATCH']]} lines differently: "
                                "a driver that rounds the same arithmetic two ways; use splatter='raster'")
@@ -273,7 +278,7 @@ class BundleTracer:
             # Every line a splat or a triangle covers: without merging, one node each (None: not counted).
             "covered_nodes": raw if self.linked or not self.merge else
                              int(counters[COUNTERS["COVERED"]]) if "COUNT_COVERED" in self.count_variant else None,
-            "redundant_nodes": int(counters[COUNTERS["REDUNDANT"]]),
+            "redundant_nodes": raw - nodes if self.method == "imperfect" else int(counters[COUNTERS["REDUNDANT"]]),
             "redundant_tolerance": self.merge_tolerance if self.merge else 0.0,
             "merged": self.merge,
             "max_list_length": int(counters[COUNTERS["MAX_LENGTH"]]),
@@ -382,50 +387,40 @@ class BundleTracer:
         count = gl.program("splat_lists", **self.count_variant)
         self._uniforms(count, nearest_only=self.merge)
         gl.dispatch(count, self.K * self.N)
-        raw = self._scan_into("RAW_OFFSETS", "LIST_COUNTS")
-        self._grow(("RAW_NODES",), RAW_NODE_BYTES, raw + RAW_SLACK_NODES, "raw splat nodes")
+        raw = self._scan_lists()
         # Every list's end (its next list's offset) as the scatter's cursor, counting down.
-        self.gl.copy_buffer(self.buffers["LIST_COUNTS"], self.buffers["RAW_OFFSETS"], 4 * self.list_count, read_offset=4)
+        self.gl.copy_buffer(self.buffers["LIST_COUNTS"], self.buffers["LIST_OFFSETS"], 4 * self.list_count, read_offset=4)
         self.bind()
         scatter = gl.program("splat_lists", SCATTER_SPLATS=True)
         self._uniforms(scatter, nearest_only=self.merge)
         gl.dispatch(scatter, self.K * self.N)
         return raw
 
-    def _scan_into(self, offsets: str, counts: str | None = None) -> int:
-        """Offsets (exclusive prefix sum, L + 1 entries) of the per-list counts in buffer
-        ``counts`` (copied) or already in ``offsets``; returns the total (one round-trip)."""
-        target = self.buffers[offsets]
-        if counts is not None:
-            self.gl.copy_buffer(target, self.buffers[counts], 4 * (self.list_count + 1))
-        self._prefix_sum(target, self.list_count + 1, level=0)
+    def _scan_lists(self) -> int:
+        """The lists' slot ranges: LIST_OFFSETS, the exclusive prefix sum of the per-list counts
+        in LIST_COUNTS (L + 1 entries), and the node buffer grown to fit. Returns the total (one
+        round-trip)."""
+        offsets = self.buffers["LIST_OFFSETS"]
+        self.gl.copy_buffer(offsets, self.buffers["LIST_COUNTS"], 4 * (self.list_count + 1))
+        self._prefix_sum(offsets, self.list_count + 1, level=0)
+        total = int(np.frombuffer(offsets.read(4, offset=4 * self.list_count), dtype=np.uint32)[0])
+        what = "nodes" if self.method == "perfect" else "splat nodes before merging"
+        self._grow(("NODES",), NODE_BYTES, total + SLACK_NODES, what)
         self.bind()
-        return int(np.frombuffer(target.read(4, offset=4 * self.list_count), dtype=np.uint32)[0])
+        return total
 
-    def _resolve(self, raw: int) -> int:
-        """The build's lists to the sorted CSR (shaders/resolve_lists.glsl); returns its node count."""
+    def _resolve(self, raw: int) -> None:
+        """The build's lists sorted (and merged) into their slot ranges (shaders/resolve_lists.glsl)."""
         gl = self.gl
-        if self.linked:  # list lengths, into the offsets the lists sort (perfect) or merge (raster splats) into
-            self.buffers["OFFSETS" if self.method == "perfect" else "RAW_OFFSETS"].bind_to_storage_buffer(BINDINGS["SCAN_DATA"])
+        if self.linked:  # list lengths, into the slot ranges the lists sort (perfect) or merge (raster splats) into
             gl.dispatch(gl.program("resolve_lists", COUNT_LISTS=True), self.list_count)
+            self._scan_lists()
         if self.method == "perfect":
-            nodes = self._scan_into("OFFSETS")
-            self._grow(("SORTED_DEPTH", "SORTED_REF"), NODE_BYTES, nodes, "nodes")
-            self.bind()
             gl.dispatch(gl.program("resolve_lists", SORT_LISTS=True), self.list_count)
-            return nodes
-        if self.linked:
-            self._scan_into("RAW_OFFSETS")
-            self._grow(("RAW_NODES",), RAW_NODE_BYTES, raw + RAW_SLACK_NODES, "raw splat nodes")
-            self.bind()
+            return
         merge = gl.program("resolve_lists", MERGE_LISTS=True, **({"FROM_LINKED_LISTS": True} if self.linked else {}))
         merge["merge_tolerance"] = self.merge_tolerance
         gl.dispatch(merge, self.list_count)
-        nodes = self._scan_into("OFFSETS", "LIST_COUNTS")
-        self._grow(("SORTED_DEPTH", "SORTED_REF"), NODE_BYTES, nodes, "nodes")
-        self.bind()
-        gl.dispatch(gl.program("resolve_lists", COMPACT_LISTS=True), self.list_count)
-        return nodes
 
     def _prefix_sum(self, values, count: int, level: int) -> None:
         """Exclusive prefix sum of ``count`` uints of ``values`` in place (shaders/prefix_sum.glsl)."""
@@ -461,16 +456,19 @@ class BundleTracer:
 
     # -- readback ------------------------------------------------------------------------
 
-    def node_refs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The last build's CSR as the GPU holds it: offsets (L + 1,) int64, depth (M,) float32 and
-        reference (M,) uint32 (a triangle, or a splat point)."""
+    def node_refs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The last build's lists as a CSR: offsets (L + 1,) int64, depth (M,) float32 and
+        reference (M,) uint32 (a triangle, or a splat point), and each node's slot (M,) int64 in
+        the GPU's node buffer (where the resolve left it)."""
         if self.directions is None:
             raise RuntimeError("node_refs() before build()")
-        nodes, b = self.stats["nodes"], self.buffers
-        offsets = np.frombuffer(b["OFFSETS"].read(4 * (self.list_count + 1)), dtype=np.uint32).astype(np.int64)
-        depth = np.frombuffer(b["SORTED_DEPTH"].read(4 * nodes), dtype=np.float32).copy()
-        ref = np.frombuffer(b["SORTED_REF"].read(4 * nodes), dtype=np.uint32).copy()
-        return offsets, depth, ref
+        b, L = self.buffers, self.list_count
+        first = np.frombuffer(b["LIST_OFFSETS"].read(4 * L), dtype=np.uint32).astype(np.int64)
+        counts = np.frombuffer(b["LIST_COUNTS"].read(4 * L), dtype=np.uint32).astype(np.int64)
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        slots = np.repeat(first - offsets[:-1], counts) + np.arange(offsets[-1])
+        keys = np.frombuffer(b["NODES"].read(8 * (int(first[-1] + counts[-1]) if L else 0)), dtype=np.uint32).reshape(-1, 2)[slots]
+        return offsets, order_bits_depth(keys[:, 1]), keys[:, 0] & ~FACING_BIT, slots
 
     def read_points(self) -> np.ndarray:
         """The last build's splat points (K N,) as `SPLAT_POINT` records."""
@@ -479,16 +477,16 @@ class BundleTracer:
     def read(self) -> BundleSet:
         """The last build as a `BundleSet` (host memory): the nodes with the attributes an eye path
         sees at them (shaders/expand_nodes.glsl)."""
-        offsets, depth, _ = self.node_refs()
-        nodes = len(depth)
-        attributes = self.gl.buffer(reserve=16 * max(nodes, 1))
+        offsets, depth, _, slots = self.node_refs()
+        used = int(slots[-1]) + 1 if len(slots) else 0
+        attributes = self.gl.buffer(reserve=16 * max(used, 1))
         try:
             attributes.bind_to_storage_buffer(BINDINGS["NODE_ATTRIBUTES"])
             self.bind()
             expand = self.gl.program("expand_nodes", TEXTURES=self.textures, **self.defines)
             self._uniforms(expand)
             self.gl.dispatch(expand, self.list_count)
-            words = np.frombuffer(attributes.read(16 * nodes), dtype=np.uint32).reshape(nodes, 4)
+            words = np.frombuffer(attributes.read(16 * used), dtype=np.uint32).reshape(used, 4)[slots]
         finally:
             attributes.release()
         prim = words[:, 3]
@@ -542,6 +540,12 @@ def _frames(directions: DirectionSet) -> np.ndarray:
     frames["v"][:, :3], frames["v"][:, 3] = directions.axis_v, directions.jitter[:, 1]
     frames["d"][:, :3] = directions.directions
     return frames
+
+
+def order_bits_depth(bits: np.ndarray) -> np.ndarray:
+    """Depths from their order bits, a node key's high word (shaders/common.glsl)."""
+    sign = np.uint32(0x80000000)
+    return np.where(bits & sign, bits ^ sign, ~bits).astype(np.uint32).view(np.float32)
 
 
 def decode_normals(packed: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ SHADER_VARIANTS = {
     "splat_points": [{"SAMPLER": sampler} for sampler in SAMPLERS.values()],
     "splat_lists": [{"COUNT_SPLATS": True}, {"COUNT_SPLATS": True, "COUNT_COVERED": True}, {"SCATTER_SPLATS": True}],
     "resolve_lists": [{"COUNT_LISTS": True}, {"SORT_LISTS": True}, {"MERGE_LISTS": True},
-                      {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True}, {"COMPACT_LISTS": True}],
+                      {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True}],
     "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],
     "expand_nodes": [{"BUNDLE_METHOD": method, "TEXTURES": method} for method in METHODS.values()],
     "gbuffer": [{}],

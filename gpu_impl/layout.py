@@ -20,10 +20,11 @@ BINDINGS = {
     "FRAMES": 6, "POINTS": 7, "COUNTERS": 8,
     # linked lists, appended to by the raster passes
     "HEADS": 9, "NEXT": 10, "LIST_DEPTH": 11, "LIST_REF": 12,
-    # raw (unmerged) lists in exact-size CSR, and per-list counts
-    "RAW_OFFSETS": 13, "RAW_NODES": 14, "LIST_COUNTS": 15,
-    # the sorted CSR the eye paths read
-    "OFFSETS": 17, "SORTED_DEPTH": 18, "SORTED_REF": 19,
+    # the lists in exact-size slot ranges: where each starts, its nodes (keys), and its length
+    # (the build's counts, then the resolved lists the eye paths read)
+    "LIST_OFFSETS": 13, "NODES": 14, "LIST_COUNTS": 15,
+    # the lines each splat covers, from the compute splatter's count pass to its scatter pass
+    "SPLAT_LINES": 16,
     # prefix sums, and node attributes for the host (read-back only)
     "SCAN_DATA": 20, "SCAN_SUMS": 21, "NODE_ATTRIBUTES": 22,
     # the renderer (renderer.py, lights.py)
@@ -46,9 +47,10 @@ METHODS = {"perfect": 0, "imperfect": 1}
 # How imperfect bundles' points are drawn (splat_points.glsl).
 SAMPLERS = {"random": 0, "stratified": 1}
 # The build counters (bundle_build.glsl): nodes appended to linked lists (including any past the
-# capacity), redundant nodes merged away, the longest list, count/scatter mismatches (always 0),
-# and the lines splats cover (the nodes there would be without merging).
-COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4}
+# capacity), redundant nodes (perfect bundles: coincident duplicates, all kept; imperfect ones: the
+# written less the kept), the longest list, count/scatter mismatches (always 0), the lines splats
+# cover (the nodes there would be without merging), and the nodes the merge kept.
+COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4, "KEPT": 5}
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
 # Path.bundle (paths.glsl) past the bundle indices: the path has ended, or is at its camera vertex.

@@ -257,7 +257,7 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
             with BundleTracer(gl, gpu_scene, "imperfect", directions=8, resolution=64, points=4096, splat_scale=1.5,
                               splatter=splatter, merge=False) as tracer:
                 tracer.build(directions)
-                offsets, depth, ref = tracer.node_refs()
+                offsets, depth, ref, _ = tracer.node_refs()
                 lists = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
                 found[splatter] = {(int(l), int(p)): float(z) for l, p, z in zip(lists, ref, depth)}
                 points, radius = tracer.read_points(), tracer.splat_radius
@@ -287,7 +287,7 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
 @pytest.mark.parametrize("args, said", [
     (["--points", "0"], "argument --points: 0 must be at least 1"),
     (["--splat-scale", "-1"], "argument --splat-scale: -1.0 must be positive and finite"),
-    (["--points", "65536", "--node-budget", "10MiB"], "need 176.01 MiB for 16,777,216 splat points and the list offsets, "
+    (["--points", "65536", "--node-budget", "10MiB"], "need 416.01 MiB for 16,777,216 splat points, their lines and the list offsets, "
                                                        "over the node budget of 10.00 MiB"),
 ])
 def test_bad_imperfect_settings_are_one_line_saying_what_was_asked_and_what_is_needed(tmp_path, args, said):

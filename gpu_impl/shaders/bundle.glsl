@@ -4,8 +4,8 @@
 // A node is 8 bytes: its depth along the bundle direction d and a reference, the triangle
 // (perfect bundles) or the splat point (imperfect ones); BUNDLE_METHOD says which. What an eye
 // path needs at a node (position, normals, albedo, emission) is computed where a path reaches it
-// (bundle_hits.glsl), so nothing else is stored per node. List l holds nodes offsets[l] ..
-// offsets[l + 1] of sorted_depth / sorted_ref, sorted by depth (then reference).
+// (bundle_hits.glsl), so nothing else is stored per node. List l holds nodes list_first(l) ..
+// list_end(l) - 1, sorted by depth (then reference).
 //
 // Passes that read the sorted lists define BUNDLE_LOOKUP (a compute shader may use at most 16
 // storage blocks, so each include declares only what its passes use).
@@ -68,9 +68,29 @@ uniform float splat_radius;         // in scene units
 #endif
 
 #if defined BUNDLE_LOOKUP
-layout(std430, binding = BINDING_OFFSETS) readonly buffer Offsets { uint offsets[]; };
-layout(std430, binding = BINDING_SORTED_DEPTH) readonly buffer SortedDepth { float sorted_depth[]; };
-layout(std430, binding = BINDING_SORTED_REF) readonly buffer SortedRef { uint sorted_ref[]; };
+// The resolved lists (resolve_lists.glsl): list l's nodes are at the front of its slot range,
+// from list_offsets[l], list_counts[l] of them (imperfect bundles' merged-away nodes leave the
+// rest of the range unused). A node is a 64-bit key (bundle_build.glsl) read as two words:
+// x the reference with FACING_BIT, y the depth's order bits.
+layout(std430, binding = BINDING_LIST_OFFSETS) readonly buffer ListOffsets { uint list_offsets[]; };
+layout(std430, binding = BINDING_LIST_COUNTS) readonly buffer ListCounts { uint list_counts[]; };
+layout(std430, binding = BINDING_NODES) readonly buffer Nodes { uvec2 nodes[]; };
+
+uint list_first(uint l) {
+    return list_offsets[l];
+}
+
+uint list_end(uint l) {
+    return list_offsets[l] + list_counts[l];
+}
+
+float node_depth(uint i) {
+    return order_bits_depth(nodes[i].y);
+}
+
+uint node_ref(uint i) {
+    return nodes[i].x & ~FACING_BIT;
+}
 #endif
 
 uniform float radius;           // the frame radius (bounding sphere, padded)

@@ -1,7 +1,7 @@
 // Building ray bundles (gpu_impl/bundles.py): the build counters (COUNTER_* slots of
 // gpu_impl/layout.py), the per-pixel linked lists the raster passes append nodes to
-// (LINKED_LISTS), and the raw lists in exact-size CSR that the compute splatter scatters into and
-// the resolve sorts and merges (RAW_LISTS).
+// (LINKED_LISTS), and the lists' exact-size slot ranges that the compute splatter scatters into
+// and the resolve sorts (and merges) into (SLOT_LISTS).
 
 layout(std430, binding = BINDING_COUNTERS) buffer Counters { uint counters[]; };
 
@@ -27,30 +27,27 @@ void append_node(uint list, float depth, uint ref) {
 #endif
 #endif
 
-#if defined RAW_LISTS
-// List l's raw nodes are raw_nodes[raw_offsets[l] .. raw_offsets[l + 1]] (exact sizes from a count
-// pass and a prefix sum), each a node key. list_counts[l] is the count pass's count, then the
-// scatter's cursor (from the list's end down to its start), then, after the merge, the list's
-// merged length.
-layout(std430, binding = BINDING_RAW_OFFSETS) buffer RawOffsets { uint raw_offsets[]; };
-layout(std430, binding = BINDING_RAW_NODES) buffer RawNodes { uint64_t raw_nodes[]; };
+#if defined SLOT_LISTS
+// List l's slots are nodes[list_offsets[l] .. list_offsets[l + 1]] (exact sizes from the lists'
+// counts and a prefix sum), each a node key. list_counts[l] is the list's count, then (the compute
+// splatter) the scatter's cursor from the list's end down to its start, then, after the resolve,
+// the length of the sorted (and merged) list at the front of its slots, which the eye paths read
+// (bundle.glsl).
+layout(std430, binding = BINDING_LIST_OFFSETS) buffer ListOffsets { uint list_offsets[]; };
+layout(std430, binding = BINDING_NODES) buffer Nodes { uint64_t nodes[]; };
 layout(std430, binding = BINDING_LIST_COUNTS) buffer ListCounts { uint list_counts[]; };
 #endif
 
 #if defined NODE_KEYS
-// A node as one 64-bit key that sorts as (depth, reference) does: the depth's bits turned so that
-// they order as the floats do (high word), then the reference with FACING_BIT (low word). Sorting
-// and moving one key per node costs half what a depth and a reference apart cost.
+// A node as one 64-bit key that sorts as (depth, reference) does: the depth's order bits
+// (common.glsl) in the high word, then the reference with FACING_BIT in the low word. Sorting and
+// moving one key per node costs half what a depth and a reference apart cost.
 uint64_t node_key(float depth, uint ref) {
-    uint bits = floatBitsToUint(depth);
-    bits ^= (bits & 0x80000000u) != 0u ? 0xFFFFFFFFu : 0x80000000u;
-    return (uint64_t(bits) << 32) | uint64_t(ref);
+    return (uint64_t(depth_order_bits(depth)) << 32) | uint64_t(ref);
 }
 
 float key_depth(uint64_t key) {
-    uint bits = uint(key >> 32);
-    bits ^= (bits & 0x80000000u) != 0u ? 0x80000000u : 0xFFFFFFFFu;
-    return uintBitsToFloat(bits);
+    return order_bits_depth(uint(key >> 32));
 }
 
 uint key_ref(uint64_t key) {

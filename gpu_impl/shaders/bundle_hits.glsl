@@ -39,6 +39,6 @@ BundleHit bundle_hit(vec3 position, uint ref) {
 #if defined BUNDLE_LOOKUP
 // Node `index` of list l (which lies on line `origin` + t d).
 BundleHit list_node_hit(vec3 origin, vec3 d, uint index) {
-    return bundle_hit(origin + sorted_depth[index] * d, sorted_ref[index]);
+    return bundle_hit(origin + node_depth(index) * d, node_ref(index));
 }
 #endif

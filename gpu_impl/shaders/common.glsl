@@ -11,6 +11,17 @@ uint linear_id() {
 }
 #endif
 
+// A depth's bits turned so that they order as unsigned integers as the floats do (the high word of
+// a node key, bundle_build.glsl), and back.
+uint depth_order_bits(float depth) {
+    uint bits = floatBitsToUint(depth);
+    return bits ^ ((bits & 0x80000000u) != 0u ? 0xFFFFFFFFu : 0x80000000u);
+}
+
+float order_bits_depth(uint bits) {
+    return uintBitsToFloat(bits ^ ((bits & 0x80000000u) != 0u ? 0x80000000u : 0xFFFFFFFFu));
+}
+
 // Octahedral normal encoding in two snorm16 (Cigolle et al., JCGT 2014): under 1e-4 rad of error,
 // four bytes. evalkit decodes it with the same formula (gpu_impl/bundles.py: decode_normals).
 vec2 sign_not_zero(vec2 v) {

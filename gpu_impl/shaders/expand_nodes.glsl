@@ -1,5 +1,6 @@
-// A BundleSet's per-node attributes for the host (BundleTracer.read): each node of the sorted CSR
-// expanded by bundle_hits.glsl, as an eye path reaching it sees it. Only read-back runs it.
+// A BundleSet's per-node attributes for the host (BundleTracer.read): each node of the resolved
+// lists expanded by bundle_hits.glsl, as an eye path reaching it sees it, at its slot. Only
+// read-back runs it.
 
 #define BUNDLE_LOOKUP
 #include "common.glsl"
@@ -22,7 +23,7 @@ void main() {
     if (list >= invocations) return;
     int k = list_direction(list);
     vec3 origin = line_origin(k, list_pixel(list)), d = frames[k].d.xyz;
-    for (uint i = offsets[list]; i < offsets[list + 1u]; i++) {
+    for (uint i = list_first(list); i < list_end(list); i++) {
         BundleHit hit = list_node_hit(origin, d, i);
         uint prim = BUNDLE_METHOD == METHOD_IMPERFECT ? hit.triangle | SPLAT_BIT : hit.triangle;
         attributes[i] = uvec4(encode_normal(hit.normal), packHalf2x16(hit.albedo.rg), packHalf2x16(vec2(hit.albedo.b, 0.0)), prim);

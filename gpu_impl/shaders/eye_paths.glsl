@@ -103,11 +103,11 @@ void main() {
     float bound = forward ? max(depth, crossing) + bias : min(depth, crossing) - bias;
 
     // The nearest node beyond the bound along omega: a binary search of the sorted depths.
-    uint first = offsets[list], last = offsets[list + 1u];
+    uint first = list_first(list), last = list_end(list);
     uint lo = first, hi = last;
     while (lo < hi) {
         uint mid = (lo + hi) / 2u;
-        if (forward ? sorted_depth[mid] <= bound : sorted_depth[mid] < bound) lo = mid + 1u; else hi = mid;
+        if (forward ? node_depth(mid) <= bound : node_depth(mid) < bound) lo = mid + 1u; else hi = mid;
     }
     uint hit = forward ? (lo < last ? lo : NO_NODE) : (lo > first ? lo - 1u : NO_NODE);
 
@@ -165,7 +165,7 @@ void main() {
             vec3 e = light_irradiance(node.position, nn);
 #else
             // Per node (perfect bundles) or per splat point (imperfect).
-            vec3 e = irradiance_at(BUNDLE_METHOD == METHOD_IMPERFECT ? sorted_ref[hit] : hit, front ? 0u : 1u);
+            vec3 e = irradiance_at(BUNDLE_METHOD == METHOD_IMPERFECT ? node_ref(hit) : hit, front ? 0u : 1u);
 #endif
             reflected = throughput * node.albedo * INV_PI * e;
 #endif

@@ -1,5 +1,5 @@
 // The shadow-mapped light (lights.glsl) reaching every bundle node (perfect bundles: one
-// invocation per list, its nodes in CSR order) or every splat point (imperfect bundles: at the
+// invocation per list, each node at its slot) or every splat point (imperfect bundles: at the
 // point, with the splat's normal, the light of every node its splat makes), on the front and, for
 // a two-sided material, the back. The renderer runs it only when that costs less than lighting
 // each path's hits where they land (gpu_impl/renderer.py); the eye paths multiply it by the albedo
@@ -47,7 +47,7 @@ void main() {
 #else
     int k = list_direction(id);
     vec3 origin = line_origin(k, list_pixel(id)), d = frames[k].d.xyz;
-    for (uint i = offsets[id]; i < offsets[id + 1u]; i++) {
+    for (uint i = list_first(id); i < list_end(id); i++) {
         BundleHit hit = list_node_hit(origin, d, i);
         store_irradiance(i, hit.position, hit.normal, hit.triangle);
     }

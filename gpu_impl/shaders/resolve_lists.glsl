@@ -1,34 +1,35 @@
-// From the lists a build made to the sorted CSR the eye paths read (bundle.glsl). Each pass runs
-// one invocation per list:
+// From the lists a build made to the resolved lists the eye paths read (bundle.glsl): list l's
+// nodes sorted at the front of its slot range, list_offsets[l] .. list_offsets[l] +
+// list_counts[l]. Each pass runs one invocation per list:
 //
-//   COUNT_LISTS    linked lists: each list's length into counts[] (the prefix sum's buffer);
-//   SORT_LISTS     perfect bundles: linked lists to the sorted CSR at offsets[] (nothing merged);
+//   COUNT_LISTS    linked lists: each list's length into list_counts[] (the prefix sum makes the
+//                  slot ranges from them);
+//   SORT_LISTS     perfect bundles: linked lists sorted into their slot ranges (nothing merged);
 //   MERGE_LISTS    imperfect bundles: each list sorted and its redundant nodes merged, written to
-//                  the front of its raw slot range, its merged length to list_counts[]. The list
-//                  comes from the linked lists (FROM_LINKED_LISTS: the raster splatter) or is the
-//                  raw slot range itself (the compute splatter);
-//   COMPACT_LISTS  imperfect bundles: the merged lists, moved to the sorted CSR at offsets[] (the
-//                  prefix sum of the merged lengths).
+//                  the front of its slot range, its merged length to list_counts[]. The list comes
+//                  from the linked lists (FROM_LINKED_LISTS: the raster splatter) or is the slot
+//                  range itself, as the compute splatter scattered it. The merged-away nodes' slots
+//                  stay unused: moving the lists together would cost a second prefix sum and a
+//                  copy of every node, a fifth of the build (benchmarks/bundles.py), for memory
+//                  the unmerged lists needed anyway.
 //
 // Lists are sorted by depth, then by reference (node keys, bundle_build.glsl): equal node sets
 // give equal lists, whatever order the rasterizer's threads or the scatter's atomics put them in.
-// The sorted CSR holds references without FACING_BIT.
 //
 // Merging (merge_tolerance >= 0): overlapping splats of one plane each put a node on the lines
 // they share, at one depth up to float32 rounding. A run of nodes facing the same way along the
 // line (FACING_BIT) within merge_tolerance of the run's first node is one surface crossing and
 // keeps one node, the run's middle one (its median depth).
-// Surfaces facing opposite ways (a thin slab's two sides) are never merged. COUNTER_REDUNDANT
-// counts what is merged away (perfect bundles: coincident duplicates, which are all kept).
+// Surfaces facing opposite ways (a thin slab's two sides) are never merged. COUNTER_KEPT counts
+// the nodes kept; perfect bundles count coincident duplicates, which are all kept, in
+// COUNTER_REDUNDANT.
 
 #extension GL_ARB_gpu_shader_int64 : require
 #include "common.glsl"
 #if defined COUNT_LISTS || defined SORT_LISTS || defined FROM_LINKED_LISTS
 #define LINKED_LISTS
 #endif
-#if defined MERGE_LISTS || defined COMPACT_LISTS
-#define RAW_LISTS
-#endif
+#define SLOT_LISTS
 #define NODE_KEYS
 #include "bundle_build.glsl"
 
@@ -38,23 +39,15 @@ layout(local_size_x = LOCAL_SIZE) in;
 
 uniform uint invocations;  // K R^2 lists
 
-#if defined SORT_LISTS || defined COMPACT_LISTS
-layout(std430, binding = BINDING_OFFSETS) readonly buffer Offsets { uint offsets[]; };
-layout(std430, binding = BINDING_SORTED_DEPTH) buffer SortedDepth { float sorted_depth[]; };
-layout(std430, binding = BINDING_SORTED_REF) buffer SortedRef { uint sorted_ref[]; };
-#endif
-
 #if defined COUNT_LISTS
-
-layout(std430, binding = BINDING_SCAN_DATA) writeonly buffer Counts { uint counts[]; };
 
 void main() {
     uint list = linear_id();
     if (list >= invocations) return;
     uint length = 0u;
     for (uint n = heads[list]; n != NO_NODE; n = node_next[n]) length++;
-    counts[list] = length;
-    if (list == 0u) counts[invocations] = 0u;  // the scan turns it into the node count
+    list_counts[list] = length;
+    if (list == 0u) list_counts[invocations] = 0u;  // the scan turns it into the node count
 }
 
 #elif defined SORT_LISTS || defined MERGE_LISTS
@@ -107,14 +100,7 @@ void sort_network(uint length) {
     }
 }
 
-#if defined SORT_LISTS
-// The list's keys go to the sorted CSR.
-#define OUT_KEY(i) node_key(sorted_depth[i], sorted_ref[i])
-#define SET_OUT_KEY(i, k) { uint64_t set_key = k; sorted_depth[i] = key_depth(set_key); sorted_ref[i] = key_ref(set_key); }
-#else
-// The list's keys go to the front of its raw slot range.
-#define OUT_KEY(i) raw_nodes[i]
-#define SET_OUT_KEY(i, k) raw_nodes[i] = k;
+#if defined MERGE_LISTS
 uniform float merge_tolerance;  // in scene units; negative: merge nothing
 
 // Whether `next` starts a new run after a run that started with `start`.
@@ -124,23 +110,19 @@ bool starts_run(uint64_t next, uint64_t start) {
 }
 #endif
 
-// Insert `k` into the sorted keys at first .. first + count of the output, in global memory.
+// Insert `k` into the sorted keys at first .. first + count, in global memory.
 void insert_global(uint first, uint count, uint64_t k) {
     uint j = count;
-    for (; j > 0u && k < OUT_KEY(first + j - 1u); j--) SET_OUT_KEY(first + j, OUT_KEY(first + j - 1u))
-    SET_OUT_KEY(first + j, k)
+    for (; j > 0u && k < nodes[first + j - 1u]; j--) nodes[first + j] = nodes[first + j - 1u];
+    nodes[first + j] = k;
 }
 
 void main() {
     uint list = linear_id();
     if (list >= invocations) return;
-#if defined SORT_LISTS
-    uint first = offsets[list], length = offsets[list + 1u] - first;
-#else
-    uint first = raw_offsets[list], length = raw_offsets[list + 1u] - first;
-#if !defined FROM_LINKED_LISTS
+    uint first = list_offsets[list], length = list_offsets[list + 1u] - first;
+#if defined MERGE_LISTS && !defined FROM_LINKED_LISTS
     if (list_counts[list] != first) atomicAdd(counters[COUNTER_MISMATCH], 1u);  // the scatter's cursor is off the list's start
-#endif
 #endif
     uint kept = length, redundant = 0u;
     if (length == 0u) {
@@ -150,14 +132,13 @@ void main() {
         uint n = heads[list];
 #define LOAD(i) { bool here = i < length; key[i] = here ? node_key(list_depth[n], list_ref[n]) : PADDING; if (here) n = node_next[n]; }
 #else
-#define LOAD(i) { key[i] = i < length ? raw_nodes[first + i] : PADDING; }
+#define LOAD(i) { key[i] = i < length ? nodes[first + i] : PADDING; }
 #endif
         FOR_NODES(LOAD)
         sort_network(length);
 #if defined SORT_LISTS
-        float previous = 0.0;
-#define STORE(i) if (i < length) { float depth = key_depth(key[i]); if (i > 0u && depth == previous) redundant++; previous = depth; \
-            sorted_depth[first + i] = depth; sorted_ref[first + i] = key_ref(key[i]) & ~FACING_BIT; }
+        uint64_t previous = key[0];
+#define STORE(i) if (i < length) { if (i > 0u && key_depth(key[i]) == key_depth(previous)) redundant++; previous = key[i]; nodes[first + i] = key[i]; }
         FOR_NODES(STORE)  // counting coincident duplicates, all kept
 #else
         // Runs (see the top) and each run's middle node, with constant indices only: the nodes
@@ -171,9 +152,8 @@ void main() {
             if (i == (uint(findMSB(starts & (0xFFFFFFFFu >> (31u - i)))) + end) / 2u) middles |= 1u << i; }
         FOR_NODES_BACKWARDS(MIDDLE)
         kept = 0u;
-#define KEEP(i) if ((middles & (1u << i)) != 0u) { raw_nodes[first + kept] = key[i]; kept++; }
+#define KEEP(i) if ((middles & (1u << i)) != 0u) { nodes[first + kept] = key[i]; kept++; }
         FOR_NODES(KEEP)
-        redundant = length - kept;
 #endif
     } else {
         // A long list: sorted in place, in global memory.
@@ -181,46 +161,32 @@ void main() {
         uint n = heads[list];
         for (uint i = 0u; i < length; i++, n = node_next[n]) insert_global(first, i, node_key(list_depth[n], list_ref[n]));
 #else
-        for (uint i = 1u; i < length; i++) insert_global(first, i, raw_nodes[first + i]);
+        for (uint i = 1u; i < length; i++) insert_global(first, i, nodes[first + i]);
 #endif
 #if defined SORT_LISTS
-        for (uint i = 0u; i < length; i++) {
-            if (i > 0u && sorted_depth[first + i] == sorted_depth[first + i - 1u]) redundant++;
-            sorted_ref[first + i] &= ~FACING_BIT;
-        }
+        for (uint i = 1u; i < length; i++) if (key_depth(nodes[first + i]) == key_depth(nodes[first + i - 1u])) redundant++;
 #else
         // Each run's middle node to the front; the write index never passes the read index.
         kept = 0u;
         uint start = 0u;
         for (uint i = 1u; i <= length; i++) {
-            if (i == length || starts_run(raw_nodes[first + i], raw_nodes[first + start])) {
-                uint64_t middle = raw_nodes[first + (start + i - 1u) / 2u];
-                raw_nodes[first + kept] = middle;
+            if (i == length || starts_run(nodes[first + i], nodes[first + start])) {
+                uint64_t middle = nodes[first + (start + i - 1u) / 2u];
+                nodes[first + kept] = middle;
                 kept++;
                 start = i;
             }
         }
-        redundant = length - kept;
 #endif
     }
+    // Few atomics: a CPU rasterizer runs one per invocation, and all of them on one address.
 #if defined MERGE_LISTS
     list_counts[list] = kept;
-#endif
+    if (kept > 0u) atomicAdd(counters[COUNTER_KEPT], kept);
+#else
     if (redundant > 0u) atomicAdd(counters[COUNTER_REDUNDANT], redundant);
-    atomicMax(counters[COUNTER_MAX_LENGTH], kept);
-}
-
-#elif defined COMPACT_LISTS
-
-void main() {
-    uint list = linear_id();
-    if (list >= invocations) return;
-    uint from = raw_offsets[list], to = offsets[list], length = list_counts[list];
-    for (uint i = 0u; i < length; i++) {
-        uint64_t k = raw_nodes[from + i];
-        sorted_depth[to + i] = key_depth(k);
-        sorted_ref[to + i] = key_ref(k) & ~FACING_BIT;
-    }
+#endif
+    if (kept > counters[COUNTER_MAX_LENGTH]) atomicMax(counters[COUNTER_MAX_LENGTH], kept);
 }
 
 #endif

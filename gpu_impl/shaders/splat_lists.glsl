@@ -2,13 +2,20 @@
 // disk of radius splat_radius around its point in the point's triangle's plane, finds the bundle
 // lines that cross it in its own direction's bundle, row by row of the bundle's pixel grid.
 //
-// COUNT_SPLATS counts every list's nodes (list_counts); a prefix sum makes them raw_offsets; then,
+// COUNT_SPLATS counts every list's nodes (list_counts); a prefix sum makes them list_offsets; then,
 // with list_counts set to every list's end, SCATTER_SPLATS writes each node into its list's slot
 // range (its key: depth, and the point | FACING_BIT), counting list_counts back down to the list's
 // start. The lists come out exactly as large as they need to be:
 // no linked list, no overflow. The merge (resolve_lists.glsl) sorts them, so the order in which
-// nodes land in a list does not matter. Both passes run the same code to find the lines (precise
-// arithmetic); should they ever disagree, the scatter counts the mismatch and the host says so.
+// nodes land in a list does not matter.
+//
+// The count pass also leaves each splat's lines behind (splat_lines[]): a bit per line of the
+// splat's bounding box in the bundle's pixel grid (up to 32 lines), and its plane's offset, so
+// the scatter writes the nodes without finding the lines again: on a CPU rasterizer that search
+// (rows, the neighbour tests) was half the scatter's time. A splat whose box holds more than 32
+// lines (a large or edge-on splat) is found again by the scatter with the same code (precise
+// arithmetic); should the two passes ever disagree, the scatter counts the mismatch and the host
+// says so.
 //
 // A line (i, j) crosses the splat's plane at q; it is in the splat when |q - c| <= r. With
 // (du, dv) the offset of the line from the centre c across the bundle and n the plane's normal,
@@ -19,7 +26,7 @@
 
 #extension GL_ARB_gpu_shader_int64 : require
 #define BUNDLE_METHOD METHOD_IMPERFECT
-#define RAW_LISTS
+#define SLOT_LISTS
 #define NODE_KEYS
 #include "common.glsl"
 #include "scene.glsl"
@@ -31,7 +38,16 @@
 layout(local_size_x = LOCAL_SIZE) in;
 
 uniform uint invocations;  // K N points
-uniform bool nearest_only;  // merging: only the nearest of a triangle's splats puts a node on a line
+uniform bool nearest_only;
+
+// A splat's lines as the count pass found them: x the box's first column | its first row << 16,
+// y a bit per line (row-major, LINES_WIDTH columns a row), z the box's width | LINES_FACING |
+// LINES_KEPT, w the bits of dot(n, centre), the splat plane's offset. Without LINES_KEPT the
+// scatter finds the lines itself.
+layout(std430, binding = BINDING_SPLAT_LINES) buffer SplatLines { uvec4 splat_lines[]; };
+#define LINES_WIDTH 0xFFu
+#define LINES_FACING 0x100u
+#define LINES_KEPT 0x200u  // merging: only the nearest of a triangle's splats puts a node on a line
 
 // A splat seen nearly edge-on covers no line centre (its ellipse has no width); one exactly
 // edge-on has no depth plane.
@@ -51,6 +67,20 @@ uniform bool nearest_only;  // merging: only the nearest of a triangle's splats 
 #define NEIGHBOUR_SLOTS 8  // 2 NEIGHBOURS
 #define MARGIN 1e-3
 
+#if defined SCATTER_SPLATS
+// A node into the slot below its list's cursor. More nodes than counted would take the list
+// before's slots: the merge finds the cursors off their lists' starts, and the host says so. Only
+// the first list could go below slot 0.
+void write_node(uint list, uint64_t key) {
+    uint cursor = atomicAdd(list_counts[list], 0xFFFFFFFFu);
+    if (cursor == 0u) {
+        atomicAdd(counters[COUNTER_MISMATCH], 1u);
+        return;
+    }
+    nodes[cursor - 1u] = key;
+}
+#endif
+
 // The splat of point `id`: its nodes counted or written; returns the lines it covers (before
 // leaving any to a nearer splat).
 uint splat(uint id) {
@@ -62,9 +92,17 @@ uint splat(uint id) {
     int k = int(id / points_per_direction);
     BundleFrame f = frames[k];
     float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz);
-    if (abs(nd) < MIN_COS) return 0u;
-    vec3 plane = depth_plane(f, n, dot(n, centre));
+    if (abs(nd) < MIN_COS) {
+#if defined COUNT_SPLATS
+        splat_lines[id] = uvec4(0u, 0u, LINES_KEPT, 0u);  // no lines
+#endif
+        return 0u;
+    }
+    float w = dot(n, centre);
     uint ref = id | (nd > 0.0 ? FACING_BIT : 0u);
+#if defined SCATTER_SPLATS
+    vec3 plane = depth_plane(f, n, w);
+#endif
 
     // The ellipse in the pixel grid: centre c, and A dx^2 + 2 B dx dy + C dy^2 <= E.
     precise vec2 c = bundle_grid_position(f, centre);
@@ -91,6 +129,14 @@ uint splat(uint id) {
     precise float half_height = rp * sqrt(max(0.0, 1.0 - nv * nv));
     int y0 = max(0, int(ceil(c.y - half_height))), y1 = min(resolution - 1, int(floor(c.y + half_height)));
     uint covered = 0u;
+#if defined COUNT_SPLATS
+    // The box: columns from x_min, at most the splat's radius either side of its centre (a disk's
+    // projection), rows y0 .. y1; a line outside it (round-off) or past bit 31: not kept.
+    int x_min = max(0, int(ceil(c.x - rp)));
+    uint width = uint(clamp(int(floor(c.x + rp)) - x_min + 1, 1, int(LINES_WIDTH)));
+    uint mask = 0u;
+    bool kept = true;
+#endif
     for (int y = y0; y <= y1; y++) {
         precise float dy = float(y) - c.y;
         precise float disc = B * B * dy * dy - A * (C * dy * dy - E);
@@ -109,21 +155,42 @@ uint splat(uint id) {
             uint list = pixel_list(k, ivec2(x, y));
 #if defined COUNT_SPLATS
             atomicAdd(list_counts[list], 1u);
+            uint bit = uint(y - y0) * width + uint(x - x_min);
+            kept = kept && x >= x_min && uint(x - x_min) < width && bit < 32u;
+            if (kept) mask |= 1u << bit;
 #else
-            // This node takes the slot below the cursor. More nodes than counted would take the
-            // list before's slots: the merge finds the cursors off their lists' starts, and the
-            // host says so. Only the first list could go below slot 0.
-            uint cursor = atomicAdd(list_counts[list], 0xFFFFFFFFu);
-            if (cursor == 0u) {
-                atomicAdd(counters[COUNTER_MISMATCH], 1u);
-                continue;
-            }
-            raw_nodes[cursor - 1u] = node_key(dot(plane, vec3(1.0, float(x), float(y))), ref);
+            write_node(list, node_key(dot(plane, vec3(1.0, float(x), float(y))), ref));
 #endif
         }
     }
+#if defined COUNT_SPLATS
+    splat_lines[id] = kept ? uvec4(uint(x_min) | uint(y0) << 16, mask, width | (nd > 0.0 ? LINES_FACING : 0u) | LINES_KEPT, floatBitsToUint(w))
+                           : uvec4(0u);
+#endif
     return covered;
 }
+
+#if defined SCATTER_SPLATS
+// Node keys for the lines the count pass kept for splat `id`, or for the lines it finds again.
+void scatter(uint id) {
+    uvec4 lines = splat_lines[id];
+    if ((lines.z & LINES_KEPT) == 0u) {
+        splat(id);
+        return;
+    }
+    if (lines.y == 0u) return;
+    int k = int(id / points_per_direction);
+    vec3 plane = depth_plane(frames[k], triangle_normal(points[id].triangle), uintBitsToFloat(lines.w));
+    uint ref = id | ((lines.z & LINES_FACING) != 0u ? FACING_BIT : 0u);
+    uint width = lines.z & LINES_WIDTH;
+    ivec2 origin = ivec2(lines.x & 0xFFFFu, lines.x >> 16);
+    for (uint mask = lines.y; mask != 0u; mask &= mask - 1u) {
+        uint bit = uint(findLSB(mask));
+        ivec2 pixel = origin + ivec2(bit % width, bit / width);
+        write_node(pixel_list(k, pixel), node_key(dot(plane, vec3(1.0, vec2(pixel))), ref));
+    }
+}
+#endif
 
 #if defined COUNT_COVERED
 shared uint covered_by_group;
@@ -141,6 +208,8 @@ void main() {
     atomicAdd(covered_by_group, covered);
     barrier();
     if (gl_LocalInvocationIndex == 0u) atomicAdd(counters[COUNTER_COVERED], covered_by_group);
+#elif defined SCATTER_SPLATS
+    if (id < invocations) scatter(id);
 #else
     if (id < invocations) splat(id);
 #endif
