@@ -58,7 +58,7 @@ MERGE_TOLERANCE = 1e-4
 # How much a buffer grows past a measured count, so the next frame's rotated directions (a
 # slightly different count) rarely need it to grow again.
 CAPACITY_SLACK = 1.125
-SCAN_BLOCK = 4 * LOCAL_SIZE  # shaders/prefix_sum.glsl
+SCAN_BLOCK = 16 * LOCAL_SIZE  # shaders/prefix_sum.glsl
 # shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size (32), past
 # the list's end: the node buffer keeps that many slots beyond the last list.
 SLACK_NODES = 32
@@ -428,6 +428,9 @@ class BundleTracer:
         blocks = math.ceil(count / SCAN_BLOCK)
         if len(self._scan_sums) <= level:
             self._scan_sums.append(gl.buffer(reserve=4 * max(blocks, 1)))
+        elif self._scan_sums[level].size < 4 * blocks:
+            self._scan_sums[level].release()
+            self._scan_sums[level] = gl.buffer(reserve=4 * blocks)
         sums = self._scan_sums[level]
         values.bind_to_storage_buffer(BINDINGS["SCAN_DATA"])
         sums.bind_to_storage_buffer(BINDINGS["SCAN_SUMS"])

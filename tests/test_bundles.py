@@ -301,3 +301,21 @@ def test_covered_lines_count_every_splat_node_merging_may_remove(gl):
     unmerged = build(gl, scene, "imperfect", K=8, R=64, points=8192, splat_scale=2.0, merge=False)
     assert merged.stats["covered_nodes"] == unmerged.stats["covered_nodes"] == unmerged.node_count
     assert build(gl, scene, "imperfect", K=8, R=64, points=8192, splat_scale=2.0).stats["covered_nodes"] is None
+
+
+def test_prefix_sum_is_exact_across_block_and_level_boundaries(gl):
+    """The list offsets' scan (shaders/prefix_sum.glsl): blocks of 4096 values, scanned
+    recursively, so sizes around one block and past one block of blocks use every path."""
+    scene = scene_of([Mesh("quad", QUAD, QUAD_FACES, 0)], [Material("grey")])
+    rng = np.random.default_rng(5)
+    with GpuScene(gl, scene) as gpu_scene, BundleTracer(gl, gpu_scene, "perfect", directions=1, resolution=4) as tracer:
+        for count in (1, 4095, 4096, 4097, 4096 * 4096 + 3):
+            values = rng.integers(0, 200, count, dtype=np.uint32)
+            buffer = gl.buffer(values.tobytes())
+            try:
+                tracer._prefix_sum(buffer, count, level=0)
+                scanned = np.frombuffer(buffer.read(), dtype=np.uint32)
+            finally:
+                buffer.release()
+            expected = np.concatenate([[0], np.cumsum(values[:-1], dtype=np.uint64)]).astype(np.uint32)
+            assert np.array_equal(scanned, expected), count
