@@ -29,6 +29,7 @@ from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_E
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
+from evalkit.tune import tune
 from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SAMPLER, DEFAULT_SPLAT_SCALE, SPLATTERS, format_bytes, trace_bundles
 from gpu_impl.context import GLContext
 from gpu_impl.layout import SAMPLERS
@@ -232,6 +233,27 @@ def _study(args) -> int:
     print(f"results     {out}/results.csv")
     print(f"report      {out}/report.html")
     return 0 if ok == len(rows) else 1
+
+
+def _tune(args) -> int:
+    result = tune(args.scene, args.budget, method=args.method, metric=args.metric, out=args.out, width=args.width,
+                  height=args.height, bounces=args.bounces, spp=args.spp, reference_spp=args.reference_spp, seed=args.seed,
+                  check=not args.no_check, progress=(lambda line: None) if args.json else print)
+    rec, predicted = result["recommended"], result["predicted"]
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    settings = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in ("width", "height", "bounces", "spp"))
+    print(f"recommended {settings}")
+    print(f"predicted   {predicted['time_s']:.3g} s, {result['metric']} {predicted['error']:.4g}")
+    if "measured" in result:
+        measured = result["measured"]
+        print(f"measured    {measured['time_s']:.3g} s, {result['metric']} {measured['error']:.4g} "
+              f"(time {measured['time_s'] / result['budget_s']:.2f}x the budget, error {measured['error'] / predicted['error']:.2f}x the predicted)")
+    calibration = result["calibration"]
+    print(f"calibration {calibration['runs']} runs, {calibration['seconds']:.1f} s (cached in {calibration['folder']})")
+    print(f"report      {result['report']}")
+    return 0
 
 
 def _demo(args) -> int:
@@ -446,6 +468,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--junit", metavar="FILE", help="JUnit XML (default DIR/junit.xml)")
     p.add_argument("--calibrate", metavar="SEEDS", help="instead: run each case over seeds, e.g. 0-4, and print the spread")
     p.set_defaults(run=_check)
+
+    p = sub.add_parser("tune", help="the settings with the least predicted error within a time budget, from fitted time and error models, checked by a render")
+    p.add_argument("scene", help="a built-in name or a scene file")
+    p.add_argument("--budget", type=float, required=True, metavar="SECONDS", help="render time (every frame, after shader compilation)")
+    p.add_argument("--method", default="both", metavar="perfect|imperfect|both", help="default both")
+    p.add_argument("--metric", default="indirect_relmse", metavar="IMAGE_METRIC",
+                   help="what to minimise against the Mitsuba reference, e.g. indirect_relmse (default), total_relmse, total_flip")
+    p.add_argument("--width", type=_positive_int, default=128)
+    p.add_argument("--height", type=_positive_int, default=128)
+    p.add_argument("--bounces", type=_positive_int, default=3)
+    p.add_argument("--spp", type=_positive_int, default=16, help="eye paths per pixel per frame (default 16)")
+    p.add_argument("--reference-spp", type=_positive_int, default=16384, help="the Mitsuba reference's (default 16384)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-check", action="store_true", help="recommend without rendering the recommendation")
+    p.add_argument("--out", metavar="DIR", help="default: out/tune/<scene>")
+    p.add_argument("--json", action="store_true", help="print one JSON object: recommended, predicted, measured, models")
+    p.set_defaults(run=_tune)
 
     p = sub.add_parser("demo", help="the main job: perfect and imperfect bundles on cornell-box against Mitsuba and Embree, every metric, a report")
     p.add_argument("--out", default="out/demo", metavar="DIR", help="default: out/demo")

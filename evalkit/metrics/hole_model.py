@@ -33,37 +33,10 @@ import math
 
 import numpy as np
 
-from evalkit.core.mitsuba_env import configure_llvm
+from evalkit.metrics.fitting import drjit, gradient_descent
 
 DEFAULT_NODE_COST = 0.01
 # Hole rates below one hole in the measured nodes are not measured: they are floored at 1 / nodes.
-
-
-def _drjit():
-    configure_llvm()
-    import drjit as dr
-    from drjit.llvm.ad import Float
-
-    return dr, Float
-
-
-def _gradient_descent(loss, x0: list[float], steps: int = 400, rate: float = 0.05) -> list[float]:
-    """Adam on a Dr.Jit AD loss of a few scalar parameters; returns the parameters."""
-    dr, Float = _drjit()
-    x = [float(v) for v in x0]
-    m, v = [0.0] * len(x), [0.0] * len(x)
-    for t in range(1, steps + 1):
-        params = [dr.opaque(Float, value) for value in x]  # opaque: one compiled kernel for every step
-        for p in params:
-            dr.enable_grad(p)
-        value = loss(dr, *params)
-        dr.backward(value)
-        grads = [float(dr.grad(p)[0]) for p in params]
-        for i, g in enumerate(grads):
-            m[i] = 0.9 * m[i] + 0.1 * g
-            v[i] = 0.999 * v[i] + 0.001 * g * g
-            x[i] -= rate * (m[i] / (1 - 0.9**t)) / (math.sqrt(v[i] / (1 - 0.999**t)) + 1e-12)
-    return x
 
 
 def fit(scale: np.ndarray, hole_rate: np.ndarray, nodes_per_crossing: np.ndarray, exact_nodes: np.ndarray) -> dict:
@@ -74,7 +47,7 @@ def fit(scale: np.ndarray, hole_rate: np.ndarray, nodes_per_crossing: np.ndarray
     nodes = np.asarray(nodes_per_crossing, dtype=np.float64)
     log_hole, log_nodes = np.log(hole), np.log(nodes)
 
-    _, Float = _drjit()
+    _, Float = drjit()
 
     def loss(dr, log_c, log_half_q, log_cn, logit_h0):
         s2_, lh, ln = (Float(a) for a in (s2, log_hole, log_nodes))
@@ -83,7 +56,7 @@ def fit(scale: np.ndarray, hole_rate: np.ndarray, nodes_per_crossing: np.ndarray
         model_nodes = log_cn + dr.log(s2_)
         return dr.mean(dr.square(model_hole - lh)) + dr.mean(dr.square(model_nodes - ln))
 
-    log_c, log_half_q, log_cn, logit_h0 = _gradient_descent(loss, [0.0, 0.0, 0.0, -12.0], steps=3000, rate=0.05)
+    log_c, log_half_q, log_cn, logit_h0 = gradient_descent(loss, [0.0, 0.0, 0.0, -12.0], steps=3000, rate=0.05)
     c, q, cn, h0 = math.exp(log_c), 2.0 * math.exp(log_half_q), math.exp(log_cn), 1.0 / (1.0 + math.exp(-logit_h0))
     predicted = hole_rate_model(s2, c, h0, q)
     ratio = predicted / hole
@@ -114,7 +87,7 @@ def recommend(c: float, c_nodes: float, node_cost: float = DEFAULT_NODE_COST, h0
         s2 = dr.exp(2 * log_s)
         return h0 + (1.0 - h0) * dr.exp(-c * dr.exp(q * log_s)) + node_cost * c_nodes * s2
 
-    (log_s,) = _gradient_descent(cost, [0.0], steps=800, rate=0.02)
+    (log_s,) = gradient_descent(cost, [0.0], steps=800, rate=0.02)
     grid = np.exp(np.linspace(math.log(0.05), math.log(20.0), 200001))
     searched = float(grid[np.argmin(hole_rate_model(grid**2, c, h0, q) + node_cost * c_nodes * grid**2)])
     ratio = c * (1.0 - h0) / (node_cost * c_nodes)
