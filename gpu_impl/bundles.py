@@ -136,7 +136,7 @@ class BundleTracer:
         if method == "imperfect":
             self._check_budget(self.fixed_bytes, what=f"{self.K * self.N:,} splat points{'' if self.linked else ', their lines'} and the list offsets")
             self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N).clear()  # triangle 0 for a warm-up draw
-        if not self.linked:
+        if method == "imperfect" and not self.linked:
             self._ensure("SPLAT_LINES", SPLAT_LINES_BYTES * self.K * self.N)
         if self.linked:
             self._ensure("HEADS", 4 * self.list_count)

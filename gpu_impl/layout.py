@@ -47,9 +47,9 @@ METHODS = {"perfect": 0, "imperfect": 1}
 # How imperfect bundles' points are drawn (splat_points.glsl).
 SAMPLERS = {"random": 0, "stratified": 1}
 # The build counters (bundle_build.glsl): nodes appended to linked lists (including any past the
-# capacity), redundant nodes (perfect bundles: coincident duplicates, all kept; imperfect ones: the
-# written less the kept), the longest list, count/scatter mismatches (always 0), the lines splats
-# cover (the nodes there would be without merging), and the nodes the merge kept.
+# capacity), perfect bundles' coincident duplicates (all kept; imperfect bundles' redundant nodes
+# are the written less the kept), the longest list, count/scatter mismatches (always 0), the lines
+# splats cover (the nodes there would be without merging), and the nodes the merge kept.
 COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4, "KEPT": 5}
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
