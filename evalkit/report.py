@@ -52,7 +52,7 @@ def table_html(rows: list[dict], columns: list[str]) -> str:
 
 def pareto_front(rows: list[dict], x: str, y: str) -> list[dict]:
     """Rows no other row beats in both x and y (lower is better in both)."""
-    points = sorted((r for r in rows if _number(r.get(x)) and _number(r.get(y))), key=lambda r: (r[x], r[y]))
+    points = sorted((r for r in rows if is_number(r.get(x)) and is_number(r.get(y))), key=lambda r: (r[x], r[y]))
     front, best = [], math.inf
     for r in points:
         if r[y] < best:
@@ -73,7 +73,7 @@ def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
     below 1 means the bundles are the more accurate at matched time."""
     groups: dict[str, list[dict]] = {}
     for r in rows:
-        if _number(r.get(x)) and _number(r.get(y)) and r[x] > 0 and r[y] > 0:
+        if is_number(r.get(x)) and is_number(r.get(y)) and r[x] > 0 and r[y] > 0:
             groups.setdefault(setting_id(r), []).append(r)
     points = [(g[0], float(np.median([r[x] for r in g])), float(np.mean([r[y] for r in g])), len(g)) for g in groups.values()]
     result = []
@@ -94,7 +94,8 @@ def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
     return sorted(result, key=lambda r: (r["scene"], r["method"], r[x]))
 
 
-def _number(v) -> bool:
+def is_number(v) -> bool:
+    """A finite int or float (not a bool): a value a table or plot can use."""
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
@@ -120,7 +121,7 @@ def plot(rows: list[dict], spec: dict, path: Path) -> str:
         for y in ys:
             for method, g in series:
                 members = [r for r in sub if r["method"] == method and tuple(r.get(k) for k in group) == g
-                           and _number(r.get(y)) and (r[y] > 0 or "y" not in spec.get("log", ""))]
+                           and is_number(r.get(y)) and (r[y] > 0 or "y" not in spec.get("log", ""))]
                 parts = [y] if len(ys) > 1 else []
                 parts += [method] if len(methods) > 1 else []
                 parts += [f"{k}={v}" for k, v in zip(group, g) if k != "method" and (method == "imperfect" or k not in IMPERFECT_ONLY)]
@@ -130,7 +131,7 @@ def plot(rows: list[dict], spec: dict, path: Path) -> str:
                     for r in members:
                         ax.axhline(r[y], color="k", ls="--", lw=1, label=f"{label} (baseline)")
                     continue
-                pts = sorted((r[spec["x"]], r[y]) for r in members if _number(r.get(spec["x"])))
+                pts = sorted((r[spec["x"]], r[y]) for r in members if is_number(r.get(spec["x"])))
                 if pts:
                     ax.plot(*zip(*pts), marker="o", label=label)
         if spec.get("pareto"):
@@ -264,7 +265,7 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
     import matplotlib.pyplot as plt
 
     node_cost = float(study.hole_model.get("node_cost", DEFAULT_NODE_COST))
-    imperfect = [r for r in rows if r["method"] == "imperfect" and _number(r.get("hole_rate"))]
+    imperfect = [r for r in rows if r["method"] == "imperfect" and is_number(r.get("hole_rate"))]
     fits = analyse(imperfect, node_cost)
     (out / "hole_model.json").write_text(json.dumps(fits, indent=2) + "\n")
     if not fits:

@@ -50,6 +50,7 @@ import numpy as np
 from evalkit.core.errors import InputError
 from evalkit.metrics.fitting import drjit, gradient_descent
 from evalkit.metrics.images import METRICS
+from evalkit.report import is_number
 from evalkit.study.executors import run_study
 from evalkit.study.run import versions
 from evalkit.study.spec import study_from_dict
@@ -129,7 +130,7 @@ def fit_model(method: str, kind: str, rows: list[dict], metric: str | None = Non
     to rows of calibration runs, by Dr.Jit AD on the squared log residuals."""
     names = (TIME_TERMS if kind == "time" else ERROR_TERMS)[method]
     target_key = "wall_s" if kind == "time" else metric
-    rows = [r for r in rows if r.get("method") == method and _finite(r.get(target_key))]
+    rows = [r for r in rows if r.get("method") == method and is_number(r.get(target_key))]
     if len(rows) < len(names):
         raise InputError("tune", f"{len(rows)} usable {method} calibration rows for the {kind} model; it needs at least {len(names)}")
     K, R, N, s, F = (np.array([float(r[k]) for r in rows]) for k in ("directions", "resolution", "points", "splat_scale", "frames"))
@@ -152,10 +153,6 @@ def fit_model(method: str, kind: str, rows: list[dict], metric: str | None = Non
     model = Model(method, kind, constants, [], sampler)
     model.residuals = [float(v) for v in np.log(model.predict(K, R, N, s, F) / target)]
     return model
-
-
-def _finite(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 @dataclass
@@ -237,14 +234,19 @@ def calibration_study(scene: str, image: dict, metric: str, reference_spp: int, 
             keys = ("directions", "resolution", "frames") if method == "perfect" else \
                    ("directions", "resolution", "points", "splat_scale", "frames")
             grids.append({"method": method, **dict(zip(keys, values))})
-    image_name, metric_name = metric.split("_", 1)
     return study_from_dict({
         "name": "tune_calibration", "title": f"evalkit tune: calibration sweep of {scene}",
         "description": "Runs spread over K, R, N, splat scale and frames; the tuner fits its time and error models to them.",
         "defaults": {"scene": scene, "seed": seed, **image},
         "grid": grids,
-        "measure": {"images": [image_name], "metrics": [metric_name], "reference_spp": reference_spp},
+        "measure": _measure(metric, reference_spp),
     })
+
+
+def _measure(metric: str, reference_spp: int) -> dict:
+    """The [measure] table of the tuner's studies: ``metric`` (IMAGE_METRIC) of one image."""
+    image_name, metric_name = metric.split("_", 1)
+    return {"images": [image_name], "metrics": [metric_name], "reference_spp": reference_spp}
 
 
 def tune(scene: str, budget: float, method: str = "both", metric: str = "indirect_relmse", out: str | Path | None = None,
@@ -297,11 +299,10 @@ def tune(scene: str, budget: float, method: str = "both", metric: str = "indirec
 
 def _check(best: Recommendation, image: dict, scene: str, metric: str, reference_spp: int, seed: int, out: Path, progress) -> dict:
     """Render the recommendation (a one-run study, cached like the calibration's) and measure it."""
-    image_name, metric_name = metric.split("_", 1)
     study = study_from_dict({
         "name": "tune_check", "title": f"evalkit tune: the recommendation for {scene}",
         "defaults": {"scene": scene, "seed": seed, **image, "method": best.method, **best.settings},
-        "measure": {"images": [image_name], "metrics": [metric_name], "reference_spp": reference_spp},
+        "measure": _measure(metric, reference_spp),
     })
     (row,) = run_study(study, out / "check", progress=progress, command=" ".join(sys.argv))
     if row["status"] != "ok":
@@ -319,7 +320,8 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
 
     metric, budget = result["metric"], result["budget_s"]
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
-    budgets = np.geomspace(budget / 16, budget * 16, 25)
+    # Nine budgets a factor 2 apart: each is a whole optimisation (about 0.1 s).
+    budgets = np.geomspace(budget / 16, budget * 16, 9)
     for i, (method, m) in enumerate(models.items()):
         colour = f"C{i}"
         front = []

@@ -265,7 +265,7 @@ class BundleTracer:
             with timer.measure("lists"):
                 reruns, raw = 0, self._splat_lists()
         with timer.measure("resolve"):
-            self._resolve(raw)
+            self._resolve()
         counters = np.frombuffer(self.buffers["COUNTERS"].read(4 * len(COUNTERS)), dtype=np.uint32)
         nodes = int(counters[COUNTERS["KEPT"]]) if self.method == "imperfect" else raw
         if counters[COUNTERS["MISMATCH"]]:
@@ -409,7 +409,7 @@ class BundleTracer:
         self.bind()
         return total
 
-    def _resolve(self, raw: int) -> None:
+    def _resolve(self) -> None:
         """The build's lists sorted (and merged) into their slot ranges (shaders/resolve_lists.glsl)."""
         gl = self.gl
         if self.linked:  # list lengths, into the slot ranges the lists sort (perfect) or merge (raster splats) into
