@@ -29,7 +29,7 @@ from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_E
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
-from evalkit.tune import tune
+from evalkit.tune import CALIBRATION_SHARE, tune
 from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SAMPLER, DEFAULT_SPLAT_SCALE, SPLATTERS, format_bytes, trace_bundles
 from gpu_impl.context import GLContext
 from gpu_impl.layout import SAMPLERS
@@ -184,7 +184,7 @@ def _render(args) -> int:
     print(f"render      {settings.method} bundles on {scene.name}: {p['width']}x{p['height']} (supersampling {settings.supersampling}), "
           f"{settings.bounces} bounce(s), K={settings.directions} R={settings.resolution}"
           + (f" N={settings.points}" if settings.method == "imperfect" else "")
-          + f", {settings.frames} frame(s), {p['paths_per_pixel']} paths per pixel, seed {settings.seed}")
+          + f", {p['frames_rendered']} frame(s), {p['paths_per_pixel']} paths per pixel, seed {settings.seed}")
     print(f"memory      {result.stats['nodes_median']:,} nodes per frame (median), {format_bytes(result.stats['gpu_bytes'])} on the GPU")
     print(f"time        per frame, median ms ({t['method']}):")
     for name, ms in t["median_ms"].items():
@@ -238,20 +238,33 @@ def _study(args) -> int:
 def _tune(args) -> int:
     result = tune(args.scene, args.budget, method=args.method, metric=args.metric, out=args.out, width=args.width,
                   height=args.height, bounces=args.bounces, spp=args.spp, reference_spp=args.reference_spp, seed=args.seed,
-                  check=not args.no_check, progress=(lambda line: None) if args.json else print)
+                  calibration_share=args.calibration_share, check=not args.no_check, grid=args.grid, progress=(lambda line: None) if args.json else print)
     rec, predicted = result["recommended"], result["predicted"]
     if args.json:
         print(json.dumps(result))
         return 0
     settings = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in ("width", "height", "bounces", "spp"))
-    print(f"recommended {settings}")
+    print(f"recommended {settings} (the least {result['chosen_by']} of {len(result['candidates'])} candidates)")
     print(f"predicted   {predicted['time_s']:.3g} s, {result['metric']} {predicted['error']:.4g}")
     if "measured" in result:
         measured = result["measured"]
         print(f"measured    {measured['time_s']:.3g} s, {result['metric']} {measured['error']:.4g} "
               f"(time {measured['time_s'] / result['budget_s']:.2f}x the budget, error {measured['error'] / predicted['error']:.2f}x the predicted)")
+    for c in result["candidates"]:
+        if c["method"] != rec["method"]:
+            print(f"other       {c['method']} optimum: predicted {c['predicted_time_s']:.3g} s, {c['predicted_error']:.4g}"
+                  + (f"; measured {c['measured']['time_s']:.3g} s, {c['measured']['error']:.4g}" if "measured" in c else ""))
+    if "grid" in result:
+        grid = result["grid"]
+        print(f"grid        best of {grid['runs']} runs within the budget: "
+              + ", ".join(f"{k}={v}" for k, v in grid["best"].items() if k not in ("time_s", "error"))
+              + f", {grid['best']['time_s']:.3g} s, {result['metric']} {grid['best']['error']:.4g}"
+              + (f" (the recommendation's measured error is {grid['ratio']:.2f}x it)" if "ratio" in grid else ""))
     calibration = result["calibration"]
-    print(f"calibration {calibration['runs']} runs, {calibration['seconds']:.1f} s (cached in {calibration['folder']})")
+    print(f"calibration {calibration['runs']} runs, {calibration['render_s']:.1f} s of render time "
+          f"({calibration['render_s'] / result['budget_s']:.2f}x the budget), {calibration['run_s']:.1f} s in all (cached in {' and '.join(calibration['folders'])})")
+    for w in result["warnings"]:
+        print(f"warning     {w}")
     print(f"report      {result['report']}")
     return 0
 
@@ -412,6 +425,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--supersampling", type=_positive_int, default=None, metavar="S", help=f"S x S G-buffer samples per pixel (default {d.supersampling})")
     p.add_argument("--spp", type=_positive_int, default=None, help=f"eye paths per G-buffer sample per frame (default {d.spp})")
     p.add_argument("--frames", type=_positive_int, default=None, metavar="F", help=f"frames to accumulate, each with new directions (default {d.frames})")
+    p.add_argument("--time-budget", type=_positive_float, default=None, metavar="SECONDS",
+                   help="stop before --frames once the next frame would not fit in SECONDS of render time")
     p.add_argument("--seed", type=int, default=None, help=f"(default {d.seed})")
     p.add_argument("--time", type=float, default=None, metavar="T", help="animated scenes: the time (s) of the first frame (default 0)")
     p.add_argument("--time-step", type=float, default=None, metavar="DT",
@@ -481,7 +496,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spp", type=_positive_int, default=16, help="eye paths per pixel per frame (default 16)")
     p.add_argument("--reference-spp", type=_positive_int, default=16384, help="the Mitsuba reference's (default 16384)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--calibration-share", type=_positive_float, default=CALIBRATION_SHARE, metavar="X",
+                   help=f"the calibration's render time in budgets (default {CALIBRATION_SHARE:g}; each run renders at least one frame)")
     p.add_argument("--no-check", action="store_true", help="recommend without rendering the recommendation")
+    p.add_argument("--grid", metavar="DIR", help="a grid study's folder (studies/tune_check.toml): compare with its best run within the budget")
     p.add_argument("--out", metavar="DIR", help="default: out/tune/<scene>")
     p.add_argument("--json", action="store_true", help="print one JSON object: recommended, predicted, measured, models")
     p.set_defaults(run=_tune)

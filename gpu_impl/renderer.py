@@ -55,7 +55,9 @@ class RenderSettings:
     """Everything that changes a render.
 
     ``spp`` is eye paths per G-buffer sample per frame, so a pixel averages
-    ``supersampling^2 * spp * frames`` paths. ``width``/``height`` default to the scene camera's.
+    ``supersampling^2 * spp * frames`` paths. ``time_budget`` > 0 (seconds) ends the render before
+    ``frames`` once the next frame would not fit in it (at least one frame; the result's
+    ``frames_rendered`` says how many). ``width``/``height`` default to the scene camera's.
     ``self_hit_bias`` is in bundle pixels (see shaders/eye_paths.glsl, BOUNCE); the shadow biases
     are in shadow-map texels (shaders/lights.glsl). ``sampler`` and ``splatter`` pick how imperfect
     bundles are made (`gpu_impl.bundles.BundleTracer`), ``lighting`` where node light is computed
@@ -78,6 +80,7 @@ class RenderSettings:
     supersampling: int = 1
     spp: int = 1
     frames: int = 1
+    time_budget: float = 0.0
     seed: int = 0
     time: float = 0.0
     time_step: float = 0.0
@@ -114,6 +117,8 @@ class RenderSettings:
         for name in ("time", "time_step"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
+        if not (self.time_budget >= 0 and math.isfinite(self.time_budget)):
+            raise ValueError(f"time_budget must be non-negative and finite seconds, got {self.time_budget}")
         if not (self.splat_scale > 0 and math.isfinite(self.splat_scale)):
             raise ValueError(f"splat_scale must be positive and finite, got {self.splat_scale}")
         if self.node_budget < 1:
@@ -155,6 +160,7 @@ class Renderer:
         # An animated scene is posed at time + f * time_step in frame f, inside one bundle frame
         # that holds every pose.
         self.times = [settings.time + f * settings.time_step for f in range(settings.frames)]
+        self.frames_rendered = 0  # set by render()
         self.moving = scene.animated and settings.time_step != 0.0
         first = scene.at(self.times[0])
         self.gpu_scene = GpuScene(gl, first, sphere=enclosing_sphere([scene.at(t) for t in self.times]) if self.moving else None)
@@ -222,10 +228,11 @@ class Renderer:
         st = self.settings
         start = time.perf_counter()
         self.buffers["PATH_SUMS"].clear()
-        frames, bundle_stats = [], []
+        frames, bundle_stats, frame_s = [], [], []
         self.skipped_bounces = 0
         self.lighting_used: list[str] = []
         for f in range(st.frames):
+            frame_start = time.perf_counter()
             timer = PassTimer(self.gl)
             if self.moving and (f > 0 or self._posed_at != self.times[0]):
                 self.gpu_scene.pose(self.scene.at(self.times[f]))
@@ -244,6 +251,13 @@ class Renderer:
             if progress is not None:
                 progress(f"frame {f + 1}/{st.frames}: {stats['nodes']:,} nodes, "
                          f"{_sum_ms(v for k, v in passes.items() if '.' not in k):.1f} ms")
+            # The pass timer's read waits for the frame's GPU work, so this is the frame's time.
+            # The first frame (shadow maps) is left out of the estimate of the next once others exist.
+            frame_s.append(time.perf_counter() - frame_start)
+            next_frame = float(np.median(frame_s[1:] or frame_s))
+            if st.time_budget and time.perf_counter() - start + next_frame > st.time_budget:
+                break
+        self.frames_rendered = len(frames)
         images = self._read_images()
         wall = time.perf_counter() - start
         timings = {
@@ -262,7 +276,7 @@ class Renderer:
             "overflow_reruns": sum(s["overflow_reruns"] for s in bundle_stats),
             "max_list_length": max(s["max_list_length"] for s in bundle_stats),
             "paths_per_frame": self.paths, "bounce_passes": self.steps,
-            "bounce_passes_skipped": self.skipped_bounces, "bundles_reused": st.frames - 1 if self.reuse_bundles else 0,
+            "bounce_passes_skipped": self.skipped_bounces, "bundles_reused": len(frames) - 1 if self.reuse_bundles else 0,
             "lighting_frames": {mode: self.lighting_used.count(mode) for mode in ("precomputed", "lazy") if mode in self.lighting_used},
             "gpu_bytes": self.gpu_bytes,
         }
@@ -382,7 +396,8 @@ class Renderer:
             "width": self.width,
             "height": self.height,
             "splat_radius": self.tracer.splat_radius if st.method == "imperfect" else None,
-            "paths_per_pixel": st.supersampling**2 * st.spp * st.frames,
+            "frames_rendered": self.frames_rendered,
+            "paths_per_pixel": st.supersampling**2 * st.spp * self.frames_rendered,
             "shader_variant": self.defines,
             "gl": self.gl.info,
         }

@@ -307,6 +307,20 @@ def test_same_seed_same_image_and_a_new_seed_changes_it(gl, method):
         assert np.isfinite(a.images[name]).all() and (a.images[name] >= 0).all()
 
 
+def test_a_time_budget_ends_the_render_with_the_frames_rendered_so_far(gl):
+    scene = load_scene("cornell-box")
+    kw = dict(bounces=1, directions=8, resolution=32, width=32, height=32)
+    # A budget shorter than any frame still renders one: the same image as a one-frame render.
+    one, budgeted = render(gl, scene, frames=1, **kw), render(gl, scene, frames=50, time_budget=1e-6, **kw)
+    assert budgeted.params["frames_rendered"] == 1 and budgeted.params["paths_per_pixel"] == 1
+    assert np.array_equal(one.images["indirect"], budgeted.images["indirect"])
+    # A budget past the frame limit renders every frame.
+    full = render(gl, scene, frames=3, time_budget=1e6, **kw)
+    assert full.params["frames_rendered"] == 3 and full.params["paths_per_pixel"] == 3
+    with pytest.raises(ValueError, match="time_budget must be non-negative and finite seconds, got -1"):
+        RenderSettings(time_budget=-1.0).validate()
+
+
 def test_imperfect_bundles_render_the_furnace_close_to_its_value(gl):
     # Holes let paths escape, so imperfect bundles lose light; at the default splat scale the loss
     # stays small. Measured (seed 0, 16x16, K=16, R=128, N=16384, 16 frames): direct 1.4954

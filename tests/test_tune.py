@@ -4,16 +4,17 @@ optimisation finds the grid's best setting within the budget, and bad input is o
 from __future__ import annotations
 
 import itertools
+import json
 
 import numpy as np
 import pytest
 
 from conftest import run_evalkit
 from evalkit.core.errors import InputError
-from evalkit.tune import GRID, Model, fit_model, optimise
+from evalkit.tune import CALIBRATION, GRID, Model, compare_with_grid, fit_model, optimise
 
-TIME = {"perfect": {"t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0},
-        "imperfect": {"t0": 0.05, "t_lists": 0.2, "t_points": 0.02, "t_nodes": 0.1}}
+TIME = {"perfect": {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0},
+        "imperfect": {"t_once": 0.2, "t0": 0.05, "t_lists": 0.2, "t_points": 0.02, "t_nodes": 0.1}}
 ERROR = {"perfect": {"b": 0.004, "v": 0.05, "w": 0.5},
          "imperfect": {"b": 0.004, "v": 0.05, "w": 0.5, "h": 0.3, "g": 0.002}}
 
@@ -24,8 +25,8 @@ def synthetic_rows(method: str) -> list[dict]:
     splats = [(4096, 1.4), (16384, 1.8), (8192, 2.4)] if method == "imperfect" else [(16384, 1.8)]
     rows = []
     for K, R, F, (N, s) in itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats):
-        rows.append({"method": method, "directions": K, "resolution": R, "points": N, "splat_scale": s, "frames": F,
-                     "wall_s": float(time_model.predict(K, R, N, s)) * F, "indirect_relmse": float(error_model.predict(K, R, N, s, F))})
+        rows.append({"method": method, "directions": K, "resolution": R, "points": N, "splat_scale": s, "frames_rendered": F,
+                     "wall_s": float(time_model.predict(K, R, N, s, F)), "indirect_relmse": float(error_model.predict(K, R, N, s, F))})
     return rows
 
 
@@ -41,6 +42,44 @@ def test_fits_recover_known_time_and_error_constants(method):
     assert time_model.rms_residual() < 1e-3 and error_model.rms_residual() < 1e-3
 
 
+def test_rows_of_one_frame_each_count_the_once_per_render_cost_per_frame():
+    rows = [r for r in synthetic_rows("perfect") if r["frames_rendered"] == 1]
+    model = fit_model("perfect", "time", rows)
+    assert model.constants["t_once"] == 0.0 and "every perfect calibration run rendered 1 frame(s)" in model.warning
+    assert model.rms_residual() < 0.05  # the one-frame times are still followed
+    K, R = 16, 96
+    truth = Model("perfect", "time", TIME["perfect"], [])
+    assert float(model.predict(K, R, F=10)) > float(truth.predict(K, R, F=10))  # over-, never under-predicted
+
+
+def test_a_weighted_row_pulls_the_fit_towards_it():
+    rows = synthetic_rows("perfect")
+    anchor = {**rows[0], "indirect_relmse": 2 * rows[0]["indirect_relmse"]}  # a row the model's terms cannot follow
+    plain = fit_model("perfect", "error", rows + [anchor], "indirect_relmse")
+    weighted = fit_model("perfect", "error", rows + [{**anchor, "weight": len(rows)}], "indirect_relmse")
+    assert abs(weighted.residuals[-1]) < 0.5 * abs(plain.residuals[-1])
+
+
+def test_the_grid_comparison_takes_the_best_run_within_the_budget(tmp_path):
+    image = {"width": 32, "height": 32, "bounces": 3, "spp": 16}
+    run = {"status": "ok", "scene": "cornell-box", "method": "perfect", "directions": 8, "resolution": 64, "frames_rendered": 9, **image}
+    rows = [{**run, "time_budget": 10.0, "wall_s": 9.5, "indirect_relmse": 0.02},
+            {**run, "time_budget": 10.0, "wall_s": 9.8, "indirect_relmse": 0.01, "directions": 16},
+            {**run, "time_budget": 10.0, "wall_s": 10.5, "indirect_relmse": 0.001},  # over the budget
+            {**run, "time_budget": 60.0, "wall_s": 59.0, "indirect_relmse": 0.002},  # another budget
+            {**run, "time_budget": 10.0, "wall_s": 9.0, "indirect_relmse": 0.003, "scene": "atrium"}]
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    result = {"scene": "cornell-box", "budget_s": 10.0, "metric": "indirect_relmse", "image": image,
+              "measured": {"time_s": 9.9, "error": 0.011}}
+    grid = compare_with_grid(result, tmp_path)
+    assert grid["runs"] == 2 and grid["best"]["directions"] == 16 and grid["best"]["error"] == 0.01
+    assert grid["ratio"] == pytest.approx(1.1)
+    with pytest.raises(InputError, match="no run of cornell-box at 32x32, 3 bounces, 16 spp with time_budget = 30"):
+        compare_with_grid({**result, "budget_s": 30.0}, tmp_path)
+    with pytest.raises(InputError, match="no results.jsonl rows: run the grid study first"):
+        compare_with_grid(result, tmp_path / "missing")
+
+
 @pytest.mark.parametrize("method, budget", [("perfect", 10.0), ("perfect", 60.0), ("imperfect", 10.0)])
 def test_optimisation_finds_the_best_grid_setting_within_the_budget(method, budget):
     time_model, error_model = Model(method, "time", TIME[method], []), Model(method, "error", ERROR[method], [])
@@ -50,7 +89,8 @@ def test_optimisation_finds_the_best_grid_setting_within_the_budget(method, budg
     for values in itertools.product(*(GRID[a] for a in axes)):
         x = dict(zip(axes, values))
         N, s = x.get("points", 16384), x.get("splat_scale", 1.8)
-        frames = int(budget // float(time_model.predict(x["directions"], x["resolution"], N, s)))
+        per_frame = float(time_model.predict(x["directions"], x["resolution"], N, s, 1)) - TIME[method]["t_once"]
+        frames = int((budget - TIME[method]["t_once"]) // per_frame)
         if frames >= 1:
             best = min(best, float(error_model.predict(x["directions"], x["resolution"], N, s, frames)))
     assert found.predicted_time_s <= budget and found.settings["frames"] >= 1
@@ -59,10 +99,10 @@ def test_optimisation_finds_the_best_grid_setting_within_the_budget(method, budg
 
 def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
     time_model, error_model = Model("perfect", "time", TIME["perfect"], []), Model("perfect", "error", ERROR["perfect"], [])
-    # The cheapest: K=8, R=32, one frame: 0.05 + 0.3 * 8 * 32^2 * 1e-6 + 2.0 * 8 * 1e-3 = 0.0685 s.
-    with pytest.raises(InputError, match=r"a budget of 0.01 s is below the cheapest perfect setting \(K=8, R=32, 1 frame: "
-                                         r"0.0685 s predicted\); give at least 0.0685 s"):
-        optimise(time_model, error_model, 0.01)
+    # The cheapest: K=8, R=32, one frame: 0.2 + 0.05 + 0.3 * 8 * 32^2 * 1e-6 + 2.0 * 8 * 1e-3 = 0.2685 s (shown to 3 digits).
+    with pytest.raises(InputError, match=r"a budget of 0.1 s is below the cheapest perfect setting \(K=8, R=32, 1 frame: "
+                                         r"0.268 s predicted\); give at least 0.268 s"):
+        optimise(time_model, error_model, 0.1)
 
 
 @pytest.mark.parametrize("args, said", [
@@ -73,3 +113,23 @@ def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
 def test_bad_tune_input_is_one_line(tmp_path, args, said):
     r = run_evalkit("tune", "cornell-box", *args, "--out", str(tmp_path))
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and said in r.stderr and "Traceback" not in r.stderr
+
+
+def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
+    """The whole chain on cornell-box at 1 s: calibration, refinement, a check of each method's
+    optimum, --json's last line, tune.json and report.html."""
+    r = run_evalkit("tune", "cornell-box", "--budget", "1", "--calibration-share", "1", "--json", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    rec = result["recommended"]
+    assert {"method", "directions", "resolution", "frames", "width", "height", "bounces", "spp"} <= rec.keys()
+    assert rec["method"] == "perfect" or {"points", "splat_scale"} <= rec.keys()
+    for side in ("predicted", "measured"):
+        assert result[side]["time_s"] > 0 and result[side]["error"] > 0
+    assert result["chosen_by"] == "measured error" and [c["method"] for c in result["candidates"]] == ["perfect", "imperfect"]
+    assert result["measured"]["error"] == min(c["measured"]["error"] for c in result["candidates"])
+    for method in ("perfect", "imperfect"):  # a residual per calibration run and one for the refinement run
+        for kind in ("time", "error"):
+            assert len(result["models"][method][kind]["residuals"]) == len(CALIBRATION[method]) + 1
+    assert json.loads((tmp_path / "tune.json").read_text())["recommended"] == rec
+    assert "<h1>evalkit tune: cornell-box, 1 s</h1>" in (tmp_path / "report.html").read_text()

@@ -38,14 +38,16 @@ def prepare_artefacts(runs: list[dict], measure: dict, out: Path, progress=print
 
 
 def reference_for(scene: Scene, run: dict, measure: dict, out: Path, progress=print) -> Reference:
-    """The committed reference when the store has it, else one rendered into the study's store."""
+    """The committed reference when the store has it, else one rendered into ``reference_store`` of
+    ``measure`` (default: the study folder's references/), or found there from an earlier run."""
     width, height = film_size(scene, run)
     args = dict(bounces=int(run["bounces"]), spp=int(measure["reference_spp"]), width=width, height=height,
                 seed=int(measure["reference_seed"]))
     committed = store_entry(scene.name, scene.content_hash(), store=DEFAULT_STORE, **args)
     if (committed / "manifest.json").is_file():
         return load_reference(committed)
-    return reference(scene, **args, store=out / "references", progress=lambda line: progress(f"reference {scene.name}: {line}"))
+    store = Path(measure["reference_store"]) if measure["reference_store"] else out / "references"
+    return reference(scene, **args, store=store, progress=lambda line: progress(f"reference {scene.name}: {line}"))
 
 
 def exact_bundles(scene: Scene, run: dict, out: Path) -> BundleSet:

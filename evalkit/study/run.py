@@ -98,7 +98,7 @@ def _render(scene: Scene, run: dict) -> tuple[dict, dict, dict]:
     finally:
         renderer.release()
     t = result.timings
-    timings = {"wall_s": t["wall_s"], "paths_per_pixel": result.params["paths_per_pixel"],
+    timings = {"wall_s": t["wall_s"], "frames_rendered": result.params["frames_rendered"], "paths_per_pixel": result.params["paths_per_pixel"],
                "nodes_per_frame": result.stats["nodes_median"], "gl_renderer": gl.info["renderer"],
                **{f"ms_{k}": v for k, v in t["median_ms"].items() if "." not in k}}
     return result.images, timings, {**result.params, "warnings": result.warnings}

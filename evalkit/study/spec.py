@@ -17,6 +17,8 @@ A study file (TOML; studies/*.toml are examples)::
     render = true           # render images (timings); false: bundle metrics only
     images = ["indirect"]   # image metrics of these images against the Mitsuba reference
     reference_spp = 4096
+    reference_store = "out/references"  # where references not in the committed store are rendered
+                                        # (default: the study folder's references/)
     [hole_model]            # fit the coverage model to the imperfect rows (optional)
     node_cost = 0.01
     [[plot]]                # plots in the report
@@ -51,7 +53,7 @@ METHODS = ("perfect", "imperfect", "mitsuba")
 # defaults (Mitsuba runs use scene, bounces, spp, width, height and seed of them).
 RUN_DEFAULTS = {"scene": "cornell-box", **{f.name: f.default for f in fields(RenderSettings)}}
 MEASURE_DEFAULTS = {"bundles": False, "render": True, "images": ["indirect"], "metrics": list(METRICS),
-                    "reference_spp": 4096, "reference_seed": 0, "eye_vertices": 4096}
+                    "reference_spp": 4096, "reference_seed": 0, "eye_vertices": 4096, "reference_store": ""}
 TOP_KEYS = {"name", "title", "description", "reduced", "defaults", "grid", "measure", "hole_model", "plot", "report"}
 
 
