@@ -29,7 +29,7 @@ from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_E
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
-from evalkit.tune import CALIBRATION_SHARE, tune
+from evalkit.tune import CALIBRATION_SHARE, settings_text, tune
 from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SAMPLER, DEFAULT_SPLAT_SCALE, SPLATTERS, format_bytes, trace_bundles
 from gpu_impl.context import GLContext
 from gpu_impl.layout import SAMPLERS
@@ -243,8 +243,7 @@ def _tune(args) -> int:
     if args.json:
         print(json.dumps(result))
         return 0
-    settings = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in ("width", "height", "bounces", "spp"))
-    print(f"recommended {settings} (the least {result['chosen_by']} of {len(result['candidates'])} candidates)")
+    print(f"recommended {settings_text(rec)} (the least {result['chosen_by']} of {len(result['candidates'])} candidates)")
     print(f"predicted   {predicted['time_s']:.3g} s, {result['metric']} {predicted['error']:.4g}")
     if "measured" in result:
         measured = result["measured"]
@@ -252,12 +251,11 @@ def _tune(args) -> int:
               f"(time {measured['time_s'] / result['budget_s']:.2f}x the budget, error {measured['error'] / predicted['error']:.2f}x the predicted)")
     for c in result["candidates"]:
         if c["method"] != rec["method"]:
-            print(f"other       {c['method']} optimum: predicted {c['predicted_time_s']:.3g} s, {c['predicted_error']:.4g}"
+            print(f"other       {settings_text(c)}: predicted {c['predicted_time_s']:.3g} s, {c['predicted_error']:.4g}"
                   + (f"; measured {c['measured']['time_s']:.3g} s, {c['measured']['error']:.4g}" if "measured" in c else ""))
     if "grid" in result:
         grid = result["grid"]
-        print(f"grid        best of {grid['runs']} runs within the budget: "
-              + ", ".join(f"{k}={v}" for k, v in grid["best"].items() if k not in ("time_s", "error"))
+        print(f"grid        best of {grid['runs']} runs within the budget: {settings_text(grid['best'])}"
               + f", {grid['best']['time_s']:.3g} s, {result['metric']} {grid['best']['error']:.4g}"
               + (f" (the recommendation's measured error is {grid['ratio']:.2f}x it)" if "ratio" in grid else ""))
     calibration = result["calibration"]

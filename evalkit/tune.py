@@ -353,6 +353,7 @@ def tune(scene: str, budget: float, method: str = "both", metric: str = "indirec
         "predicted": {"time_s": best.predicted_time_s, "error": best.predicted_error},
         "chosen_by": "measured error" if check else "predicted error",
         "candidates": [{**c.as_dict(), **({"measured": measured[c.method]} if check else {})} for c in candidates],
+        **({"measured": measured[best.method]} if check else {}),
         "models": {m: {kind: {"constants": models[m][kind].constants, "residuals": models[m][kind].residuals,
                               "rms_log_residual": models[m][kind].rms_residual()} for kind in ("time", "error")} for m in methods},
         "first_optimum": [c.as_dict() for c in first.values()],
@@ -361,8 +362,6 @@ def tune(scene: str, budget: float, method: str = "both", metric: str = "indirec
                         "run_s": sum(float(r["run_s"]) for r in rows), "folders": [str(out / "calibration"), str(out / "refinement")]},
         "versions": versions(),
     }
-    if check:
-        result["measured"] = measured[best.method]
     if grid is not None:
         result["grid"] = compare_with_grid(result, Path(grid))
     result["tune_s"] = time.perf_counter() - start
@@ -447,10 +446,10 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
         *[f"<tr><td>{html.escape(k)}</td><td>{v}</td></tr>" for k, v in rec.items()],
         f"</table><p>Each method's optimum, chosen between by {html.escape(result['chosen_by'])}:</p>",
         "<table><tr><th>candidate</th><th>predicted time (s)</th><th>predicted error</th><th>measured time (s)</th><th>measured error</th></tr>",
-        *[f"<tr><td>{html.escape(_settings_text(c))}</td><td>{c['predicted_time_s']:.3g}</td><td>{c['predicted_error']:.4g}</td>"
+        *[f"<tr><td>{html.escape(settings_text(c))}</td><td>{c['predicted_time_s']:.3g}</td><td>{c['predicted_error']:.4g}</td>"
           + (f"<td>{c['measured']['time_s']:.3g}</td><td>{c['measured']['error']:.4g}</td>" if "measured" in c else "<td></td><td></td>")
           + "</tr>" for c in result["candidates"]],
-        *([f"<tr><td>best of {grid['runs']} grid runs: {html.escape(_settings_text(grid['best']))}</td><td></td><td></td>"
+        *([f"<tr><td>best of {grid['runs']} grid runs: {html.escape(settings_text(grid['best']))}</td><td></td><td></td>"
            f"<td>{grid['best']['time_s']:.3g}</td><td>{grid['best']['error']:.4g}</td></tr>"] if grid else []),
         f"</table><p><img src='{png.name}'></p><h2>Fitted models</h2>",
         *[f"<p><b>Warning</b>: {html.escape(w)}</p>" for w in result["warnings"]],
@@ -464,7 +463,7 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
     path.write_text("\n".join(lines) + "\n")
 
 
-def _settings_text(settings: dict) -> str:
+def settings_text(settings: dict) -> str:
     """'perfect K=8 R=256 F=22' and so on, from a candidate's or a grid row's settings."""
     short = {"directions": "K", "resolution": "R", "points": "N", "splat_scale": "s", "frames": "F", "frames_rendered": "F"}
     return " ".join([settings["method"], *(f"{short[k]}={v}" for k, v in settings.items() if k in short)])

@@ -254,8 +254,7 @@ class Renderer:
             # The pass timer's read waits for the frame's GPU work, so this is the frame's time.
             # The first frame (shadow maps) is left out of the estimate of the next once others exist.
             frame_s.append(time.perf_counter() - frame_start)
-            next_frame = float(np.median(frame_s[1:] or frame_s))
-            if st.time_budget and time.perf_counter() - start + next_frame > st.time_budget:
+            if st.time_budget and time.perf_counter() - start + float(np.median(frame_s[1:] or frame_s)) > st.time_budget:
                 break
         self.frames_rendered = len(frames)
         images = self._read_images()
