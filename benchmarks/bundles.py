@@ -38,13 +38,33 @@ def build_ms(stats: dict) -> float:
     return sum(stats["gpu_ms"].values())
 
 
-def measure_scene(gl: GLContext, name: str, *, directions: int, resolution: int, points: int, splat_scale: float, sampler: str,
-                  raster_splatter: bool, repeats: int, seed: int) -> dict:
+def measure_scene(
+    gl: GLContext,
+    name: str,
+    *,
+    directions: int,
+    resolution: int,
+    points: int,
+    splat_scale: float,
+    sampler: str,
+    raster_splatter: bool,
+    repeats: int,
+    seed: int,
+) -> dict:
     scene = GpuScene(gl, load_scene(name))
     ds = DirectionSet.make(directions, seed=seed)
-    common = dict(directions=directions, resolution=resolution, points=points, splat_scale=splat_scale, sampler=sampler,
-                  node_budget=16 << 30)
-    tracers = {"perfect": BundleTracer(gl, scene, "perfect", **common), "imperfect": BundleTracer(gl, scene, "imperfect", **common)}
+    common = dict(
+        directions=directions,
+        resolution=resolution,
+        points=points,
+        splat_scale=splat_scale,
+        sampler=sampler,
+        node_budget=16 << 30,
+    )
+    tracers = {
+        "perfect": BundleTracer(gl, scene, "perfect", **common),
+        "imperfect": BundleTracer(gl, scene, "imperfect", **common),
+    }
     if raster_splatter:
         tracers["imperfect_raster"] = BundleTracer(gl, scene, "imperfect", splatter="raster", **common)
     stats = {method: tracer.build(ds) for method, tracer in tracers.items()}  # warm-up
@@ -78,45 +98,92 @@ def measure_scene(gl: GLContext, name: str, *, directions: int, resolution: int,
     return result
 
 
-def run(*, scenes: list[str], directions: int, resolution: int, points: int, splat_scale: float, sampler: str,
-        raster_splatter: bool, repeats: int, seed: int) -> dict:
+def run(
+    *,
+    scenes: list[str],
+    directions: int,
+    resolution: int,
+    points: int,
+    splat_scale: float,
+    sampler: str,
+    raster_splatter: bool,
+    repeats: int,
+    seed: int,
+) -> dict:
     with GLContext() as gl:
         device = gl.info
-        results = {name: measure_scene(gl, name, directions=directions, resolution=resolution, points=points,
-                                       splat_scale=splat_scale, sampler=sampler, raster_splatter=raster_splatter,
-                                       repeats=repeats, seed=seed) for name in scenes}
+        results = {
+            name: measure_scene(
+                gl,
+                name,
+                directions=directions,
+                resolution=resolution,
+                points=points,
+                splat_scale=splat_scale,
+                sampler=sampler,
+                raster_splatter=raster_splatter,
+                repeats=repeats,
+                seed=seed,
+            )
+            for name in scenes
+        }
     targets = {}
     for name, r in results.items():
         if name in TARGET_SPEEDUP:
-            targets[f"{name}_imperfect_speedup_ge_{TARGET_SPEEDUP[name]:g}"] = r["perfect_over_imperfect"] >= TARGET_SPEEDUP[name]
-        targets[f"{name}_perfect_le_{TARGET_PERFECT_OVER_RAW:g}x_raw"] = r["perfect_over_raw"] <= TARGET_PERFECT_OVER_RAW
-    return {"benchmark": "bundles", "device": device["renderer"], "gl_version": device["version"],
-            "timing": "host time around glFinish (llvmpipe)" if "llvmpipe" in device["renderer"] else "GL timer queries",
-            "directions": directions, "resolution": resolution, "points": points, "splat_scale": splat_scale,
-            "sampler": sampler, "repeats": repeats, "seed": seed, "scenes": results, "targets_met": targets}
+            targets[f"{name}_imperfect_speedup_ge_{TARGET_SPEEDUP[name]:g}"] = (
+                r["perfect_over_imperfect"] >= TARGET_SPEEDUP[name]
+            )
+        targets[f"{name}_perfect_le_{TARGET_PERFECT_OVER_RAW:g}x_raw"] = (
+            r["perfect_over_raw"] <= TARGET_PERFECT_OVER_RAW
+        )
+    return {
+        "benchmark": "bundles",
+        "device": device["renderer"],
+        "gl_version": device["version"],
+        "timing": "host time around glFinish (llvmpipe)" if "llvmpipe" in device["renderer"] else "GL timer queries",
+        "directions": directions,
+        "resolution": resolution,
+        "points": points,
+        "splat_scale": splat_scale,
+        "sampler": sampler,
+        "repeats": repeats,
+        "seed": seed,
+        "scenes": results,
+        "targets_met": targets,
+    }
 
 
 def print_table(report: dict) -> None:
-    print(f"bundle builds on {report['device']}: K={report['directions']} R={report['resolution']} N={report['points']} "
-          f"splat scale {report['splat_scale']} ({report['sampler']} points), median of {report['repeats']} after a warm-up "
-          f"({report['timing']})")
-    header = (f"{'scene':<13} {'tris':>10} {'perfect ms':>11} {'imperfect ms':>13} {'raw ms':>9} {'perf/imperf':>11} "
-              f"{'perf/raw':>9} {'nodes perf':>11} {'nodes imperf':>13} {'mem perf':>10} {'mem imperf':>11}")
+    print(
+        f"bundle builds on {report['device']}: K={report['directions']} R={report['resolution']} N={report['points']} "
+        f"splat scale {report['splat_scale']} ({report['sampler']} points), "
+        f"median of {report['repeats']} after a warm-up ({report['timing']})"
+    )
+    header = (
+        f"{'scene':<13} {'tris':>10} {'perfect ms':>11} {'imperfect ms':>13} {'raw ms':>9} {'perf/imperf':>11} "
+        f"{'perf/raw':>9} {'nodes perf':>11} {'nodes imperf':>13} {'mem perf':>10} {'mem imperf':>11}"
+    )
     print(header)
     print("-" * len(header))
     for name, r in report["scenes"].items():
         m, mem = r["median_ms"], r["memory_bytes"]
-        print(f"{name:<13} {r['triangles']:>10,} {m['perfect']:>11.1f} {m['imperfect']:>13.1f} {m['raw']:>9.1f} "
-              f"{r['perfect_over_imperfect']:>11.2f} {r['perfect_over_raw']:>9.2f} {r['nodes']['perfect']:>11,} "
-              f"{r['nodes']['imperfect']:>13,} {format_bytes(mem['perfect']):>10} {format_bytes(mem['imperfect']):>11}")
+        print(
+            f"{name:<13} {r['triangles']:>10,} {m['perfect']:>11.1f} {m['imperfect']:>13.1f} {m['raw']:>9.1f} "
+            f"{r['perfect_over_imperfect']:>11.2f} {r['perfect_over_raw']:>9.2f} {r['nodes']['perfect']:>11,} "
+            f"{r['nodes']['imperfect']:>13,} {format_bytes(mem['perfect']):>10} {format_bytes(mem['imperfect']):>11}"
+        )
     for name, r in report["scenes"].items():
         for method, p in r["passes_median_ms"].items():
             print(f"  {name} {method} passes: " + ", ".join(f"{k} {v:.1f} ms" for k, v in p.items()))
-        print(f"  {name} imperfect nodes: {r['raw_nodes']['imperfect']:,} written (one per splat and line, the nearest "
-              f"of a triangle's splats), {r['nodes']['imperfect']:,} kept after merging")
+        print(
+            f"  {name} imperfect nodes: {r['raw_nodes']['imperfect']:,} written (one per splat and line, the nearest "
+            f"of a triangle's splats), {r['nodes']['imperfect']:,} kept after merging"
+        )
         if "raster_over_compute_splatter" in r:
-            print(f"  {name} raster splatter: {r['median_ms']['imperfect_raster']:.1f} ms, "
-                  f"{r['raster_over_compute_splatter']:.2f}x the compute splatter")
+            print(
+                f"  {name} raster splatter: {r['median_ms']['imperfect_raster']:.1f} ms, "
+                f"{r['raster_over_compute_splatter']:.2f}x the compute splatter"
+            )
     for target, met in report["targets_met"].items():
         print(f"target {target}: {'met' if met else 'NOT met'}")
 
@@ -133,9 +200,17 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    report = run(scenes=args.scenes, directions=args.directions, resolution=args.resolution, points=args.points,
-                 splat_scale=args.splat_scale, sampler=args.sampler, raster_splatter=args.raster_splatter,
-                 repeats=args.repeats, seed=args.seed)
+    report = run(
+        scenes=args.scenes,
+        directions=args.directions,
+        resolution=args.resolution,
+        points=args.points,
+        splat_scale=args.splat_scale,
+        sampler=args.sampler,
+        raster_splatter=args.raster_splatter,
+        repeats=args.repeats,
+        seed=args.seed,
+    )
     print_table(report)
     print(json.dumps(report))
 

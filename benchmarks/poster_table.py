@@ -35,11 +35,17 @@ def measure(gl: GLContext, scene, settings: RenderSettings) -> dict:
         renderer.release()
     median = result.timings["median_ms"]
     others = median["frame"] - median["bundles"]
-    return {"median_ms": median, "others_ms": others, "nodes": result.stats["nodes_median"],
-            "gpu_bytes": result.stats["gpu_bytes"]}
+    return {
+        "median_ms": median,
+        "others_ms": others,
+        "nodes": result.stats["nodes_median"],
+        "gpu_bytes": result.stats["gpu_bytes"],
+    }
 
 
-def run(*, scene_name: str, full: bool | None, width: int, height: int, supersampling: int, frames: int, seed: int) -> dict:
+def run(
+    *, scene_name: str, full: bool | None, width: int, height: int, supersampling: int, frames: int, seed: int
+) -> dict:
     scene = load_scene(scene_name)
     with GLContext() as gl:
         device = gl.info
@@ -48,19 +54,38 @@ def run(*, scene_name: str, full: bool | None, width: int, height: int, supersam
         if not full:
             base = apply_preset(base, None, width=width, height=height, supersampling=supersampling)
         results = {f"{m} B={b}": measure(gl, scene, apply_preset(base, None, method=m, bounces=b)) for m, b in CONFIGS}
-    perfect, imperfect = results["perfect B=1"]["median_ms"]["bundles"], results["imperfect B=1"]["median_ms"]["bundles"]
-    return {"benchmark": "poster_table", "scene": scene_name, "device": device["renderer"], "gl_version": device["version"],
-            "timing": "host time around glFinish (llvmpipe)" if "llvmpipe" in device["renderer"] else "GL timer queries",
-            "full_preset": full, "width": base.width, "height": base.height, "supersampling": base.supersampling,
-            "directions": base.directions, "resolution": base.resolution, "points": base.points, "frames": frames,
-            "seed": seed, "results": results, "perfect_over_imperfect_bundles": perfect / imperfect, "poster_ms": POSTER_MS}
+    perfect, imperfect = (
+        results["perfect B=1"]["median_ms"]["bundles"],
+        results["imperfect B=1"]["median_ms"]["bundles"],
+    )
+    return {
+        "benchmark": "poster_table",
+        "scene": scene_name,
+        "device": device["renderer"],
+        "gl_version": device["version"],
+        "timing": "host time around glFinish (llvmpipe)" if "llvmpipe" in device["renderer"] else "GL timer queries",
+        "full_preset": full,
+        "width": base.width,
+        "height": base.height,
+        "supersampling": base.supersampling,
+        "directions": base.directions,
+        "resolution": base.resolution,
+        "points": base.points,
+        "frames": frames,
+        "seed": seed,
+        "results": results,
+        "perfect_over_imperfect_bundles": perfect / imperfect,
+        "poster_ms": POSTER_MS,
+    }
 
 
 def print_table(report: dict) -> None:
     size = f"{report['width']}x{report['height']}, {report['supersampling']}x{report['supersampling']} supersampling"
     reduced = "" if report["full_preset"] else " (REDUCED from the poster's 1920x1024, 2x2: no GPU)"
-    print(f"poster table, {report['scene']} on {report['device']}: {size}{reduced}; K={report['directions']} "
-          f"R={report['resolution']} N={report['points']}; median of {report['frames']} frames ({report['timing']})")
+    print(
+        f"poster table, {report['scene']} on {report['device']}: {size}{reduced}; K={report['directions']} "
+        f"R={report['resolution']} N={report['points']}; median of {report['frames']} frames ({report['timing']})"
+    )
     configs = list(report["results"])
     passes = [p for p in report["results"][configs[-1]]["median_ms"] if p != "frame"]
     header = f"{'pass (ms)':<20}" + "".join(f"{c:>16}" for c in configs)
@@ -71,8 +96,10 @@ def print_table(report: dict) -> None:
         print(f"{p:<20}" + "".join(f"{'-' if v is None else f'{v:.1f}':>16}" for v in row))
     print(f"{'others (frame - bundles)':<20}" + "".join(f"{report['results'][c]['others_ms']:>16.1f}" for c in configs))
     print(f"{'nodes per frame':<20}" + "".join(f"{report['results'][c]['nodes']:>16,}" for c in configs))
-    print(f"perfect / imperfect bundle build: {report['perfect_over_imperfect_bundles']:.2f}x "
-          f"(poster: {POSTER_MS['perfect bundles'] / POSTER_MS['imperfect bundles']:.2f}x)")
+    print(
+        f"perfect / imperfect bundle build: {report['perfect_over_imperfect_bundles']:.2f}x "
+        f"(poster: {POSTER_MS['perfect bundles'] / POSTER_MS['imperfect bundles']:.2f}x)"
+    )
     print("poster (Radeon HD 6990, full preset): " + ", ".join(f"{k} {v:.0f} ms" for k, v in POSTER_MS.items()))
 
 
@@ -84,11 +111,19 @@ def main() -> None:
     parser.add_argument("--supersampling", type=int, default=1)
     parser.add_argument("--frames", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--full", action="store_true", default=None,
-                        help=f"the poster's preset {PRESETS['paper']} even without a GPU")
+    parser.add_argument(
+        "--full", action="store_true", default=None, help=f"the poster's preset {PRESETS['paper']} even without a GPU"
+    )
     args = parser.parse_args()
-    report = run(scene_name=args.scene, full=args.full, width=args.width, height=args.height,
-                 supersampling=args.supersampling, frames=args.frames, seed=args.seed)
+    report = run(
+        scene_name=args.scene,
+        full=args.full,
+        width=args.width,
+        height=args.height,
+        supersampling=args.supersampling,
+        frames=args.frames,
+        seed=args.seed,
+    )
     print_table(report)
     print(json.dumps(report))
 

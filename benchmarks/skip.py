@@ -29,8 +29,8 @@ from dataclasses import replace
 import numpy as np
 
 from evalkit.core.bundleset import DirectionSet
-from evalkit.metrics.images import relmse
 from evalkit.core.scene import load_scene
+from evalkit.metrics.images import relmse
 from gpu_impl.bundles import NODE_BYTES, BundleTracer
 from gpu_impl.context import GLContext
 from gpu_impl.renderer import Renderer, RenderSettings
@@ -41,7 +41,9 @@ from references.mitsuba import DEFAULT_STORE, load_reference, store_entry
 def texture_variant(gl, repeats: int) -> dict:
     ds = DirectionSet.make(64, seed=0)
     with GpuScene(gl, load_scene("cornell-box")) as scene:  # no textures
-        tracers = {t: BundleTracer(gl, scene, "perfect", directions=64, resolution=128, textures=t) for t in (False, True)}
+        tracers = {
+            t: BundleTracer(gl, scene, "perfect", directions=64, resolution=128, textures=t) for t in (False, True)
+        }
         for tracer in tracers.values():
             tracer.build(ds)
         times, lists = {t: [] for t in tracers}, {}
@@ -52,10 +54,17 @@ def texture_variant(gl, repeats: int) -> dict:
                 times[t].append((time.perf_counter() - start) * 1e3)
         for tracer in tracers.values():
             tracer.release()
-    same = all(np.array_equal(getattr(lists[False], n), getattr(lists[True], n)) for n in ("offsets", *lists[True].NODE_FIELDS))
+    same = all(
+        np.array_equal(getattr(lists[False], n), getattr(lists[True], n)) for n in ("offsets", *lists[True].NODE_FIELDS)
+    )
     skipped, full = statistics.median(times[False]), statistics.median(times[True])
-    return {"what": "reading perfect bundles, cornell-box K=64 R=128", "skipped_ms": skipped, "unskipped_ms": full,
-            "saving": full / skipped, "result_change": "none: the same lists, bitwise" if same else "THE LISTS DIFFER"}
+    return {
+        "what": "reading perfect bundles, cornell-box K=64 R=128",
+        "skipped_ms": skipped,
+        "unskipped_ms": full,
+        "saving": full / skipped,
+        "result_change": "none: the same lists, bitwise" if same else "THE LISTS DIFFER",
+    }
 
 
 def black_scene():
@@ -79,9 +88,14 @@ def early_stop(gl, repeats: int, frames: int) -> dict:
     for renderer in renderers.values():
         renderer.release()
     on, off = statistics.median(times[True]), statistics.median(times[False])
-    return {"what": "bounce passes per frame, black cornell-box, B=8", "skipped_ms": on, "unskipped_ms": off,
-            "saving": off / max(on, 1e-9), "passes_skipped_per_frame": skipped / frames,
-            "result_change": f"max |difference| {float(np.abs(images[True] - images[False]).max()):.3g}"}
+    return {
+        "what": "bounce passes per frame, black cornell-box, B=8",
+        "skipped_ms": on,
+        "unskipped_ms": off,
+        "saving": off / max(on, 1e-9),
+        "passes_skipped_per_frame": skipped / frames,
+        "result_change": f"max |difference| {float(np.abs(images[True] - images[False]).max()):.3g}",
+    }
 
 
 def bundle_reuse(gl, repeats: int, frames: int) -> dict:
@@ -97,24 +111,37 @@ def bundle_reuse(gl, repeats: int, frames: int) -> dict:
             times[rotate].append(result.timings["wall_s"] * 1e3 / frames)
             errors[rotate].append(relmse(result.images["indirect"], ref.images["indirect"]).value)
     reuse, rotate = statistics.median(times[False]), statistics.median(times[True])
-    return {"what": f"frame, cornell-box K=32 R=128 B=3, {frames} frames", "skipped_ms": reuse, "unskipped_ms": rotate,
-            "saving": rotate / reuse,
-            "result_change": f"indirect relMSE {statistics.median(errors[False]):.4g} (fixed) vs "
-                             f"{statistics.median(errors[True]):.4g} (rotating), medians over seeds 0..{repeats - 1}"}
+    return {
+        "what": f"frame, cornell-box K=32 R=128 B=3, {frames} frames",
+        "skipped_ms": reuse,
+        "unskipped_ms": rotate,
+        "saving": rotate / reuse,
+        "result_change": f"indirect relMSE {statistics.median(errors[False]):.4g} (fixed) vs "
+        f"{statistics.median(errors[True]):.4g} (rotating), medians over seeds 0..{repeats - 1}",
+    }
 
 
 def node_capacity(gl) -> dict:
     """Node buffers made for a fixed 1 GiB (as if sized without a measurement), then sized from
     the first frame's count; the first guess from the depth complexity is printed beside them."""
     fixed = (1 << 30) // NODE_BYTES
-    with GpuScene(gl, load_scene("atrium")) as scene, BundleTracer(gl, scene, "perfect", directions=32, resolution=128,
-                                                                   initial_capacity=fixed) as tracer:
+    with (
+        GpuScene(gl, load_scene("atrium")) as scene,
+        BundleTracer(gl, scene, "perfect", directions=32, resolution=128, initial_capacity=fixed) as tracer,
+    ):
         guess = tracer.predicted_nodes()
         for f in range(2):
             tracer.build(DirectionSet.make(32, seed=0, frame=f))
         after, nodes = tracer.capacity, tracer.stats["nodes"]
-    return {"what": "node capacity, atrium K=32 R=128", "fixed_1gib_nodes": fixed, "after_first_frame_nodes": after,
-            "first_guess_nodes": guess, "measured_nodes": nodes, "saving": fixed / after, "result_change": "none"}
+    return {
+        "what": "node capacity, atrium K=32 R=128",
+        "fixed_1gib_nodes": fixed,
+        "after_first_frame_nodes": after,
+        "first_guess_nodes": guess,
+        "measured_nodes": nodes,
+        "saving": fixed / after,
+        "result_change": "none",
+    }
 
 
 def main() -> None:
@@ -134,12 +161,16 @@ def main() -> None:
     print(f"{'skip':20}{'skipped':>14}{'unskipped':>14}{'saving':>9}  measured on / result change")
     for name, r in results.items():
         if name == "node_capacity":
-            print(f"{name:20}{r['after_first_frame_nodes']:>14,}{r['fixed_1gib_nodes']:>14,}{r['saving']:>8.2f}x  "
-                  f"nodes (sized from the last frame / a fixed 1 GiB); {r['what']}, {r['measured_nodes']:,} measured, "
-                  f"first guess {r['first_guess_nodes']:,}")
+            print(
+                f"{name:20}{r['after_first_frame_nodes']:>14,}{r['fixed_1gib_nodes']:>14,}{r['saving']:>8.2f}x  "
+                f"nodes (sized from the last frame / a fixed 1 GiB); {r['what']}, {r['measured_nodes']:,} measured, "
+                f"first guess {r['first_guess_nodes']:,}"
+            )
         else:
-            print(f"{name:20}{r['skipped_ms']:>11.1f} ms{r['unskipped_ms']:>11.1f} ms{r['saving']:>8.2f}x  "
-                  f"{r['what']}; {r['result_change']}")
+            print(
+                f"{name:20}{r['skipped_ms']:>11.1f} ms{r['unskipped_ms']:>11.1f} ms{r['saving']:>8.2f}x  "
+                f"{r['what']}; {r['result_change']}"
+            )
     print(json.dumps({"gl_renderer": renderer, "repeats": args.repeats, **results}))
 
 

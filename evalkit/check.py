@@ -57,8 +57,10 @@ def evaluate(case: Case, out: str | os.PathLike) -> Outcome:
     else:
         passed = all(b <= a * (1 + case.tolerance) for a, b in zip(values, values[1:]))
         sweep_values = [r[case.sweep] for r in rows]
-        message = (f"{case.metric} over {case.sweep} = {sweep_values}: {', '.join(f'{v:.4g}' for v in values)} "
-                   f"(each at most {1 + case.tolerance:g} x the one before)")
+        message = (
+            f"{case.metric} over {case.sweep} = {sweep_values}: {', '.join(f'{v:.4g}' for v in values)} "
+            f"(each at most {1 + case.tolerance:g} x the one before)"
+        )
     if not passed:
         message = "FAILED: " + message
         _keep_for_inspection(rows, folder)
@@ -83,8 +85,13 @@ def _keep_for_inspection(rows: list[dict], folder: Path) -> None:
 
 
 def junit_xml(outcomes: list[Outcome], path: str | os.PathLike) -> None:
-    suite = ET.Element("testsuite", name="evalkit-check", tests=str(len(outcomes)),
-                       failures=str(sum(not o.passed for o in outcomes)), time=f"{sum(o.seconds for o in outcomes):.3f}")
+    suite = ET.Element(
+        "testsuite",
+        name="evalkit-check",
+        tests=str(len(outcomes)),
+        failures=str(sum(not o.passed for o in outcomes)),
+        time=f"{sum(o.seconds for o in outcomes):.3f}",
+    )
     for o in outcomes:
         case = ET.SubElement(suite, "testcase", classname="evalkit.check", name=o.case.name, time=f"{o.seconds:.3f}")
         if not o.passed:
@@ -100,11 +107,20 @@ def calibrate(case: Case, seeds: list[int], out: str | os.PathLike) -> dict:
     review its threshold: mean, standard deviation, min and max."""
     values = []
     for seed in seeds:
-        seeded = Case(**{**case.__dict__, "runs": [{**r, "seed": seed} for r in case.runs], "name": f"{case.name}-seed{seed}"})
+        seeded = Case(
+            **{**case.__dict__, "runs": [{**r, "seed": seed} for r in case.runs], "name": f"{case.name}-seed{seed}"}
+        )
         o = evaluate(seeded, out)
         if not o.values:
             raise InputError(case.name, f"calibration run failed: {o.message}")
         values.append(max(b / a for a, b in zip(o.values, o.values[1:])) if case.kind == "falls" else o.values[0])
     v = np.array(values)
-    return {"case": case.name, "seeds": seeds, "values": values, "mean": float(v.mean()),
-            "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0, "min": float(v.min()), "max": float(v.max())}
+    return {
+        "case": case.name,
+        "seeds": seeds,
+        "values": values,
+        "mean": float(v.mean()),
+        "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
+        "min": float(v.min()),
+        "max": float(v.max()),
+    }

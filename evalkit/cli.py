@@ -30,7 +30,14 @@ from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 from evalkit.tune import CALIBRATION_SHARE, settings_text, tune
-from gpu_impl.bundles import DEFAULT_NODE_BUDGET, DEFAULT_SAMPLER, DEFAULT_SPLAT_SCALE, SPLATTERS, format_bytes, trace_bundles
+from gpu_impl.bundles import (
+    DEFAULT_NODE_BUDGET,
+    DEFAULT_SAMPLER,
+    DEFAULT_SPLAT_SCALE,
+    SPLATTERS,
+    format_bytes,
+    trace_bundles,
+)
 from gpu_impl.context import GLContext
 from gpu_impl.layout import SAMPLERS
 from gpu_impl.renderer import IMAGES, LIGHTING, PRESETS, Renderer, RenderSettings, apply_preset, write_render
@@ -53,20 +60,30 @@ def _scene_info(args) -> int:
     info = scene.summary()
     f = info["features"]
     print(f"scene       {info['name']}  ({info['source']})")
-    print(f"triangles   {info['triangles']:,} in {info['meshes']} meshes, {info['degenerate_removed']} degenerate removed")
-    print(f"bounds      {_vec(info['bounds']['min'])} .. {_vec(info['bounds']['max'])}, bounding radius {info['bounding_radius']:.4g}")
+    print(
+        f"triangles   {info['triangles']:,} in {info['meshes']} meshes, {info['degenerate_removed']} degenerate removed"
+    )
+    print(
+        f"bounds      {_vec(info['bounds']['min'])} .. {_vec(info['bounds']['max'])}, bounding radius {info['bounding_radius']:.4g}"
+    )
     print(f"area        {info['surface_area']:.6g}, depth complexity {f['depth_complexity']:.3f} surfaces per line")
     for m in info["materials"]:
         tex = f", texture {m['texture'][1]}x{m['texture'][0]}" if m["texture"] else ""
         emit = f", emission {_vec(m['emission'])}" if max(m["emission"]) > 0 else ""
         note = f" [{m['source_bsdf']}, approximated]" if m["approximated"] else ""
-        print(f"material    {m['name']}: albedo {_vec(m['albedo'])}{tex}{emit}{', two-sided' if m['twosided'] else ''}{note}")
+        print(
+            f"material    {m['name']}: albedo {_vec(m['albedo'])}{tex}{emit}{', two-sided' if m['twosided'] else ''}{note}"
+        )
     for light in info["lights"]:
         print(f"light       {light['kind']}: {_vec(light['intensity'])}")
     c = info["camera"]
-    print(f"camera      at {_vec(c['position'])}, fov {c['fov']:.4g} deg along {c['fov_axis']}, {c['width']}x{c['height']}")
-    print(f"features    textures={f['textures']} emitters={f['emitters']} environment={f['environment']} "
-          f"lights={','.join(f['light_types']) or '-'}")
+    print(
+        f"camera      at {_vec(c['position'])}, fov {c['fov']:.4g} deg along {c['fov_axis']}, {c['width']}x{c['height']}"
+    )
+    print(
+        f"features    textures={f['textures']} emitters={f['emitters']} environment={f['environment']} "
+        f"lights={','.join(f['light_types']) or '-'}"
+    )
     for w in info["warnings"]:
         print(f"warning     {w}")
     if args.json:
@@ -80,19 +97,28 @@ def _bundles(args) -> int:
     if args.method == "exact":
         bundles = ExactTracer(scene, threads=args.threads).bundles(directions, args.resolution)
         stats = bundles.stats
-        detail = (f"{stats['casts']:,} Embree casts on {stats['threads']} thread(s), re-cast offset "
-                  f"{bundles.params['recast_epsilon']:.3g}, {bundles.params['coincidence_layers']} coincidence layer(s)")
+        detail = (
+            f"{stats['casts']:,} Embree casts on {stats['threads']} thread(s), re-cast offset "
+            f"{bundles.params['recast_epsilon']:.3g}, {bundles.params['coincidence_layers']} coincidence layer(s)"
+        )
         timing = f"wall {1e3 * stats['wall_s']:.1f} ms, {stats['nodes'] / max(stats['wall_s'], 1e-9) / stats['threads'] / 1e6:.2f} M hits/s per thread"
     else:
         bundles, detail, timing = _gl_bundles(args, scene, directions)
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     bundles.save(args.out)
     summary = bundles.summary()
-    print(f"bundles     {args.method} on {scene.name}: K={args.directions} R={args.resolution}"
-          + (f" N={args.points} splat radius {bundles.params['splat_radius']:.4g} (scale {bundles.params['splat_scale']:.3g})"
-             if args.method == "imperfect" else ""))
-    print(f"nodes       {bundles.node_count:,}, longest list {summary['max_list_length']}, "
-          f"{summary['empty_lists']:,} of {bundles.list_count:,} lists empty")
+    print(
+        f"bundles     {args.method} on {scene.name}: K={args.directions} R={args.resolution}"
+        + (
+            f" N={args.points} splat radius {bundles.params['splat_radius']:.4g} (scale {bundles.params['splat_scale']:.3g})"
+            if args.method == "imperfect"
+            else ""
+        )
+    )
+    print(
+        f"nodes       {bundles.node_count:,}, longest list {summary['max_list_length']}, "
+        f"{summary['empty_lists']:,} of {bundles.list_count:,} lists empty"
+    )
     print(f"work        {detail}")
     print(f"time        {timing}")
     print(f"written     {args.out}")
@@ -104,14 +130,27 @@ def _bundles(args) -> int:
 def _gl_bundles(args, scene, directions):
     with GLContext() as gl:
         try:
-            bundles = trace_bundles(gl, scene, directions, args.method, resolution=args.resolution, points=args.points,
-                                    splat_scale=args.splat_scale, splat_radius=args.splat_radius, sampler=args.sampler,
-                                    splatter=args.splatter, merge=not args.no_merge, node_budget=args.node_budget)
+            bundles = trace_bundles(
+                gl,
+                scene,
+                directions,
+                args.method,
+                resolution=args.resolution,
+                points=args.points,
+                splat_scale=args.splat_scale,
+                splat_radius=args.splat_radius,
+                sampler=args.sampler,
+                splatter=args.splatter,
+                merge=not args.no_merge,
+                node_budget=args.node_budget,
+            )
         except ValueError as e:
             raise InputError("evalkit bundles", str(e)) from None
     stats = bundles.stats
-    detail = (f"{stats['redundant_nodes']:,} redundant nodes, {format_bytes(stats['node_bytes'])} of nodes, "
-              f"{format_bytes(stats['gpu_bytes'])} on the GPU in all, {stats['overflow_reruns']} overflow re-run(s)")
+    detail = (
+        f"{stats['redundant_nodes']:,} redundant nodes, {format_bytes(stats['node_bytes'])} of nodes, "
+        f"{format_bytes(stats['gpu_bytes'])} on the GPU in all, {stats['overflow_reruns']} overflow re-run(s)"
+    )
     passes = ", ".join(f"{k} {v:.1f}" if v is not None else f"{k} n/a" for k, v in stats["gpu_ms"].items())
     return bundles, detail, f"gpu ms {passes} ({stats['gpu_timing']}); wall {stats['wall_ms']:.1f} ms"
 
@@ -119,14 +158,18 @@ def _gl_bundles(args, scene, directions):
 def _compare_bundles(args) -> int:
     test, exact = BundleSet.load(args.test), BundleSet.load(args.exact)
     if exact.method != "exact":
-        print(f"evalkit: warning: {args.exact}: method is '{exact.method}', not 'exact'; it is used as the reference anyway",
-              file=sys.stderr)
+        print(
+            f"evalkit: warning: {args.exact}: method is '{exact.method}', not 'exact'; it is used as the reference anyway",
+            file=sys.stderr,
+        )
     try:
         r = compare_bundles(test, exact, depth_tolerance=args.depth_tolerance)
     except ValueError as e:
         raise InputError(args.test, f"cannot be compared with {args.exact}: {e}") from None
     per = r["per_direction"]
-    print(f"compare     {test.method} ({args.test}) against {exact.method} ({args.exact}): K={r['directions']} R={r['resolution']}")
+    print(
+        f"compare     {test.method} ({args.test}) against {exact.method} ({args.exact}): K={r['directions']} R={r['resolution']}"
+    )
     print(f"tolerance   depth {r['depth_tolerance']:g} x radius = {r['depth_tolerance_absolute']:.4g} scene units")
     print(f"nodes       exact {r['exact_nodes']:,}, test {r['test_nodes']:,}, matched {r['matched']:,}")
     print(f"{'':16}{'aggregate':>12}{'best dir':>12}{'median dir':>12}{'worst dir':>12}")
@@ -134,9 +177,13 @@ def _compare_bundles(args) -> int:
         values = np.sort(per[name])
         print(f"{name:16}{r[name]:12.4%}{values[0]:12.4%}{np.median(values):12.4%}{values[-1]:12.4%}")
     e = r["depth_error"]
-    print(f"depth error mean {e['mean']:.3g}, rms {e['rms']:.3g}, p99 {e['p99']:.3g}, max {e['max']:.3g} (x radius); "
-          f"same primitive {r['same_prim_rate']:.4%}")
-    print(f"agreement   {r['agreement']:.4%} of exact nodes matched; {r['spurious_per_crossing']:.4f} spurious nodes per exact crossing")
+    print(
+        f"depth error mean {e['mean']:.3g}, rms {e['rms']:.3g}, p99 {e['p99']:.3g}, max {e['max']:.3g} (x radius); "
+        f"same primitive {r['same_prim_rate']:.4%}"
+    )
+    print(
+        f"agreement   {r['agreement']:.4%} of exact nodes matched; {r['spurious_per_crossing']:.4f} spurious nodes per exact crossing"
+    )
     if args.json:
         print(json.dumps(r))
     return 0
@@ -145,15 +192,26 @@ def _compare_bundles(args) -> int:
 def _reference(args) -> int:
     scene = load_scene(args.scene).at(args.time)
     try:
-        ref = reference(scene, bounces=args.bounces, spp=args.spp, width=args.width, height=args.height, seed=args.seed,
-                        chunks=args.chunks, variant=args.variant, store=Path(args.store),
-                        progress=lambda line: print(f"progress    {line}", flush=True))
+        ref = reference(
+            scene,
+            bounces=args.bounces,
+            spp=args.spp,
+            width=args.width,
+            height=args.height,
+            seed=args.seed,
+            chunks=args.chunks,
+            variant=args.variant,
+            store=Path(args.store),
+            progress=lambda line: print(f"progress    {line}", flush=True),
+        )
     except ValueError as e:
         raise InputError("evalkit reference", str(e)) from None
     written = export_reference(ref, args.out)
     m = ref.manifest
-    print(f"reference   {scene.name}: {m['bounces']} bounce(s), {m['width']}x{m['height']}, {m['spp']} spp in {m['chunks']} chunks, "
-          f"seed {m['seed']}, Mitsuba {m['mitsuba']} {m['variant']}")
+    print(
+        f"reference   {scene.name}: {m['bounces']} bounce(s), {m['width']}x{m['height']}, {m['spp']} spp in {m['chunks']} chunks, "
+        f"seed {m['seed']}, Mitsuba {m['mitsuba']} {m['variant']}"
+    )
     how = "reused" if ref.reused else f"rendered in {m['render_s']:.1f} s"
     print(f"store       {ref.path} ({how})")
     for name in IMAGES:
@@ -171,7 +229,9 @@ def _render(args) -> int:
     scene = load_scene(args.scene)
     # Every RenderSettings field the command line has an option for (None: not given).
     given = {f.name: getattr(args, f.name) for f in fields(RenderSettings) if hasattr(args, f.name)}
-    settings = apply_preset(RenderSettings(), args.preset, **given, rotate_directions=False if args.fixed_directions else None)
+    settings = apply_preset(
+        RenderSettings(), args.preset, **given, rotate_directions=False if args.fixed_directions else None
+    )
     with GLContext() as gl:
         try:
             renderer = Renderer(gl, scene, settings)
@@ -181,11 +241,15 @@ def _render(args) -> int:
             result = renderer.render(progress=lambda line: print(f"progress    {line}", flush=True))
     written = write_render(result, args.out)
     p, t = result.params, result.timings
-    print(f"render      {settings.method} bundles on {scene.name}: {p['width']}x{p['height']} (supersampling {settings.supersampling}), "
-          f"{settings.bounces} bounce(s), K={settings.directions} R={settings.resolution}"
-          + (f" N={settings.points}" if settings.method == "imperfect" else "")
-          + f", {p['frames_rendered']} frame(s), {p['paths_per_pixel']} paths per pixel, seed {settings.seed}")
-    print(f"memory      {result.stats['nodes_median']:,} nodes per frame (median), {format_bytes(result.stats['gpu_bytes'])} on the GPU")
+    print(
+        f"render      {settings.method} bundles on {scene.name}: {p['width']}x{p['height']} (supersampling {settings.supersampling}), "
+        f"{settings.bounces} bounce(s), K={settings.directions} R={settings.resolution}"
+        + (f" N={settings.points}" if settings.method == "imperfect" else "")
+        + f", {p['frames_rendered']} frame(s), {p['paths_per_pixel']} paths per pixel, seed {settings.seed}"
+    )
+    print(
+        f"memory      {result.stats['nodes_median']:,} nodes per frame (median), {format_bytes(result.stats['gpu_bytes'])} on the GPU"
+    )
     print(f"time        per frame, median ms ({t['method']}):")
     for name, ms in t["median_ms"].items():
         print(f"  {name:22}{'n/a' if ms is None else f'{ms:10.2f}'}")
@@ -196,16 +260,35 @@ def _render(args) -> int:
         print(f"warning     {w}")
     print(f"written     {args.out}: {', '.join(path.name for path in written)}")
     if args.json:
-        print(json.dumps({"out": str(args.out), "timings_ms": t["median_ms"], "wall_s": t["wall_s"], "stats": result.stats,
-                          "params": result.params, "warnings": result.warnings}))
+        print(
+            json.dumps(
+                {
+                    "out": str(args.out),
+                    "timings_ms": t["median_ms"],
+                    "wall_s": t["wall_s"],
+                    "stats": result.stats,
+                    "params": result.params,
+                    "warnings": result.warnings,
+                }
+            )
+        )
     return 0
 
 
 def _compare(args) -> int:
     test, test_meta = read_exr(args.test)
     ref, _ = read_exr(args.ref)
-    metrics = compare_images(test, ref, args.metrics, args.test, args.ref, relmse_eps=args.relmse_eps,
-                             smape_eps=args.smape_eps, flip_ppd=args.flip_ppd, exposure=args.exposure)
+    metrics = compare_images(
+        test,
+        ref,
+        args.metrics,
+        args.test,
+        args.ref,
+        relmse_eps=args.relmse_eps,
+        smape_eps=args.smape_eps,
+        flip_ppd=args.flip_ppd,
+        exposure=args.exposure,
+    )
     print(f"compare     {args.test} against {args.ref} ({test.shape[1]}x{test.shape[0]})")
     for m in metrics.values():
         params = ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in m.params.items())
@@ -226,8 +309,14 @@ def _compare(args) -> int:
 def _study(args) -> int:
     study = load_study(args.study)
     out = args.out or f"out/studies/{study.name}"
-    rows = run_study(study, out, workers=args.workers, executor=args.executor, scheduler=args.scheduler,
-                     command="evalkit " + " ".join(sys.argv[1:]))
+    rows = run_study(
+        study,
+        out,
+        workers=args.workers,
+        executor=args.executor,
+        scheduler=args.scheduler,
+        command="evalkit " + " ".join(sys.argv[1:]),
+    )
     ok = sum(r["status"] == "ok" for r in rows)
     print(f"study       {study.name}: {ok} of {len(rows)} runs ok")
     print(f"results     {out}/results.csv")
@@ -236,31 +325,59 @@ def _study(args) -> int:
 
 
 def _tune(args) -> int:
-    result = tune(args.scene, args.budget, method=args.method, metric=args.metric, out=args.out, width=args.width,
-                  height=args.height, bounces=args.bounces, spp=args.spp, reference_spp=args.reference_spp, seed=args.seed,
-                  calibration_share=args.calibration_share, check=not args.no_check, grid=args.grid, progress=(lambda line: None) if args.json else print)
+    result = tune(
+        args.scene,
+        args.budget,
+        method=args.method,
+        metric=args.metric,
+        out=args.out,
+        width=args.width,
+        height=args.height,
+        bounces=args.bounces,
+        spp=args.spp,
+        reference_spp=args.reference_spp,
+        seed=args.seed,
+        calibration_share=args.calibration_share,
+        check=not args.no_check,
+        grid=args.grid,
+        progress=(lambda line: None) if args.json else print,
+    )
     rec, predicted = result["recommended"], result["predicted"]
     if args.json:
         print(json.dumps(result))
         return 0
-    print(f"recommended {settings_text(rec)} (the least {result['chosen_by']} of {len(result['candidates'])} candidates)")
+    print(
+        f"recommended {settings_text(rec)} (the least {result['chosen_by']} of {len(result['candidates'])} candidates)"
+    )
     print(f"predicted   {predicted['time_s']:.3g} s, {result['metric']} {predicted['error']:.4g}")
     if "measured" in result:
         measured = result["measured"]
-        print(f"measured    {measured['time_s']:.3g} s, {result['metric']} {measured['error']:.4g} "
-              f"(time {measured['time_s'] / result['budget_s']:.2f}x the budget, error {measured['error'] / predicted['error']:.2f}x the predicted)")
+        print(
+            f"measured    {measured['time_s']:.3g} s, {result['metric']} {measured['error']:.4g} "
+            f"(time {measured['time_s'] / result['budget_s']:.2f}x the budget, error {measured['error'] / predicted['error']:.2f}x the predicted)"
+        )
     for c in result["candidates"]:
         if c["method"] != rec["method"]:
-            print(f"other       {settings_text(c)}: predicted {c['predicted_time_s']:.3g} s, {c['predicted_error']:.4g}"
-                  + (f"; measured {c['measured']['time_s']:.3g} s, {c['measured']['error']:.4g}" if "measured" in c else ""))
+            print(
+                f"other       {settings_text(c)}: predicted {c['predicted_time_s']:.3g} s, {c['predicted_error']:.4g}"
+                + (
+                    f"; measured {c['measured']['time_s']:.3g} s, {c['measured']['error']:.4g}"
+                    if "measured" in c
+                    else ""
+                )
+            )
     if "grid" in result:
         grid = result["grid"]
-        print(f"grid        best of {grid['runs']} runs within the budget: {settings_text(grid['best'])}"
-              + f", {grid['best']['time_s']:.3g} s, {result['metric']} {grid['best']['error']:.4g}"
-              + (f" (the recommendation's measured error is {grid['ratio']:.2f}x it)" if "ratio" in grid else ""))
+        print(
+            f"grid        best of {grid['runs']} runs within the budget: {settings_text(grid['best'])}"
+            + f", {grid['best']['time_s']:.3g} s, {result['metric']} {grid['best']['error']:.4g}"
+            + (f" (the recommendation's measured error is {grid['ratio']:.2f}x it)" if "ratio" in grid else "")
+        )
     calibration = result["calibration"]
-    print(f"calibration {calibration['runs']} runs, {calibration['render_s']:.1f} s of render time "
-          f"({calibration['render_s'] / result['budget_s']:.2f}x the budget), {calibration['run_s']:.1f} s in all (cached in {' and '.join(calibration['folders'])})")
+    print(
+        f"calibration {calibration['runs']} runs, {calibration['render_s']:.1f} s of render time "
+        f"({calibration['render_s'] / result['budget_s']:.2f}x the budget), {calibration['run_s']:.1f} s in all (cached in {' and '.join(calibration['folders'])})"
+    )
     for w in result["warnings"]:
         print(f"warning     {w}")
     print(f"report      {result['report']}")
@@ -288,18 +405,27 @@ def _check(args) -> int:
         print(f"{'case':40}{'mean':>12}{'std':>12}{'min':>12}{'max':>12}  per seed")
         for case in cases:
             c = calibrate(case, seeds, Path(args.out) / "calibration")
-            print(f"{case.name:40}{c['mean']:12.6g}{c['std']:12.4g}{c['min']:12.6g}{c['max']:12.6g}  "
-                  + ", ".join(f"{v:.6g}" for v in c["values"]), flush=True)
+            print(
+                f"{case.name:40}{c['mean']:12.6g}{c['std']:12.4g}{c['min']:12.6g}{c['max']:12.6g}  "
+                + ", ".join(f"{v:.6g}" for v in c["values"]),
+                flush=True,
+            )
         return 0
     outcomes = []
     print(f"{'case':40}{'result':>8}  value against threshold")
     for case in cases:
         o = evaluate(case, args.out)
         outcomes.append(o)
-        print(f"{case.name:40}{'pass' if o.passed else 'FAIL':>8}  {o.message}" + ("" if o.passed else f" (see {o.folder})"), flush=True)
+        print(
+            f"{case.name:40}{'pass' if o.passed else 'FAIL':>8}  {o.message}"
+            + ("" if o.passed else f" (see {o.folder})"),
+            flush=True,
+        )
     junit_xml(outcomes, args.junit or Path(args.out) / "junit.xml")
     failed = sum(not o.passed for o in outcomes)
-    print(f"check       {len(outcomes) - failed} of {len(outcomes)} cases pass; JUnit XML in {args.junit or Path(args.out) / 'junit.xml'}")
+    print(
+        f"check       {len(outcomes) - failed} of {len(outcomes)} cases pass; JUnit XML in {args.junit or Path(args.out) / 'junit.xml'}"
+    )
     return 1 if failed else 0
 
 
@@ -324,6 +450,7 @@ def parse_bytes(text: str) -> int:
 
 def _int_at_least(minimum: int):
     """An argparse type: an integer of at least ``minimum``."""
+
     def parse(text: str) -> int:
         try:
             value = int(text)
@@ -332,6 +459,7 @@ def _int_at_least(minimum: int):
         if value < minimum:
             raise argparse.ArgumentTypeError(f"{value} must be at least {minimum}")
         return value
+
     return parse
 
 
@@ -364,159 +492,394 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--verbose", action="store_true", help="show tracebacks")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("doctor", help="check GL (EGL), Mitsuba (+LLVM) and Embree; exit 1 with fixes if one is unusable")
+    p = sub.add_parser(
+        "doctor", help="check GL (EGL), Mitsuba (+LLVM) and Embree; exit 1 with fixes if one is unusable"
+    )
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_doctor)
 
     scene = sub.add_parser("scene", help="scene commands").add_subparsers(dest="scene_command", required=True)
     p = scene.add_parser("info", help="triangles, bounds, materials, lights, features and warnings of a scene")
-    p.add_argument("scene", help="a built-in name (cornell-box, furnace, atrium, atrium-animated) or a .xml/.obj/.ply/.gltf/.glb path")
+    p.add_argument(
+        "scene",
+        help="a built-in name (cornell-box, furnace, atrium, atrium-animated) or a .xml/.obj/.ply/.gltf/.glb path",
+    )
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_scene_info)
 
-
-    p = sub.add_parser("bundles", help="build perfect or imperfect ray bundles on the GPU, or exact ones with Embree, and save a BundleSet .npz")
+    p = sub.add_parser(
+        "bundles",
+        help="build perfect or imperfect ray bundles on the GPU, or exact ones with Embree, and save a BundleSet .npz",
+    )
     p.add_argument("scene", help="a built-in name or a scene file")
     p.add_argument("--method", choices=("perfect", "imperfect", "exact"), required=True)
     p.add_argument("--directions", type=_positive_int, default=256, metavar="K", help="bundle directions (default 256)")
-    p.add_argument("--resolution", type=_positive_int, default=128, metavar="R", help="R x R lines per bundle (default 128)")
-    p.add_argument("--points", type=_positive_int, default=16384, metavar="N", help="imperfect: points per direction (default 16384)")
-    p.add_argument("--splat-scale", type=_positive_float, default=DEFAULT_SPLAT_SCALE, metavar="S",
-                   help=f"imperfect: splat radius in units of sqrt(A / (pi N)) (default {DEFAULT_SPLAT_SCALE})")
-    p.add_argument("--splat-radius", type=_positive_float, default=None, metavar="R", help="imperfect: absolute splat radius (overrides --splat-scale)")
-    p.add_argument("--sampler", choices=tuple(SAMPLERS), default=DEFAULT_SAMPLER,
-                   help=f"imperfect: the points, stratified along a space-filling curve or independent (default {DEFAULT_SAMPLER})")
-    p.add_argument("--splatter", choices=SPLATTERS, default="compute",
-                   help="imperfect: splats found by a compute pass (exact-size lists) or drawn by the rasterizer (default compute)")
-    p.add_argument("--no-merge", action="store_true", help="imperfect: keep every splat's node (by default one per surface crossing)")
+    p.add_argument(
+        "--resolution", type=_positive_int, default=128, metavar="R", help="R x R lines per bundle (default 128)"
+    )
+    p.add_argument(
+        "--points",
+        type=_positive_int,
+        default=16384,
+        metavar="N",
+        help="imperfect: points per direction (default 16384)",
+    )
+    p.add_argument(
+        "--splat-scale",
+        type=_positive_float,
+        default=DEFAULT_SPLAT_SCALE,
+        metavar="S",
+        help=f"imperfect: splat radius in units of sqrt(A / (pi N)) (default {DEFAULT_SPLAT_SCALE})",
+    )
+    p.add_argument(
+        "--splat-radius",
+        type=_positive_float,
+        default=None,
+        metavar="R",
+        help="imperfect: absolute splat radius (overrides --splat-scale)",
+    )
+    p.add_argument(
+        "--sampler",
+        choices=tuple(SAMPLERS),
+        default=DEFAULT_SAMPLER,
+        help=f"imperfect: the points, stratified along a space-filling curve or independent (default {DEFAULT_SAMPLER})",
+    )
+    p.add_argument(
+        "--splatter",
+        choices=SPLATTERS,
+        default="compute",
+        help="imperfect: splats found by a compute pass (exact-size lists) or drawn by the rasterizer (default compute)",
+    )
+    p.add_argument(
+        "--no-merge",
+        action="store_true",
+        help="imperfect: keep every splat's node (by default one per surface crossing)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frame", type=int, default=0, help="frame index: a new rotation (and jitter) of the direction set")
     p.add_argument("--no-jitter", action="store_true", help="no sub-pixel jitter of the bundle grids")
-    p.add_argument("--node-budget", type=parse_bytes, default=DEFAULT_NODE_BUDGET, metavar="BYTES",
-                   help="the most memory for nodes and what they are built from, e.g. 1GiB (default: 2 GiB)")
+    p.add_argument(
+        "--node-budget",
+        type=parse_bytes,
+        default=DEFAULT_NODE_BUDGET,
+        metavar="BYTES",
+        help="the most memory for nodes and what they are built from, e.g. 1GiB (default: 2 GiB)",
+    )
     p.add_argument("--threads", type=_positive_int, default=None, help="exact: Embree threads (default: every core)")
     p.add_argument("--out", required=True, metavar="FILE.npz")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_bundles)
 
-
-    p = sub.add_parser("compare-bundles", help="hole, spurious and redundant rates and depth error of a BundleSet against the exact one")
+    p = sub.add_parser(
+        "compare-bundles",
+        help="hole, spurious and redundant rates and depth error of a BundleSet against the exact one",
+    )
     p.add_argument("test", metavar="TEST.npz")
     p.add_argument("exact", metavar="EXACT.npz")
-    p.add_argument("--depth-tolerance", type=_positive_float, default=DEFAULT_DEPTH_TOLERANCE, metavar="T",
-                   help=f"nodes within T x the frame radius are the same surface (default {DEFAULT_DEPTH_TOLERANCE:g})")
+    p.add_argument(
+        "--depth-tolerance",
+        type=_positive_float,
+        default=DEFAULT_DEPTH_TOLERANCE,
+        metavar="T",
+        help=f"nodes within T x the frame radius are the same surface (default {DEFAULT_DEPTH_TOLERANCE:g})",
+    )
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_compare_bundles)
 
-
     d = RenderSettings()
-    p = sub.add_parser("render", help="render direct, indirect and total images with eye paths over perfect or imperfect bundles")
+    p = sub.add_parser(
+        "render", help="render direct, indirect and total images with eye paths over perfect or imperfect bundles"
+    )
     p.add_argument("scene", help="a built-in name or a scene file")
     p.add_argument("--method", choices=("perfect", "imperfect"), required=True)
-    p.add_argument("--bounces", type=int, default=None, metavar="B", help=f"indirect bounces on top of direct (default {d.bounces})")
-    p.add_argument("--directions", type=_positive_int, default=None, metavar="K", help=f"bundle directions per frame (default {d.directions})")
-    p.add_argument("--resolution", type=_positive_int, default=None, metavar="R", help=f"R x R lines per bundle (default {d.resolution})")
-    p.add_argument("--points", type=_positive_int, default=None, metavar="N", help=f"imperfect: points per direction (default {d.points})")
-    p.add_argument("--splat-scale", type=_positive_float, default=None, metavar="S", help=f"imperfect: splat radius in units of sqrt(A / (pi N)) (default {d.splat_scale})")
+    p.add_argument(
+        "--bounces",
+        type=int,
+        default=None,
+        metavar="B",
+        help=f"indirect bounces on top of direct (default {d.bounces})",
+    )
+    p.add_argument(
+        "--directions",
+        type=_positive_int,
+        default=None,
+        metavar="K",
+        help=f"bundle directions per frame (default {d.directions})",
+    )
+    p.add_argument(
+        "--resolution",
+        type=_positive_int,
+        default=None,
+        metavar="R",
+        help=f"R x R lines per bundle (default {d.resolution})",
+    )
+    p.add_argument(
+        "--points",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help=f"imperfect: points per direction (default {d.points})",
+    )
+    p.add_argument(
+        "--splat-scale",
+        type=_positive_float,
+        default=None,
+        metavar="S",
+        help=f"imperfect: splat radius in units of sqrt(A / (pi N)) (default {d.splat_scale})",
+    )
     p.add_argument("--width", type=_positive_int, default=None, help="default: the scene camera's")
     p.add_argument("--height", type=_positive_int, default=None, help="default: the scene camera's")
-    p.add_argument("--supersampling", type=_positive_int, default=None, metavar="S", help=f"S x S G-buffer samples per pixel (default {d.supersampling})")
-    p.add_argument("--spp", type=_positive_int, default=None, help=f"eye paths per G-buffer sample per frame (default {d.spp})")
-    p.add_argument("--frames", type=_positive_int, default=None, metavar="F", help=f"frames to accumulate, each with new directions (default {d.frames})")
-    p.add_argument("--time-budget", type=_positive_float, default=None, metavar="SECONDS",
-                   help="stop before --frames once the next frame would not fit in SECONDS of render time")
+    p.add_argument(
+        "--supersampling",
+        type=_positive_int,
+        default=None,
+        metavar="S",
+        help=f"S x S G-buffer samples per pixel (default {d.supersampling})",
+    )
+    p.add_argument(
+        "--spp", type=_positive_int, default=None, help=f"eye paths per G-buffer sample per frame (default {d.spp})"
+    )
+    p.add_argument(
+        "--frames",
+        type=_positive_int,
+        default=None,
+        metavar="F",
+        help=f"frames to accumulate, each with new directions (default {d.frames})",
+    )
+    p.add_argument(
+        "--time-budget",
+        type=_positive_float,
+        default=None,
+        metavar="SECONDS",
+        help="stop before --frames once the next frame would not fit in SECONDS of render time",
+    )
     p.add_argument("--seed", type=int, default=None, help=f"(default {d.seed})")
-    p.add_argument("--time", type=float, default=None, metavar="T", help="animated scenes: the time (s) of the first frame (default 0)")
-    p.add_argument("--time-step", type=float, default=None, metavar="DT",
-                   help="animated scenes: seconds between frames (default 0: every frame at --time, accumulating)")
-    p.add_argument("--self-hit-bias", type=float, default=None, metavar="E", help=f"nodes within E bundle pixels beyond a vertex are skipped (default {d.self_hit_bias})")
-    p.add_argument("--shadow-map-size", type=_positive_int, default=None, metavar="S", help=f"texels per shadow map side (default {d.shadow_map_size})")
-    p.add_argument("--shadow-filter", type=_positive_int, default=None, metavar="F", help=f"PCF kernel of F x F bilinear taps (default {d.shadow_filter})")
-    p.add_argument("--light-samples", type=_non_negative_int, default=None, metavar="M",
-                   help=f"points drawn on the emitters per frame for next-event estimation, 0 for none (default {d.light_samples})")
-    p.add_argument("--light-sample-map-size", type=_positive_int, default=None, metavar="S",
-                   help=f"texels per side of each emitter sample's shadow cube faces (default {d.light_sample_map_size})")
-    p.add_argument("--node-budget", type=parse_bytes, default=None, metavar="BYTES",
-                   help="the most memory for nodes, what they are built from and their precomputed light (default 2 GiB)")
-    p.add_argument("--sampler", choices=tuple(SAMPLERS), default=None, help=f"imperfect: the points (default {d.sampler})")
-    p.add_argument("--splatter", choices=SPLATTERS, default=None, help=f"imperfect: compute or raster (default {d.splatter})")
-    p.add_argument("--lighting", choices=LIGHTING, default=None,
-                   help=f"node light: precomputed per node or splat point, lazy at path hits, or auto per frame (default {d.lighting})")
-    p.add_argument("--fixed-directions", action="store_true",
-                   help="every frame along frame 0's directions: a static scene builds its bundles once (faster, correlated)")
-    p.add_argument("--preset", choices=sorted(PRESETS), default=None,
-                   help="paper: the poster's 1920x1024, 2x2 supersampling, K=256, R=128, N=16384 (explicit options override it)")
+    p.add_argument(
+        "--time",
+        type=float,
+        default=None,
+        metavar="T",
+        help="animated scenes: the time (s) of the first frame (default 0)",
+    )
+    p.add_argument(
+        "--time-step",
+        type=float,
+        default=None,
+        metavar="DT",
+        help="animated scenes: seconds between frames (default 0: every frame at --time, accumulating)",
+    )
+    p.add_argument(
+        "--self-hit-bias",
+        type=float,
+        default=None,
+        metavar="E",
+        help=f"nodes within E bundle pixels beyond a vertex are skipped (default {d.self_hit_bias})",
+    )
+    p.add_argument(
+        "--shadow-map-size",
+        type=_positive_int,
+        default=None,
+        metavar="S",
+        help=f"texels per shadow map side (default {d.shadow_map_size})",
+    )
+    p.add_argument(
+        "--shadow-filter",
+        type=_positive_int,
+        default=None,
+        metavar="F",
+        help=f"PCF kernel of F x F bilinear taps (default {d.shadow_filter})",
+    )
+    p.add_argument(
+        "--light-samples",
+        type=_non_negative_int,
+        default=None,
+        metavar="M",
+        help=f"points drawn on the emitters per frame for next-event estimation, 0 for none (default {d.light_samples})",
+    )
+    p.add_argument(
+        "--light-sample-map-size",
+        type=_positive_int,
+        default=None,
+        metavar="S",
+        help=f"texels per side of each emitter sample's shadow cube faces (default {d.light_sample_map_size})",
+    )
+    p.add_argument(
+        "--node-budget",
+        type=parse_bytes,
+        default=None,
+        metavar="BYTES",
+        help="the most memory for nodes, what they are built from and their precomputed light (default 2 GiB)",
+    )
+    p.add_argument(
+        "--sampler", choices=tuple(SAMPLERS), default=None, help=f"imperfect: the points (default {d.sampler})"
+    )
+    p.add_argument(
+        "--splatter", choices=SPLATTERS, default=None, help=f"imperfect: compute or raster (default {d.splatter})"
+    )
+    p.add_argument(
+        "--lighting",
+        choices=LIGHTING,
+        default=None,
+        help=f"node light: precomputed per node or splat point, lazy at path hits, or auto per frame (default {d.lighting})",
+    )
+    p.add_argument(
+        "--fixed-directions",
+        action="store_true",
+        help="every frame along frame 0's directions: a static scene builds its bundles once (faster, correlated)",
+    )
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        default=None,
+        help="paper: the poster's 1920x1024, 2x2 supersampling, K=256, R=128, N=16384 (explicit options override it)",
+    )
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_render)
 
-
-    p = sub.add_parser("compare", help="MSE, relMSE, SMAPE, FLIP and Delta E 2000 of a test image against a reference, with error maps")
+    p = sub.add_parser(
+        "compare", help="MSE, relMSE, SMAPE, FLIP and Delta E 2000 of a test image against a reference, with error maps"
+    )
     p.add_argument("test", metavar="TEST.exr")
     p.add_argument("ref", metavar="REF.exr")
     p.add_argument("--metrics", nargs="+", choices=METRICS, default=list(METRICS))
-    p.add_argument("--relmse-eps", type=_positive_float, default=RELMSE_EPSILON, help=f"relMSE epsilon (default {RELMSE_EPSILON})")
-    p.add_argument("--smape-eps", type=_positive_float, default=SMAPE_EPSILON, help=f"SMAPE epsilon (default {SMAPE_EPSILON})")
-    p.add_argument("--flip-ppd", type=_positive_float, default=FLIP_PPD, help=f"FLIP pixels per degree (default {FLIP_PPD:g})")
-    p.add_argument("--exposure", type=float, default=DELTA_E_EXPOSURE, help="Delta E 2000: exposure (stops) before clipping to the display")
+    p.add_argument(
+        "--relmse-eps", type=_positive_float, default=RELMSE_EPSILON, help=f"relMSE epsilon (default {RELMSE_EPSILON})"
+    )
+    p.add_argument(
+        "--smape-eps", type=_positive_float, default=SMAPE_EPSILON, help=f"SMAPE epsilon (default {SMAPE_EPSILON})"
+    )
+    p.add_argument(
+        "--flip-ppd", type=_positive_float, default=FLIP_PPD, help=f"FLIP pixels per degree (default {FLIP_PPD:g})"
+    )
+    p.add_argument(
+        "--exposure",
+        type=float,
+        default=DELTA_E_EXPOSURE,
+        help="Delta E 2000: exposure (stops) before clipping to the display",
+    )
     p.add_argument("--maps", metavar="DIR", help="write each metric's per-pixel map as DIR/<metric>.exr and .png")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_compare)
 
-    p = sub.add_parser("study", help="run a study (a TOML grid of runs): results table, plots and an HTML report; resumable")
+    p = sub.add_parser(
+        "study", help="run a study (a TOML grid of runs): results table, plots and an HTML report; resumable"
+    )
     p.add_argument("study", metavar="STUDY.toml")
     p.add_argument("--out", metavar="DIR", help="default: out/studies/<name>")
-    p.add_argument("--workers", type=_positive_int, default=1, help="runs at once (default 1: GL on llvmpipe already uses every core)")
-    p.add_argument("--executor", choices=("local", "dask"), default="local",
-                   help="local processes, or Dask (a LocalCluster of --workers, or --scheduler)")
+    p.add_argument(
+        "--workers",
+        type=_positive_int,
+        default=1,
+        help="runs at once (default 1: GL on llvmpipe already uses every core)",
+    )
+    p.add_argument(
+        "--executor",
+        choices=("local", "dask"),
+        default="local",
+        help="local processes, or Dask (a LocalCluster of --workers, or --scheduler)",
+    )
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask: an existing scheduler, e.g. tcp://host:8786")
     p.set_defaults(run=_study)
 
-
-    p = sub.add_parser("check", help="run declared accuracy cases against their thresholds: table, JUnit XML, exit 1 on any regression")
-    p.add_argument("thresholds", nargs="?", default=str(DEFAULT_THRESHOLDS), metavar="THRESHOLDS.toml",
-                   help="default: the toolkit's own (evalkit/thresholds.toml)")
+    p = sub.add_parser(
+        "check", help="run declared accuracy cases against their thresholds: table, JUnit XML, exit 1 on any regression"
+    )
+    p.add_argument(
+        "thresholds",
+        nargs="?",
+        default=str(DEFAULT_THRESHOLDS),
+        metavar="THRESHOLDS.toml",
+        help="default: the toolkit's own (evalkit/thresholds.toml)",
+    )
     p.add_argument("--case", nargs="+", metavar="NAME", help="only these cases")
-    p.add_argument("--out", default="out/check", metavar="DIR", help="runs, and on failure images, references and error maps (default out/check)")
+    p.add_argument(
+        "--out",
+        default="out/check",
+        metavar="DIR",
+        help="runs, and on failure images, references and error maps (default out/check)",
+    )
     p.add_argument("--junit", metavar="FILE", help="JUnit XML (default DIR/junit.xml)")
-    p.add_argument("--calibrate", metavar="SEEDS", help="instead: run each case over seeds, e.g. 0-4, and print the spread")
+    p.add_argument(
+        "--calibrate", metavar="SEEDS", help="instead: run each case over seeds, e.g. 0-4, and print the spread"
+    )
     p.set_defaults(run=_check)
 
-    p = sub.add_parser("tune", help="the settings with the least predicted error within a time budget, from fitted time and error models, checked by a render")
+    p = sub.add_parser(
+        "tune",
+        help="the settings with the least predicted error within a time budget, from fitted time and error models, checked by a render",
+    )
     p.add_argument("scene", help="a built-in name or a scene file")
-    p.add_argument("--budget", type=float, required=True, metavar="SECONDS", help="render time (every frame, after shader compilation)")
+    p.add_argument(
+        "--budget",
+        type=float,
+        required=True,
+        metavar="SECONDS",
+        help="render time (every frame, after shader compilation)",
+    )
     p.add_argument("--method", default="both", metavar="perfect|imperfect|both", help="default both")
-    p.add_argument("--metric", default="indirect_relmse", metavar="IMAGE_METRIC",
-                   help="what to minimise against the Mitsuba reference, e.g. indirect_relmse (default), total_relmse, total_flip")
+    p.add_argument(
+        "--metric",
+        default="indirect_relmse",
+        metavar="IMAGE_METRIC",
+        help="what to minimise against the Mitsuba reference, e.g. indirect_relmse (default), total_relmse, total_flip",
+    )
     p.add_argument("--width", type=_positive_int, default=128)
     p.add_argument("--height", type=_positive_int, default=128)
     p.add_argument("--bounces", type=_positive_int, default=3)
     p.add_argument("--spp", type=_positive_int, default=16, help="eye paths per pixel per frame (default 16)")
     p.add_argument("--reference-spp", type=_positive_int, default=16384, help="the Mitsuba reference's (default 16384)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--calibration-share", type=_positive_float, default=CALIBRATION_SHARE, metavar="X",
-                   help=f"the calibration's render time in budgets (default {CALIBRATION_SHARE:g}; each run renders at least one frame)")
+    p.add_argument(
+        "--calibration-share",
+        type=_positive_float,
+        default=CALIBRATION_SHARE,
+        metavar="X",
+        help=f"the calibration's render time in budgets (default {CALIBRATION_SHARE:g}; each run renders at least one frame)",
+    )
     p.add_argument("--no-check", action="store_true", help="recommend without rendering the recommendation")
-    p.add_argument("--grid", metavar="DIR", help="a grid study's folder (studies/tune_check.toml): compare with its best run within the budget")
+    p.add_argument(
+        "--grid",
+        metavar="DIR",
+        help="a grid study's folder (studies/tune_check.toml): compare with its best run within the budget",
+    )
     p.add_argument("--out", metavar="DIR", help="default: out/tune/<scene>")
-    p.add_argument("--json", action="store_true", help="print one JSON object: recommended, predicted, measured, models")
+    p.add_argument(
+        "--json", action="store_true", help="print one JSON object: recommended, predicted, measured, models"
+    )
     p.set_defaults(run=_tune)
 
-    p = sub.add_parser("demo", help="the main job: perfect and imperfect bundles on cornell-box against Mitsuba and Embree, every metric, a report")
+    p = sub.add_parser(
+        "demo",
+        help="the main job: perfect and imperfect bundles on cornell-box against Mitsuba and Embree, every metric, a report",
+    )
     p.add_argument("--out", default="out/demo", metavar="DIR", help="default: out/demo")
     p.set_defaults(run=_demo)
 
-
-    p = sub.add_parser("reference", help="Mitsuba 3 path-traced direct, indirect and total images with variances (stored, reused, resumable)")
+    p = sub.add_parser(
+        "reference",
+        help="Mitsuba 3 path-traced direct, indirect and total images with variances (stored, reused, resumable)",
+    )
     p.add_argument("scene", help="a built-in name or a scene file")
     p.add_argument("--bounces", type=int, default=1, metavar="B", help="indirect bounces (default 1)")
     p.add_argument("--spp", type=_positive_int, default=1024, help="samples per pixel (default 1024)")
     p.add_argument("--width", type=_positive_int, default=None, help="default: the scene camera's")
     p.add_argument("--height", type=_positive_int, default=None, help="default: the scene camera's")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--time", type=float, default=0.0, help="animated scenes: the time (s) to pose the scene at (default 0)")
-    p.add_argument("--chunks", type=_positive_int, default=None, help="spp chunks (progress, resume, variance; default min(32, spp))")
-    p.add_argument("--variant", default=None, help="Mitsuba variant (default: cuda_ad_rgb with a GPU, else llvm_ad_rgb, else scalar_rgb)")
+    p.add_argument(
+        "--time", type=float, default=0.0, help="animated scenes: the time (s) to pose the scene at (default 0)"
+    )
+    p.add_argument(
+        "--chunks",
+        type=_positive_int,
+        default=None,
+        help="spp chunks (progress, resume, variance; default min(32, spp))",
+    )
+    p.add_argument(
+        "--variant",
+        default=None,
+        help="Mitsuba variant (default: cuda_ad_rgb with a GPU, else llvm_ad_rgb, else scalar_rgb)",
+    )
     p.add_argument("--store", default=str(DEFAULT_STORE), help=f"reference store (default {DEFAULT_STORE})")
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--json", action="store_true")

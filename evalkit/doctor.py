@@ -86,8 +86,9 @@ FIXES = {
 def run_probe(name: str) -> dict:
     """Run one probe in a child process; a crash, an abort or a hang becomes a problem report."""
     try:
-        done = subprocess.run([sys.executable, "-m", "evalkit.doctor", name], capture_output=True, text=True,
-                              timeout=PROBE_TIMEOUT_S)
+        done = subprocess.run(
+            [sys.executable, "-m", "evalkit.doctor", name], capture_output=True, text=True, timeout=PROBE_TIMEOUT_S
+        )
     except subprocess.TimeoutExpired:
         return {"ok": False, "problem": f"the probe hung for {PROBE_TIMEOUT_S} s", "fix": FIXES[name]}
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
@@ -112,8 +113,10 @@ def report_lines(results: dict) -> list[str]:
     if "renderer" in gl:
         lines.append(f"GL       {gl['vendor']} | {gl['renderer']} | {gl['version']} (EGL device {gl['device_index']})")
     if "mitsuba" in mi:
-        lines.append(f"Mitsuba  {mi['mitsuba']} (drjit {mi['drjit']}), variant {mi['variant']}, "
-                     f"LLVM {mi['llvm_version'] or '-'} from {mi['llvm_path'] or '-'}")
+        lines.append(
+            f"Mitsuba  {mi['mitsuba']} (drjit {mi['drjit']}), variant {mi['variant']}, "
+            f"LLVM {mi['llvm_version'] or '-'} from {mi['llvm_path'] or '-'}"
+        )
     if "embree" in em:
         lines.append(f"Embree   {em['embree']} (embreex {em['embreex']})")
     for name, r in results.items():

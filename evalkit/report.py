@@ -31,7 +31,11 @@ def varying(study: Study) -> list[str]:
 
 def metric_columns(rows: list[dict]) -> list[str]:
     params = set(RUN_DEFAULTS) | {"run_id", "status", "scene_hash", "warnings", "reference", "gl_renderer"}
-    return [k for k in dict.fromkeys(k for r in rows for k in r) if k not in params and not k.startswith(("version_", "hole_rate_slope"))]
+    return [
+        k
+        for k in dict.fromkeys(k for r in rows for k in r)
+        if k not in params and not k.startswith(("version_", "hole_rate_slope"))
+    ]
 
 
 def _fmt(value) -> str:
@@ -75,10 +79,14 @@ def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
     for r in rows:
         if is_number(r.get(x)) and is_number(r.get(y)) and r[x] > 0 and r[y] > 0:
             groups.setdefault(setting_id(r), []).append(r)
-    points = [(g[0], float(np.median([r[x] for r in g])), float(np.mean([r[y] for r in g])), len(g)) for g in groups.values()]
+    points = [
+        (g[0], float(np.median([r[x] for r in g])), float(np.mean([r[y] for r in g])), len(g)) for g in groups.values()
+    ]
     result = []
     for first, tx, ty, seeds in points:
-        mitsuba = sorted((px, py) for f, px, py, _ in points if f["scene"] == first["scene"] and f["method"] == "mitsuba")
+        mitsuba = sorted(
+            (px, py) for f, px, py, _ in points if f["scene"] == first["scene"] and f["method"] == "mitsuba"
+        )
         if first["method"] == "mitsuba" or len(mitsuba) < 2:
             continue
         row = {k: first[k] for k in ("scene", "method", "frames", "spp", "directions", "resolution")}
@@ -120,11 +128,21 @@ def plot(rows: list[dict], spec: dict, path: Path) -> str:
         series = list(dict.fromkeys((r["method"], tuple(r.get(k) for k in group)) for r in sub))
         for y in ys:
             for method, g in series:
-                members = [r for r in sub if r["method"] == method and tuple(r.get(k) for k in group) == g
-                           and is_number(r.get(y)) and (r[y] > 0 or "y" not in spec.get("log", ""))]
+                members = [
+                    r
+                    for r in sub
+                    if r["method"] == method
+                    and tuple(r.get(k) for k in group) == g
+                    and is_number(r.get(y))
+                    and (r[y] > 0 or "y" not in spec.get("log", ""))
+                ]
                 parts = [y] if len(ys) > 1 else []
                 parts += [method] if len(methods) > 1 else []
-                parts += [f"{k}={v}" for k, v in zip(group, g) if k != "method" and (method == "imperfect" or k not in IMPERFECT_ONLY)]
+                parts += [
+                    f"{k}={v}"
+                    for k, v in zip(group, g)
+                    if k != "method" and (method == "imperfect" or k not in IMPERFECT_ONLY)
+                ]
                 label = ", ".join(parts) or y
                 if method != "imperfect" and spec["x"] in IMPERFECT_ONLY:
                     # A method without splats is a baseline across the splat parameters.
@@ -136,8 +154,15 @@ def plot(rows: list[dict], spec: dict, path: Path) -> str:
                     ax.plot(*zip(*pts), marker="o", label=label)
         if spec.get("pareto"):
             front = pareto_front(sub, spec["x"], ys[0])
-            ax.step([r[spec["x"]] for r in front], [r[ys[0]] for r in front], where="post", color="k", lw=2, alpha=0.4,
-                    label="Pareto front")
+            ax.step(
+                [r[spec["x"]] for r in front],
+                [r[ys[0]] for r in front],
+                where="post",
+                color="k",
+                lw=2,
+                alpha=0.4,
+                label="Pareto front",
+            )
         if "x" in spec.get("log", ""):
             ax.set_xscale("log")
         if "y" in spec.get("log", ""):
@@ -177,22 +202,28 @@ def bias_variance_rows(study: Study, rows: list[dict], out: Path) -> list[dict]:
 
 def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: list[dict]) -> Path:
     ok = [r for r in rows if r.get("status") == "ok"]
-    parts = [f"<h1>{html.escape(study.title)}</h1>",
-             f"<p>{html.escape(study.description)}</p>" if study.description else "",
-             f"<p><b>Reduced sizes:</b> {html.escape(study.reduced)}</p>" if study.reduced else "",
-             f"<p><b>Command:</b> <code>{html.escape(meta['command'])}</code><br><b>Finished:</b> {meta['finished']}, "
-             f"{len(ok)} of {len(rows)} runs ok ({meta['executor']}, {meta['workers']} worker(s))</p>",
-             "<p><b>Versions:</b> " + ", ".join(f"{html.escape(k)} {html.escape(str(v))}" for k, v in meta["versions"].items())
-             + (f", GL {html.escape(str(ok[0].get('gl_renderer')))}" if ok and ok[0].get("gl_renderer") else "") + "</p>",
-             f"<p>Metric definitions: relMSE = mean (t - r)^2 / (r^2 + 0.01); SMAPE = mean |t - r| / (|t| + |r| + 0.01); "
-             f"FLIP is HDR-FLIP at 67 ppd; Delta E 2000 after exposure {REPORT_EXPOSURE:g} and clipping to [0, 1]. "
-             f"Bundle rates are against Embree's exact bundles on the same lines (evalkit/metrics/bundles.py). "
-             f"Images below: exposure {REPORT_EXPOSURE:g}, sRGB.</p>"]
+    parts = [
+        f"<h1>{html.escape(study.title)}</h1>",
+        f"<p>{html.escape(study.description)}</p>" if study.description else "",
+        f"<p><b>Reduced sizes:</b> {html.escape(study.reduced)}</p>" if study.reduced else "",
+        f"<p><b>Command:</b> <code>{html.escape(meta['command'])}</code><br><b>Finished:</b> {meta['finished']}, "
+        f"{len(ok)} of {len(rows)} runs ok ({meta['executor']}, {meta['workers']} worker(s))</p>",
+        "<p><b>Versions:</b> "
+        + ", ".join(f"{html.escape(k)} {html.escape(str(v))}" for k, v in meta["versions"].items())
+        + (f", GL {html.escape(str(ok[0].get('gl_renderer')))}" if ok and ok[0].get("gl_renderer") else "")
+        + "</p>",
+        f"<p>Metric definitions: relMSE = mean (t - r)^2 / (r^2 + 0.01); SMAPE = mean |t - r| / (|t| + |r| + 0.01); "
+        f"FLIP is HDR-FLIP at 67 ppd; Delta E 2000 after exposure {REPORT_EXPOSURE:g} and clipping to [0, 1]. "
+        f"Bundle rates are against Embree's exact bundles on the same lines (evalkit/metrics/bundles.py). "
+        f"Images below: exposure {REPORT_EXPOSURE:g}, sRGB.</p>",
+    ]
     if failed:
         parts.append("<h2>Failed runs</h2>" + table_html(failed, ["run_id", *varying(study), "status"]))
     columns = study.report.get("columns") or ["run_id", *varying(study), *metric_columns(ok)]
-    parts.append("<h2>Results</h2><p>Every column of every run is in <a href='results.csv'>results.csv</a>.</p>"
-                 + table_html(ok, [c for c in columns if any(c in r for r in ok)]))
+    parts.append(
+        "<h2>Results</h2><p>Every column of every run is in <a href='results.csv'>results.csv</a>.</p>"
+        + table_html(ok, [c for c in columns if any(c in r for r in ok)])
+    )
 
     for i, spec in enumerate(study.plots):
         title = plot(ok, spec, out / "plots" / f"plot{i}.png")
@@ -200,61 +231,93 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
         if spec.get("pareto"):
             ys = spec["y"] if isinstance(spec["y"], list) else [spec["y"]]
             facet = spec.get("facet", "scene")
-            front = [r for fv in dict.fromkeys(r.get(facet) for r in ok)
-                     for r in pareto_front([r for r in ok if r.get(facet) == fv], spec["x"], ys[0])]
-            parts.append("<p>Pareto front per panel (no run is both faster and more accurate):</p>"
-                         + table_html(front, ["run_id", *varying(study), spec["x"], ys[0]]))
+            front = [
+                r
+                for fv in dict.fromkeys(r.get(facet) for r in ok)
+                for r in pareto_front([r for r in ok if r.get(facet) == fv], spec["x"], ys[0])
+            ]
+            parts.append(
+                "<p>Pareto front per panel (no run is both faster and more accurate):</p>"
+                + table_html(front, ["run_id", *varying(study), spec["x"], ys[0]])
+            )
             matched = matched_time_rows(ok, spec["x"], ys[0])
             if matched:
-                parts.append(f"<p>At matched {html.escape(spec['x'])}: each bundle setting's mean {html.escape(ys[0])} over "
-                             f"its seeds beside Mitsuba's, interpolated in log-log between Mitsuba's settings of the same "
-                             f"scene (ratio below 1: the bundles are the more accurate).</p>"
-                             + table_html(matched, list(dict.fromkeys(k for r in matched for k in r))))
+                parts.append(
+                    f"<p>At matched {html.escape(spec['x'])}: each bundle setting's mean {html.escape(ys[0])} over "
+                    f"its seeds beside Mitsuba's, interpolated in log-log between Mitsuba's settings of the same "
+                    f"scene (ratio below 1: the bundles are the more accurate).</p>"
+                    + table_html(matched, list(dict.fromkeys(k for r in matched for k in r)))
+                )
 
     bv = bias_variance_rows(study, ok, out)
     if bv:
-        parts.append("<h2>Bias and variance over seeds</h2><p>relMSE per seed (mean, std, range), split into variance "
-                     "(mean over pixels of the seeds' variance, weighted as relMSE) and bias^2 (the seeds' mean image "
-                     "against the reference, less the noise of both; can be slightly negative when the bias is below the noise). "
-                     "Celarek et al., CGF 2019.</p>"
-                     + table_html(bv, [*[k for k in bv[0] if k not in ("seeds", "epsilon")], "seeds"]))
+        parts.append(
+            "<h2>Bias and variance over seeds</h2><p>relMSE per seed (mean, std, range), split into variance "
+            "(mean over pixels of the seeds' variance, weighted as relMSE) and bias^2 (the seeds' mean image "
+            "against the reference, less the noise of both; can be slightly negative when the bias is below the "
+            "noise). "
+            "Celarek et al., CGF 2019.</p>"
+            + table_html(bv, [*[k for k in bv[0] if k not in ("seeds", "epsilon")], "seeds"])
+        )
 
     if study.hole_model is not None:
         parts.append(_hole_model_section(study, ok, out))
 
-    shown = [r for r in ok if r.get("reference") and r.get("seed") == min(x.get("seed", 0) for x in ok)][: study.report.get("images", IMAGE_CAP)]
+    shown = [r for r in ok if r.get("reference") and r.get("seed") == min(x.get("seed", 0) for x in ok)][
+        : study.report.get("images", IMAGE_CAP)
+    ]
     if shown:
         parts.append("<h2>Images</h2><p>Test, reference, relMSE map and FLIP map (magma, 0 to the value given).</p>")
         for r in shown:
             ref = load_reference(r["reference"])
             for image in study.measure["images"]:
                 key = f"{r['run_id']}_{image}"
-                save_png(tonemap(read_exr(out / "runs" / r["run_id"] / f"{image}.exr")[0]), out / "images" / f"{key}.png")
+                save_png(
+                    tonemap(read_exr(out / "runs" / r["run_id"] / f"{image}.exr")[0]), out / "images" / f"{key}.png"
+                )
                 save_png(tonemap(ref.images[image]), out / "images" / f"{key}_ref.png")
-                cells = [f"<figure><img src='images/{key}.png'><figcaption>{html.escape(r['method'])} {image}</figcaption></figure>",
-                         f"<figure><img src='images/{key}_ref.png'><figcaption>reference {image}</figcaption></figure>"]
+                cells = [
+                    f"<figure><img src='images/{key}.png'>"
+                    f"<figcaption>{html.escape(r['method'])} {image}</figcaption></figure>",
+                    f"<figure><img src='images/{key}_ref.png'><figcaption>reference {image}</figcaption></figure>",
+                ]
                 for metric in ("relmse", "flip"):
                     path = out / "runs" / r["run_id"] / f"{image}_{metric}_map.npy"
                     if path.is_file():
                         vmax = error_map_png(np.load(path), out / "images" / f"{key}_{metric}.png")
-                        cells.append(f"<figure><img src='images/{key}_{metric}.png'><figcaption>{metric} "
-                                     f"{_fmt(r.get(f'{image}_{metric}'))} (0..{vmax:.3g})</figcaption></figure>")
+                        cells.append(
+                            f"<figure><img src='images/{key}_{metric}.png'><figcaption>{metric} "
+                            f"{_fmt(r.get(f'{image}_{metric}'))} (0..{vmax:.3g})</figcaption></figure>"
+                        )
                 label = ", ".join(f"{k}={r[k]}" for k in varying(study))
                 parts.append(f"<div class='row'><p>{html.escape(label)}</p>{''.join(cells)}</div>")
         if len(ok) > len(shown):
-            parts.append(f"<p>{len(shown)} of {len(ok)} runs shown (the first seed, at most {study.report.get('images', IMAGE_CAP)}).</p>")
+            parts.append(
+                f"<p>{len(shown)} of {len(ok)} runs shown "
+                f"(the first seed, at most {study.report.get('images', IMAGE_CAP)}).</p>"
+            )
 
     parts.append(_thresholds_section({r["scene"] for r in rows}))
 
     warnings = sorted({(r["scene"], w) for r in ok for w in (r.get("warnings") or "").split(" | ") if w})
-    parts.append("<h2>Scene warnings</h2>" + ("<ul>" + "".join(f"<li>{html.escape(s)}: {html.escape(w)}</li>" for s, w in warnings)
-                                            + "</ul>" if warnings else "<p>None: no scene needed an approximation.</p>"))
-    style = ("body{font-family:sans-serif;max-width:1400px;margin:2em auto}table{border-collapse:collapse;font-size:12px}"
-             "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}figure{display:inline-block;margin:4px}"
-             "figure img{width:192px;image-rendering:pixelated}figcaption{font-size:11px}")
+    parts.append(
+        "<h2>Scene warnings</h2>"
+        + (
+            "<ul>" + "".join(f"<li>{html.escape(s)}: {html.escape(w)}</li>" for s, w in warnings) + "</ul>"
+            if warnings
+            else "<p>None: no scene needed an approximation.</p>"
+        )
+    )
+    style = (
+        "body{font-family:sans-serif;max-width:1400px;margin:2em auto}table{border-collapse:collapse;font-size:12px}"
+        "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}figure{display:inline-block;margin:4px}"
+        "figure img{width:192px;image-rendering:pixelated}figcaption{font-size:11px}"
+    )
     path = out / "report.html"
-    path.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(study.title)}</title>"
-                    f"<style>{style}</style></head><body>{''.join(parts)}</body></html>\n")
+    path.write_text(
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(study.title)}</title>"
+        f"<style>{style}</style></head><body>{''.join(parts)}</body></html>\n"
+    )
     return path
 
 
@@ -277,15 +340,28 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
         for f in fits:
             if (f["scene"], f["sampler"]) != (scene, sampler) or f["points"] == "all":
                 continue
-            mine = sorted((r for r in imperfect if r["scene"] == scene and r.get("sampler", "random") == sampler
-                           and int(r["points"]) == f["points"]), key=lambda r: r["splat_scale"])
+            mine = sorted(
+                (
+                    r
+                    for r in imperfect
+                    if r["scene"] == scene and r.get("sampler", "random") == sampler and int(r["points"]) == f["points"]
+                ),
+                key=lambda r: r["splat_scale"],
+            )
             holes = [max(r["hole_rate"], 1 / r["exact_nodes"]) for r in mine]
             line = ax.plot([r["splat_scale"] for r in mine], holes, "o", label=f"measured N={f['points']}")[0]
             s = np.linspace(mine[0]["splat_scale"], mine[-1]["splat_scale"], 100)
-            ax.plot(s, hole_rate_model(s**2, f["c"], f["h0"], f["q"]), "-", color=line.get_color(),
-                    label=f"{f['h0']:.2g} + {1 - f['h0']:.2g} exp(-{f['c']:.3g} s^{f['q']:.2g})")
+            ax.plot(
+                s,
+                hole_rate_model(s**2, f["c"], f["h0"], f["q"]),
+                "-",
+                color=line.get_color(),
+                label=f"{f['h0']:.2g} + {1 - f['h0']:.2g} exp(-{f['c']:.3g} s^{f['q']:.2g})",
+            )
             ax.axvline(f["splat_scale"], color=line.get_color(), ls=":", lw=1)
-            cost_ax.plot([r["nodes_per_crossing"] for r in mine], holes, "o-", color=line.get_color(), label=f"N={f['points']}")
+            cost_ax.plot(
+                [r["nodes_per_crossing"] for r in mine], holes, "o-", color=line.get_color(), label=f"N={f['points']}"
+            )
         ax.set_yscale("log")
         ax.set_xlabel("splat scale s (radius / sqrt(A / (pi N)))")
         ax.set_ylabel("hole rate")
@@ -300,19 +376,39 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
     fig.tight_layout()
     fig.savefig(out / "plots" / "hole_model.png", dpi=90)
     plt.close(fig)
-    columns = ["scene", "sampler", "points", "c", "q", "h0", "c_nodes", "samples", "median_ratio_error", "max_ratio_error",
-               "max_abs_error", "splat_scale", "searched", "predicted_hole_rate", "predicted_cost", "measured_best_scale",
-               "nearest_grid_scale", "regret"]
-    return ("<h2>Hole model</h2><p>P(hole) = h0 + (1 - h0) exp(-c s^q) and nodes per surface crossing before merging "
-            "= c_n s^2, fitted per scene, sampler and point count in log space with Dr.Jit AD (independent points, ideally: "
-            "c = c_n = 1, q = 2, h0 = 0; stratified points leave fewer holes, q > 2; h0 is the floor of crossings whose "
-            "splats lie in a neighbouring triangle's plane, see evalkit/metrics/hole_model.py). Ratio errors are "
-            "|ln(predicted / measured)| of the hole rate. "
-            f"The recommended splat scale minimises hole rate + {node_cost:g} x nodes per crossing (gradient descent with "
-            "Dr.Jit AD; a direct search beside it as a check); regret is the measured cost at the grid scale nearest the "
-            "recommendation over the measured best cost, less 1. Below each fit, the hole rate against the nodes per "
-            "crossing it costs.</p>"
-            "<img src='plots/hole_model.png'>" + table_html(fits, columns))
+    columns = [
+        "scene",
+        "sampler",
+        "points",
+        "c",
+        "q",
+        "h0",
+        "c_nodes",
+        "samples",
+        "median_ratio_error",
+        "max_ratio_error",
+        "max_abs_error",
+        "splat_scale",
+        "searched",
+        "predicted_hole_rate",
+        "predicted_cost",
+        "measured_best_scale",
+        "nearest_grid_scale",
+        "regret",
+    ]
+    return (
+        "<h2>Hole model</h2><p>P(hole) = h0 + (1 - h0) exp(-c s^q) and nodes per surface crossing before merging "
+        "= c_n s^2, fitted per scene, sampler and point count in log space with Dr.Jit AD (independent points, "
+        "ideally: "
+        "c = c_n = 1, q = 2, h0 = 0; stratified points leave fewer holes, q > 2; h0 is the floor of crossings whose "
+        "splats lie in a neighbouring triangle's plane, see evalkit/metrics/hole_model.py). Ratio errors are "
+        "|ln(predicted / measured)| of the hole rate. "
+        f"The recommended splat scale minimises hole rate + {node_cost:g} x nodes per crossing (gradient descent with "
+        "Dr.Jit AD; a direct search beside it as a check); regret is the measured cost at the grid scale nearest the "
+        "recommendation over the measured best cost, less 1. Below each fit, the hole rate against the nodes per "
+        "crossing it costs.</p>"
+        "<img src='plots/hole_model.png'>" + table_html(fits, columns)
+    )
 
 
 def _thresholds_section(scenes: set[str]) -> str:
@@ -320,9 +416,19 @@ def _thresholds_section(scenes: set[str]) -> str:
     cases = [c for c in load_thresholds(DEFAULT_THRESHOLDS) if c.runs[0]["scene"] in scenes]
     if not cases:
         return ""
-    rows = [{"case": c.name, "metric": c.metric, "kind": c.kind,
-             "threshold": c.threshold if c.kind != "falls" else f"x{1 + c.tolerance:g} per step over {c.sweep}",
-             "why": c.why, "calibration": c.calibration} for c in cases]
-    return ("<h2>Declared accuracy thresholds</h2><p>From evalkit/thresholds.toml, which <code>evalkit check</code> and "
-            "the test suite run; the runs above are not these cases unless their parameters match.</p>"
-            + table_html(rows, ["case", "metric", "kind", "threshold", "why", "calibration"]))
+    rows = [
+        {
+            "case": c.name,
+            "metric": c.metric,
+            "kind": c.kind,
+            "threshold": c.threshold if c.kind != "falls" else f"x{1 + c.tolerance:g} per step over {c.sweep}",
+            "why": c.why,
+            "calibration": c.calibration,
+        }
+        for c in cases
+    ]
+    return (
+        "<h2>Declared accuracy thresholds</h2><p>From evalkit/thresholds.toml, which <code>evalkit check</code> and "
+        "the test suite run; the runs above are not these cases unless their parameters match.</p>"
+        + table_html(rows, ["case", "metric", "kind", "threshold", "why", "calibration"])
+    )

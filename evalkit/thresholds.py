@@ -55,7 +55,10 @@ def load_thresholds(path: str | os.PathLike = DEFAULT_THRESHOLDS) -> list[Case]:
             raise InputError(where, f"kind '{c['kind']}' is not one of {', '.join(KINDS)}")
         if c["kind"] == "falls":
             if not isinstance(c.get("sweep"), dict) or len(c["sweep"]) != 1 or "tolerance" not in c:
-                raise InputError(where, "a 'falls' case needs tolerance and a sweep of one parameter, e.g. sweep = {directions = [8, 32]}")
+                raise InputError(
+                    where,
+                    "a 'falls' case needs tolerance and a sweep of one parameter, e.g. sweep = {directions = [8, 32]}",
+                )
         elif "threshold" not in c:
             raise InputError(where, "needs a threshold")
         base = {**RUN_DEFAULTS, **c.get("run", {})}
@@ -64,8 +67,20 @@ def load_thresholds(path: str | os.PathLike = DEFAULT_THRESHOLDS) -> list[Case]:
         for run in runs:
             validate_run(run, where)
         measure = measure_settings(c.get("measure", {}), where)
-        cases.append(Case(c["name"], c["metric"], c["kind"], c.get("threshold"), c.get("tolerance"), c["why"],
-                          c["calibration"], runs, measure, sweep))
+        cases.append(
+            Case(
+                c["name"],
+                c["metric"],
+                c["kind"],
+                c.get("threshold"),
+                c.get("tolerance"),
+                c["why"],
+                c["calibration"],
+                runs,
+                measure,
+                sweep,
+            )
+        )
     if not cases:
         raise InputError(str(path), "no [[case]] tables")
     return cases

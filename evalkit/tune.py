@@ -88,9 +88,21 @@ HOLE_SHAPE = {"stratified": (1.26, 2.42), "random": (0.99, 1.95)}
 # recommendation at half its measured error).
 CALIBRATION = {
     "perfect": [(8, 64), (32, 64), (8, 128), (32, 128), (16, 96), (64, 128), (8, 192), (16, 256), (16, 128), (32, 64)],
-    "imperfect": [(8, 64, 4096, 1.8), (32, 128, 16384, 1.8), (32, 64, 16384, 1.4), (8, 128, 4096, 2.4), (16, 96, 8192, 1.8),
-                  (32, 128, 4096, 2.2), (16, 64, 16384, 2.4), (64, 128, 16384, 1.6), (8, 96, 65536, 2.2), (16, 64, 32768, 1.6),
-                  (8, 192, 32768, 2.0), (16, 128, 65536, 1.8), (32, 64, 8192, 2.0)],
+    "imperfect": [
+        (8, 64, 4096, 1.8),
+        (32, 128, 16384, 1.8),
+        (32, 64, 16384, 1.4),
+        (8, 128, 4096, 2.4),
+        (16, 96, 8192, 1.8),
+        (32, 128, 4096, 2.2),
+        (16, 64, 16384, 2.4),
+        (64, 128, 16384, 1.6),
+        (8, 96, 65536, 2.2),
+        (16, 64, 32768, 1.6),
+        (8, 192, 32768, 2.0),
+        (16, 128, 65536, 1.8),
+        (32, 64, 8192, 2.0),
+    ],
 }
 LONG = 3  # the share of each method's last two calibration runs, in units of the others'
 CALIBRATION_SHARE = 2.0  # the calibration's render time, in budgets (each run renders at least one frame)
@@ -101,14 +113,19 @@ CALIBRATION_SHARE = 2.0  # the calibration's render time, in budgets (each run r
 # prediction from the spread runs alone).
 SPREAD = 0.5
 MAX_FRAMES = 100_000  # a calibration run's frame limit: its time budget ends it long before
-TIME_TERMS = {"perfect": ("t_once", "t0", "t_lists", "t_dirs"), "imperfect": ("t_once", "t0", "t_lists", "t_points", "t_nodes")}
+TIME_TERMS = {
+    "perfect": ("t_once", "t0", "t_lists", "t_dirs"),
+    "imperfect": ("t_once", "t0", "t_lists", "t_points", "t_nodes"),
+}
 ERROR_TERMS = {"perfect": ("b", "v", "w"), "imperfect": ("b", "v", "w", "h", "g")}
 
 
 def time_features(method: str, K, R, N, s, F) -> list:
     """The time model's terms without their constants (works on numpy arrays and Dr.Jit floats)."""
     lists = K * R * R * 1e-6
-    per_frame = [F, F * lists, F * K * 1e-3] if method == "perfect" else [F, F * lists, F * K * N * 1e-6, F * lists * s * s]
+    per_frame = (
+        [F, F * lists, F * K * 1e-3] if method == "perfect" else [F, F * lists, F * K * N * 1e-6, F * lists * s * s]
+    )
     return [F * 0.0 + 1.0, *per_frame]
 
 
@@ -124,6 +141,7 @@ def error_features(method: str, K, R, N, s, F, xp=np, sampler: str = "stratified
 @dataclass
 class Model:
     """Positive constants of a sum of terms, fitted to rows; `predict` evaluates it."""
+
     method: str
     kind: str  # "time" (seconds for F frames) or "error"
     constants: dict
@@ -145,20 +163,26 @@ class Model:
         return float(np.sqrt(np.mean(np.square(self.residuals)))) if self.residuals else float("nan")
 
 
-def fit_model(method: str, kind: str, rows: list[dict], metric: str | None = None, sampler: str = "stratified") -> Model:
+def fit_model(
+    method: str, kind: str, rows: list[dict], metric: str | None = None, sampler: str = "stratified"
+) -> Model:
     """Fit the time model (to ``wall_s``) or the error model (to ``metric``) of ``method`` to rows of
     calibration runs (their frames: ``frames_rendered``), by Dr.Jit AD on the squared log residuals."""
     names = (TIME_TERMS if kind == "time" else ERROR_TERMS)[method]
     target_key = "wall_s" if kind == "time" else metric
     rows = [r for r in rows if r.get("method") == method and is_number(r.get(target_key))]
     if len(rows) < len(names):
-        raise InputError("tune", f"{len(rows)} usable {method} calibration rows for the {kind} model; it needs at least {len(names)}")
+        raise InputError(
+            "tune", f"{len(rows)} usable {method} calibration rows for the {kind} model; it needs at least {len(names)}"
+        )
     K, R, N, s = (np.array([float(r[k]) for r in rows]) for k in ("directions", "resolution", "points", "splat_scale"))
     F = np.array([float(r["frames_rendered"]) for r in rows])
     target = np.array([float(r[target_key]) for r in rows])
     weight = np.array([float(r.get("weight", 1.0)) for r in rows])
     if np.any(target <= 0):
-        raise InputError("tune", f"a {method} calibration row has {target_key} <= 0; the {kind} model needs positive values")
+        raise InputError(
+            "tune", f"a {method} calibration row has {target_key} <= 0; the {kind} model needs positive values"
+        )
     skeleton = Model(method, kind, dict.fromkeys(names, 1.0), [], sampler)
     features = [np.broadcast_to(np.asarray(t, dtype=np.float64), target.shape) for t in skeleton.terms(K, R, N, s, F)]
     # A render's once-only cost cannot be told from a frame's when every row rendered as many
@@ -166,10 +190,12 @@ def fit_model(method: str, kind: str, rows: list[dict], metric: str | None = Non
     # frame, which over-predicts a longer render rather than under-predicting it.
     warning = ""
     fitted = list(names)
-    if kind == "time" and np.all(F == F[0]):
+    if kind == "time" and np.all(F[0] == F):
         fitted.remove("t_once")
-        warning = (f"every {method} calibration run rendered {F[0]:g} frame(s), so the time model counts the once-per-render "
-                   f"cost per frame and over-predicts longer renders; a larger --calibration-share or budget separates them")
+        warning = (
+            f"every {method} calibration run rendered {F[0]:g} frame(s), so the time model counts the once-per-render "
+            f"cost per frame and over-predicts longer renders; a larger --calibration-share or budget separates them"
+        )
     features = [f for name, f in zip(names, features) if name in fitted]
     log_target = np.log(target)
     # A start where every term carries an equal share of the mean target.
@@ -195,7 +221,12 @@ class Recommendation:
     predicted_error: float
 
     def as_dict(self) -> dict:
-        return {"method": self.method, **self.settings, "predicted_time_s": self.predicted_time_s, "predicted_error": self.predicted_error}
+        return {
+            "method": self.method,
+            **self.settings,
+            "predicted_time_s": self.predicted_time_s,
+            "predicted_error": self.predicted_error,
+        }
 
 
 def optimise(time_model: Model, error_model: Model, budget: float) -> Recommendation:
@@ -208,10 +239,15 @@ def optimise(time_model: Model, error_model: Model, budget: float) -> Recommenda
     def frame_time(K, R, N, s):
         return time_model.predict(K, R, N, s, 1.0) - t_once
 
-    cheapest = float(time_model.predict(GRID["directions"][0], GRID["resolution"][0], GRID["points"][0], GRID["splat_scale"][0], 1))
+    cheapest = float(
+        time_model.predict(GRID["directions"][0], GRID["resolution"][0], GRID["points"][0], GRID["splat_scale"][0], 1)
+    )
     if budget < cheapest:
-        raise InputError("tune", f"a budget of {budget:g} s is below the cheapest {method} setting (K={GRID['directions'][0]}, "
-                                 f"R={GRID['resolution'][0]}, 1 frame: {cheapest:.3g} s predicted); give at least {cheapest:.3g} s")
+        raise InputError(
+            "tune",
+            f"a budget of {budget:g} s is below the cheapest {method} setting (K={GRID['directions'][0]}, "
+            f"R={GRID['resolution'][0]}, 1 frame: {cheapest:.3g} s predicted); give at least {cheapest:.3g} s",
+        )
     _, Float = drjit()
     lo = {a: GRID[a][0] for a in axes}
     hi = {a: GRID[a][-1] for a in axes}
@@ -245,7 +281,9 @@ def optimise(time_model: Model, error_model: Model, budget: float) -> Recommenda
             continue
         error = float(error_model.predict(K, R, N, s, frames))
         if best is None or error < best.predicted_error:
-            best = Recommendation(method, {**candidate, "frames": frames}, float(time_model.predict(K, R, N, s, frames)), error)
+            best = Recommendation(
+                method, {**candidate, "frames": frames}, float(time_model.predict(K, R, N, s, frames)), error
+            )
     if best is None:  # the continuous optimum's neighbours all cost over a frame of the budget
         raise InputError("tune", f"no {method} setting near the optimum fits {budget:g} s; give a larger budget")
     return best
@@ -271,9 +309,20 @@ def calibration_grid(methods: tuple[str, ...], seconds: float) -> list[dict]:
     unit = seconds / sum(sum(v) for v in shares.values())
     grid = []
     for method in methods:
-        keys = ("directions", "resolution") if method == "perfect" else ("directions", "resolution", "points", "splat_scale")
+        keys = (
+            ("directions", "resolution")
+            if method == "perfect"
+            else ("directions", "resolution", "points", "splat_scale")
+        )
         for values, share in zip(CALIBRATION[method], shares[method]):
-            grid.append({"method": method, **dict(zip(keys, values)), "time_budget": round(share * unit, 3), "frames": MAX_FRAMES})
+            grid.append(
+                {
+                    "method": method,
+                    **dict(zip(keys, values)),
+                    "time_budget": round(share * unit, 3),
+                    "frames": MAX_FRAMES,
+                }
+            )
     return grid
 
 
@@ -282,6 +331,7 @@ class TunerStudies:
     """The tuner's runs of one scene and image: each set of them a study (`evalkit.study`, cached) in
     its own folder under ``out``, all measured against one reference (rendered once into
     ``out``/references unless the committed store has it)."""
+
     defaults: dict  # scene, seed and the image
     metric: str  # IMAGE_METRIC
     reference_spp: int
@@ -291,23 +341,46 @@ class TunerStudies:
     def run(self, name: str, grid: list[dict]) -> list[dict]:
         """The rows of the runs ``grid`` (in ``out``/``name``); a failed run is an error naming the folder."""
         image, metric = self.metric.split("_", 1)
-        study = study_from_dict({
-            "name": f"tune_{name}", "title": f"evalkit tune: {name} runs of {self.defaults['scene']}",
-            "defaults": self.defaults, "grid": grid,
-            "measure": {"images": [image], "metrics": [metric], "reference_spp": self.reference_spp,
-                        "reference_store": str(self.out / "references")},
-        })
+        study = study_from_dict(
+            {
+                "name": f"tune_{name}",
+                "title": f"evalkit tune: {name} runs of {self.defaults['scene']}",
+                "defaults": self.defaults,
+                "grid": grid,
+                "measure": {
+                    "images": [image],
+                    "metrics": [metric],
+                    "reference_spp": self.reference_spp,
+                    "reference_store": str(self.out / "references"),
+                },
+            }
+        )
         rows = run_study(study, self.out / name, progress=self.progress, command=" ".join(sys.argv))
         failed = [r for r in rows if r["status"] != "ok"]
         if failed:
-            raise InputError(str(self.out / name), f"{len(failed)} of the tuner's runs failed, first: {failed[0]['status']}")
+            raise InputError(
+                str(self.out / name), f"{len(failed)} of the tuner's runs failed, first: {failed[0]['status']}"
+            )
         return rows
 
 
-def tune(scene: str, budget: float, method: str = "both", metric: str = "indirect_relmse", out: str | Path | None = None,
-         width: int = 128, height: int = 128, bounces: int = 3, spp: int = 16, reference_spp: int = 16384, seed: int = 0,
-         calibration_share: float = CALIBRATION_SHARE, check: bool = True, grid: str | Path | None = None,
-         progress=print) -> dict:
+def tune(
+    scene: str,
+    budget: float,
+    method: str = "both",
+    metric: str = "indirect_relmse",
+    out: str | Path | None = None,
+    width: int = 128,
+    height: int = 128,
+    bounces: int = 3,
+    spp: int = 16,
+    reference_spp: int = 16384,
+    seed: int = 0,
+    calibration_share: float = CALIBRATION_SHARE,
+    check: bool = True,
+    grid: str | Path | None = None,
+    progress=print,
+) -> dict:
     """Recommend settings for ``scene`` within ``budget`` seconds of render time, predicted by models
     fitted to a calibration sweep of about ``calibration_share`` x ``budget`` seconds of render time,
     and (``check``) measure the recommendation; ``grid``: a study's folder to compare it with
@@ -322,7 +395,9 @@ def tune(scene: str, budget: float, method: str = "both", metric: str = "indirec
     if not (isinstance(calibration_share, (int, float)) and math.isfinite(calibration_share) and calibration_share > 0):
         raise InputError("tune", f"the calibration share must be a positive number of budgets, got {calibration_share}")
     if grid is not None and not (Path(grid) / "results.jsonl").is_file():
-        raise InputError(str(grid), "no results.jsonl: run the grid study first (evalkit study studies/tune_check.toml)")
+        raise InputError(
+            str(grid), "no results.jsonl: run the grid study first (evalkit study studies/tune_check.toml)"
+        )
     methods = METHODS if method == "both" else (method,)
     out = Path(out or f"out/tune/{Path(scene).stem}")
     image = {"width": width, "height": height, "bounces": bounces, "spp": spp}
@@ -333,7 +408,10 @@ def tune(scene: str, budget: float, method: str = "both", metric: str = "indirec
     models = {m: _fit(m, rows, metric) for m in methods}
     first = {m: optimise(models[m]["time"], models[m]["error"], budget) for m in methods}
     share = round((1 - SPREAD) * seconds / len(methods), 3)
-    anchors = studies.run("refinement", [{**c.settings, "method": m, "frames": MAX_FRAMES, "time_budget": share} for m, c in first.items()])
+    anchors = studies.run(
+        "refinement",
+        [{**c.settings, "method": m, "frames": MAX_FRAMES, "time_budget": share} for m, c in first.items()],
+    )
     rows += [{**r, "weight": len(CALIBRATION[r["method"]]) / 2} for r in anchors]
     models = {m: _fit(m, rows, metric) for m in methods}
     candidates = [optimise(models[m]["time"], models[m]["error"], budget) for m in methods]
@@ -342,24 +420,46 @@ def tune(scene: str, budget: float, method: str = "both", metric: str = "indirec
         # Every method's candidate is rendered and the least measured error wins: between methods
         # the models' residuals (0.1-0.3 in log) are as large as the predicted differences.
         checked = studies.run("check", [{"method": c.method, **c.settings} for c in candidates])
-        measured = {r["method"]: {"time_s": float(r["wall_s"]), "error": float(r[metric]), "run_id": r["run_id"]} for r in checked}
+        measured = {
+            r["method"]: {"time_s": float(r["wall_s"]), "error": float(r[metric]), "run_id": r["run_id"]}
+            for r in checked
+        }
         best = min(candidates, key=lambda c: measured[c.method]["error"])
     else:
         best = min(candidates, key=lambda c: c.predicted_error)
     result = {
-        "scene": scene, "budget_s": budget, "metric": metric, "method": method, "image": image, "seed": seed,
+        "scene": scene,
+        "budget_s": budget,
+        "metric": metric,
+        "method": method,
+        "image": image,
+        "seed": seed,
         "reference_spp": reference_spp,
         "recommended": {"method": best.method, **best.settings, **image},
         "predicted": {"time_s": best.predicted_time_s, "error": best.predicted_error},
         "chosen_by": "measured error" if check else "predicted error",
         "candidates": [{**c.as_dict(), **({"measured": measured[c.method]} if check else {})} for c in candidates],
         **({"measured": measured[best.method]} if check else {}),
-        "models": {m: {kind: {"constants": models[m][kind].constants, "residuals": models[m][kind].residuals,
-                              "rms_log_residual": models[m][kind].rms_residual()} for kind in ("time", "error")} for m in methods},
+        "models": {
+            m: {
+                kind: {
+                    "constants": models[m][kind].constants,
+                    "residuals": models[m][kind].residuals,
+                    "rms_log_residual": models[m][kind].rms_residual(),
+                }
+                for kind in ("time", "error")
+            }
+            for m in methods
+        },
         "first_optimum": [c.as_dict() for c in first.values()],
         "warnings": [model.warning for m in methods for model in models[m].values() if model.warning],
-        "calibration": {"runs": len(rows), "share": calibration_share, "render_s": sum(float(r["wall_s"]) for r in rows),
-                        "run_s": sum(float(r["run_s"]) for r in rows), "folders": [str(out / "calibration"), str(out / "refinement")]},
+        "calibration": {
+            "runs": len(rows),
+            "share": calibration_share,
+            "render_s": sum(float(r["wall_s"]) for r in rows),
+            "run_s": sum(float(r["run_s"]) for r in rows),
+            "folders": [str(out / "calibration"), str(out / "refinement")],
+        },
         "versions": versions(),
     }
     if grid is not None:
@@ -382,16 +482,35 @@ def compare_with_grid(result: dict, folder: Path) -> dict:
     metric, budget = result["metric"], result["budget_s"]
     rows = read_rows(folder)
     if not rows:
-        raise InputError(str(folder), "no results.jsonl rows: run the grid study first (evalkit study studies/tune_check.toml)")
-    same = [r for r in rows if r["status"] == "ok" and Path(r["scene"]).stem == Path(result["scene"]).stem and r.get("time_budget") == budget
-            and all(r.get(k) == v for k, v in result["image"].items()) and is_number(r.get(metric)) and r["wall_s"] <= budget]
+        raise InputError(
+            str(folder), "no results.jsonl rows: run the grid study first (evalkit study studies/tune_check.toml)"
+        )
+    same = [
+        r
+        for r in rows
+        if r["status"] == "ok"
+        and Path(r["scene"]).stem == Path(result["scene"]).stem
+        and r.get("time_budget") == budget
+        and all(r.get(k) == v for k, v in result["image"].items())
+        and is_number(r.get(metric))
+        and r["wall_s"] <= budget
+    ]
     if not same:
         image = result["image"]
-        raise InputError(str(folder), f"no run of {result['scene']} at {image['width']}x{image['height']}, {image['bounces']} bounces, "
-                                      f"{image['spp']} spp with time_budget = {budget:g} measured {metric} within it")
+        raise InputError(
+            str(folder),
+            f"no run of {result['scene']} at {image['width']}x{image['height']}, {image['bounces']} bounces, "
+            f"{image['spp']} spp with time_budget = {budget:g} measured {metric} within it",
+        )
     best = min(same, key=lambda r: r[metric])
-    keys = ("method", "directions", "resolution", "frames_rendered") + (("points", "splat_scale") if best["method"] == "imperfect" else ())
-    out = {"folder": str(folder), "runs": len(same), "best": {**{k: best[k] for k in keys}, "time_s": best["wall_s"], "error": best[metric]}}
+    keys = ("method", "directions", "resolution", "frames_rendered") + (
+        ("points", "splat_scale") if best["method"] == "imperfect" else ()
+    )
+    out = {
+        "folder": str(folder),
+        "runs": len(same),
+        "best": {**{k: best[k] for k in keys}, "time_s": best["wall_s"], "error": best[metric]},
+    }
     if "measured" in result:
         out["ratio"] = result["measured"]["error"] / best[metric]
     return out
@@ -420,13 +539,40 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
         if front:
             ax.plot(*zip(*front), "-", color=colour, label=f"{method}: predicted front")
         mine = [r for r in rows if r["method"] == method]
-        ax.plot([r["wall_s"] for r in mine], [r[metric] for r in mine], "o", color=colour, mfc="none", label=f"{method}: calibration runs")
+        ax.plot(
+            [r["wall_s"] for r in mine],
+            [r[metric] for r in mine],
+            "o",
+            color=colour,
+            mfc="none",
+            label=f"{method}: calibration runs",
+        )
         for c in (c for c in result["candidates"] if c["method"] == method):
-            ax.plot([c["predicted_time_s"]], [c["predicted_error"]], "*", color=colour, ms=11, label=f"{method} optimum: predicted")
+            ax.plot(
+                [c["predicted_time_s"]],
+                [c["predicted_error"]],
+                "*",
+                color=colour,
+                ms=11,
+                label=f"{method} optimum: predicted",
+            )
             if "measured" in c:
-                ax.plot([c["measured"]["time_s"]], [c["measured"]["error"]], "X", color=colour, ms=9, label=f"{method} optimum: measured")
+                ax.plot(
+                    [c["measured"]["time_s"]],
+                    [c["measured"]["error"]],
+                    "X",
+                    color=colour,
+                    ms=9,
+                    label=f"{method} optimum: measured",
+                )
     ax.axvline(budget, color="grey", lw=0.8, ls=":")
-    ax.set(xscale="log", yscale="log", xlabel="render time (s)", ylabel=metric, title=f"{result['scene']}: {metric} against time")
+    ax.set(
+        xscale="log",
+        yscale="log",
+        xlabel="render time (s)",
+        ylabel=metric,
+        title=f"{result['scene']}: {metric} against time",
+    )
     ax.legend(fontsize=7)
     fig.tight_layout()
     png = path.with_suffix(".png")
@@ -446,11 +592,24 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
         *[f"<tr><td>{html.escape(k)}</td><td>{v}</td></tr>" for k, v in rec.items()],
         f"</table><p>Each method's optimum, chosen between by {html.escape(result['chosen_by'])}:</p>",
         "<table><tr><th>candidate</th><th>predicted time (s)</th><th>predicted error</th><th>measured time (s)</th><th>measured error</th></tr>",
-        *[f"<tr><td>{html.escape(settings_text(c))}</td><td>{c['predicted_time_s']:.3g}</td><td>{c['predicted_error']:.4g}</td>"
-          + (f"<td>{c['measured']['time_s']:.3g}</td><td>{c['measured']['error']:.4g}</td>" if "measured" in c else "<td></td><td></td>")
-          + "</tr>" for c in result["candidates"]],
-        *([f"<tr><td>best of {grid['runs']} grid runs: {html.escape(settings_text(grid['best']))}</td><td></td><td></td>"
-           f"<td>{grid['best']['time_s']:.3g}</td><td>{grid['best']['error']:.4g}</td></tr>"] if grid else []),
+        *[
+            f"<tr><td>{html.escape(settings_text(c))}</td><td>{c['predicted_time_s']:.3g}</td><td>{c['predicted_error']:.4g}</td>"
+            + (
+                f"<td>{c['measured']['time_s']:.3g}</td><td>{c['measured']['error']:.4g}</td>"
+                if "measured" in c
+                else "<td></td><td></td>"
+            )
+            + "</tr>"
+            for c in result["candidates"]
+        ],
+        *(
+            [
+                f"<tr><td>best of {grid['runs']} grid runs: {html.escape(settings_text(grid['best']))}</td><td></td><td></td>"
+                f"<td>{grid['best']['time_s']:.3g}</td><td>{grid['best']['error']:.4g}</td></tr>"
+            ]
+            if grid
+            else []
+        ),
         f"</table><p><img src='{png.name}'></p><h2>Fitted models</h2>",
         *[f"<p><b>Warning</b>: {html.escape(w)}</p>" for w in result["warnings"]],
     ]
@@ -458,12 +617,21 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
         for kind, fitted in m.items():
             constants = ", ".join(f"{k} = {v:.4g}" for k, v in fitted["constants"].items())
             residuals = ", ".join(f"{v:+.2f}" for v in fitted["residuals"])
-            lines.append(f"<p><b>{method} {kind}</b>: {constants}; log residuals per run {residuals} "
-                         f"(rms {fitted['rms_log_residual']:.2f})</p>")
+            lines.append(
+                f"<p><b>{method} {kind}</b>: {constants}; log residuals per run {residuals} "
+                f"(rms {fitted['rms_log_residual']:.2f})</p>"
+            )
     path.write_text("\n".join(lines) + "\n")
 
 
 def settings_text(settings: dict) -> str:
     """'perfect K=8 R=256 F=22' and so on, from a candidate's or a grid row's settings."""
-    short = {"directions": "K", "resolution": "R", "points": "N", "splat_scale": "s", "frames": "F", "frames_rendered": "F"}
+    short = {
+        "directions": "K",
+        "resolution": "R",
+        "points": "N",
+        "splat_scale": "s",
+        "frames": "F",
+        "frames_rendered": "F",
+    }
     return " ".join([settings["method"], *(f"{short[k]}={v}" for k, v in settings.items() if k in short)])

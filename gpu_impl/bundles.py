@@ -89,15 +89,32 @@ class BundleTracer:
     in several draws.
     """
 
-    def __init__(self, gl: GLContext, gpu_scene: GpuScene, method: str = "perfect", *, directions: int = 256,
-                 resolution: int = 128, points: int = 16384, splat_scale: float = DEFAULT_SPLAT_SCALE,
-                 splat_radius: float | None = None, sampler: str = DEFAULT_SAMPLER, splatter: str = "compute",
-                 merge: bool = True, node_budget: int = DEFAULT_NODE_BUDGET, initial_capacity: int | None = None,
-                 max_atlas_size: int | None = None, textures: bool | None = None, count_covered: bool = False):
+    def __init__(
+        self,
+        gl: GLContext,
+        gpu_scene: GpuScene,
+        method: str = "perfect",
+        *,
+        directions: int = 256,
+        resolution: int = 128,
+        points: int = 16384,
+        splat_scale: float = DEFAULT_SPLAT_SCALE,
+        splat_radius: float | None = None,
+        sampler: str = DEFAULT_SAMPLER,
+        splatter: str = "compute",
+        merge: bool = True,
+        node_budget: int = DEFAULT_NODE_BUDGET,
+        initial_capacity: int | None = None,
+        max_atlas_size: int | None = None,
+        textures: bool | None = None,
+        count_covered: bool = False,
+    ):
         if method not in METHODS:
             raise ValueError(f"method must be one of {tuple(METHODS)}, got {method!r}")
         if sampler not in SAMPLERS or splatter not in SPLATTERS:
-            raise ValueError(f"sampler must be one of {tuple(SAMPLERS)} and splatter one of {SPLATTERS}, got {sampler!r}, {splatter!r}")
+            raise ValueError(
+                f"sampler must be one of {tuple(SAMPLERS)} and splatter one of {SPLATTERS}, got {sampler!r}, {splatter!r}"
+            )
         for name, value in (("directions", directions), ("resolution", resolution), ("points", points)):
             if value < 1:
                 raise ValueError(f"{name} must be at least 1, got {value}")
@@ -134,7 +151,10 @@ class BundleTracer:
         self._ensure("LIST_OFFSETS", lists)
         self._ensure("LIST_COUNTS", lists)
         if method == "imperfect":
-            self._check_budget(self.fixed_bytes, what=f"{self.K * self.N:,} splat points{'' if self.linked else ', their lines'} and the list offsets")
+            self._check_budget(
+                self.fixed_bytes,
+                what=f"{self.K * self.N:,} splat points{'' if self.linked else ', their lines'} and the list offsets",
+            )
             self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N).clear()  # triangle 0 for a warm-up draw
         if method == "imperfect" and not self.linked:
             self._ensure("SPLAT_LINES", SPLAT_LINES_BYTES * self.K * self.N)
@@ -158,10 +178,15 @@ class BundleTracer:
             return [gl.program("resolve_lists", COUNT_LISTS=True), gl.program("resolve_lists", SORT_LISTS=True)]
         passes = [gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler])]
         if self.linked:
-            return passes + [gl.program("resolve_lists", COUNT_LISTS=True),
-                             gl.program("resolve_lists", MERGE_LISTS=True, FROM_LINKED_LISTS=True)]
-        return passes + [gl.program("splat_lists", **self.count_variant), gl.program("splat_lists", SCATTER_SPLATS=True),
-                         gl.program("resolve_lists", MERGE_LISTS=True)]
+            return passes + [
+                gl.program("resolve_lists", COUNT_LISTS=True),
+                gl.program("resolve_lists", MERGE_LISTS=True, FROM_LINKED_LISTS=True),
+            ]
+        return passes + [
+            gl.program("splat_lists", **self.count_variant),
+            gl.program("splat_lists", SCATTER_SPLATS=True),
+            gl.program("resolve_lists", MERGE_LISTS=True),
+        ]
 
     # -- layout and memory ---------------------------------------------------------------
 
@@ -197,7 +222,9 @@ class BundleTracer:
     @property
     def memory_bytes(self) -> int:
         """Everything the tracer holds for nodes now, which the node budget caps."""
-        return sum(b.size for name, b in self.buffers.items() if name != "COUNTERS") + sum(b.size for b in self._scan_sums)
+        return sum(b.size for name, b in self.buffers.items() if name != "COUNTERS") + sum(
+            b.size for b in self._scan_sums
+        )
 
     def _ensure(self, name: str, nbytes: int):
         """Buffer ``name`` with room for at least ``nbytes`` (its contents are not kept when it grows)."""
@@ -214,7 +241,8 @@ class BundleTracer:
                 self.gpu_scene.scene.name,
                 f"{self.method} bundles (K={self.K}, R={self.R}{f', N={self.N}' if self.method == 'imperfect' else ''}) "
                 f"need {format_bytes(needed)} for {what}, over the node budget of {format_bytes(self.node_budget)}; "
-                f"raise --node-budget to at least {format_bytes(needed)} or lower K, R, N or the splat size")
+                f"raise --node-budget to at least {format_bytes(needed)} or lower K, R, N or the splat size",
+            )
 
     def _grow(self, names: tuple[str, ...], node_bytes: int, nodes: int, what: str) -> None:
         """Grow the per-node buffers ``names`` to ``nodes`` nodes (plus slack while the budget
@@ -269,15 +297,20 @@ class BundleTracer:
         counters = np.frombuffer(self.buffers["COUNTERS"].read(4 * len(COUNTERS)), dtype=np.uint32)
         nodes = int(counters[COUNTERS["KEPT"]]) if self.method == "imperfect" else raw
         if counters[COUNTERS["MISMATCH"]]:
-            raise RuntimeError(f"the splat count and scatter passes found {counters[COUNTERS['MISMATCH']]} lines differently: "
-                               "a driver that rounds the same arithmetic two ways; use splatter='raster'")
+            raise RuntimeError(
+                f"the splat count and scatter passes found {counters[COUNTERS['MISMATCH']]} lines differently: "
+                "a driver that rounds the same arithmetic two ways; use splatter='raster'"
+            )
         self.directions = directions
         self.stats = {
             "nodes": nodes,
             "raw_nodes": raw,
             # Every line a splat or a triangle covers: without merging, one node each (None: not counted).
-            "covered_nodes": raw if self.linked or not self.merge else
-                             int(counters[COUNTERS["COVERED"]]) if "COUNT_COVERED" in self.count_variant else None,
+            "covered_nodes": raw
+            if self.linked or not self.merge
+            else int(counters[COUNTERS["COVERED"]])
+            if "COUNT_COVERED" in self.count_variant
+            else None,
             "redundant_nodes": raw - nodes if self.method == "imperfect" else int(counters[COUNTERS["REDUNDANT"]]),
             "redundant_tolerance": self.merge_tolerance if self.merge else 0.0,
             "merged": self.merge,
@@ -313,15 +346,27 @@ class BundleTracer:
 
     def _uniforms(self, program, **overrides) -> None:
         """Set the bundle programs' uniforms (those a variant compiled away are skipped)."""
-        values = {"radius": self.gpu_scene.radius, "resolution": self.R, "tiles_per_row": self.tiles_per_row,
-                  "atlas_size": self.atlas_size, "capacity": self.capacity, "points_per_direction": self.N,
-                  "splat_radius": self.splat_radius, "direction_base": 0, **overrides}
+        values = {
+            "radius": self.gpu_scene.radius,
+            "resolution": self.R,
+            "tiles_per_row": self.tiles_per_row,
+            "atlas_size": self.atlas_size,
+            "capacity": self.capacity,
+            "points_per_direction": self.N,
+            "splat_radius": self.splat_radius,
+            "direction_base": 0,
+            **overrides,
+        }
         set_uniforms(program, values)
 
     def _sample_points(self, directions: DirectionSet) -> None:
         shader = self.gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler])
-        self._uniforms(shader, triangle_count=self.gpu_scene.triangle_count, seed=directions.seed & 0xFFFFFFFF,
-                       frame=directions.frame & 0xFFFFFFFF)
+        self._uniforms(
+            shader,
+            triangle_count=self.gpu_scene.triangle_count,
+            seed=directions.seed & 0xFFFFFFFF,
+            frame=directions.frame & 0xFFFFFFFF,
+        )
         self.gl.dispatch(shader, self.K * self.N)
 
     def _raster(self, null_fragment: bool) -> tuple:
@@ -333,7 +378,9 @@ class BundleTracer:
         variant = {"NULL_FRAGMENT": True} if null_fragment else {}
         program = self.gl.program(f"{self.method}_bundles", **variant)
         if null_fragment not in self.vertex_arrays:
-            vao = self.gpu_scene.vertex_array(program) if self.method == "perfect" else self.gl.vertex_array(program, [])
+            vao = (
+                self.gpu_scene.vertex_array(program) if self.method == "perfect" else self.gl.vertex_array(program, [])
+            )
             self.vertex_arrays[null_fragment] = vao
             self.bind()
             self._uniforms(program, capacity=0)
@@ -356,8 +403,14 @@ class BundleTracer:
             if self.method == "perfect":
                 self.gl.draw(vao, moderngl.TRIANGLES, self._atlas_framebuffer(), depth_test=False, instances=count)
             else:
-                self.gl.draw(vao, moderngl.TRIANGLES, self._atlas_framebuffer(), depth_test=False,
-                             vertices=3 * self.N * count, first=3 * self.N * base)
+                self.gl.draw(
+                    vao,
+                    moderngl.TRIANGLES,
+                    self._atlas_framebuffer(),
+                    depth_test=False,
+                    vertices=3 * self.N * count,
+                    first=3 * self.N * base,
+                )
 
     def _linked_lists(self, timer: PassTimer) -> tuple[int, int]:
         """The raster pass into linked lists, run again with buffers that fit until every node has
@@ -389,7 +442,9 @@ class BundleTracer:
         gl.dispatch(count, self.K * self.N)
         raw = self._scan_lists()
         # Every list's end (its next list's offset) as the scatter's cursor, counting down.
-        self.gl.copy_buffer(self.buffers["LIST_COUNTS"], self.buffers["LIST_OFFSETS"], 4 * self.list_count, read_offset=4)
+        self.gl.copy_buffer(
+            self.buffers["LIST_COUNTS"], self.buffers["LIST_OFFSETS"], 4 * self.list_count, read_offset=4
+        )
         self.bind()
         scatter = gl.program("splat_lists", SCATTER_SPLATS=True)
         self._uniforms(scatter, nearest_only=self.merge)
@@ -470,12 +525,16 @@ class BundleTracer:
         counts = np.frombuffer(b["LIST_COUNTS"].read(4 * L), dtype=np.uint32).astype(np.int64)
         offsets = np.concatenate([[0], np.cumsum(counts)])
         slots = np.repeat(first - offsets[:-1], counts) + np.arange(offsets[-1])
-        keys = np.frombuffer(b["NODES"].read(8 * (int(first[-1] + counts[-1]) if L else 0)), dtype=np.uint32).reshape(-1, 2)[slots]
+        keys = np.frombuffer(b["NODES"].read(8 * (int(first[-1] + counts[-1]) if L else 0)), dtype=np.uint32).reshape(
+            -1, 2
+        )[slots]
         return offsets, order_bits_depth(keys[:, 1]), keys[:, 0] & ~FACING_BIT, slots
 
     def read_points(self) -> np.ndarray:
         """The last build's splat points (K N,) as `SPLAT_POINT` records."""
-        return np.frombuffer(self.buffers["POINTS"].read(SPLAT_POINT.itemsize * self.K * self.N), dtype=SPLAT_POINT).copy()
+        return np.frombuffer(
+            self.buffers["POINTS"].read(SPLAT_POINT.itemsize * self.K * self.N), dtype=SPLAT_POINT
+        ).copy()
 
     def read(self) -> BundleSet:
         """The last build as a `BundleSet` (host memory): the nodes with the attributes an eye path
@@ -499,15 +558,36 @@ class BundleTracer:
         emission = np.array([m.emission for m in materials], dtype=np.float32).reshape(-1, 3)[material]
         albedo = np.ascontiguousarray(words[:, 1:3]).view(np.float16)[:, :3].astype(np.float32)
         ds = self.directions
-        params = {**bundle_params(self.gpu_scene.scene, self.method, ds, self.R), "node_budget": self.node_budget, "gl": self.gl.info}
+        params = {
+            **bundle_params(self.gpu_scene.scene, self.method, ds, self.R),
+            "node_budget": self.node_budget,
+            "gl": self.gl.info,
+        }
         if self.method == "imperfect":
-            params.update(points=self.N, splat_scale=self.splat_scale, splat_radius=self.splat_radius, sampler=self.sampler,
-                          splatter=self.splatter, merged=self.merge)
+            params.update(
+                points=self.N,
+                splat_scale=self.splat_scale,
+                splat_radius=self.splat_radius,
+                sampler=self.sampler,
+                splatter=self.splatter,
+                merged=self.merge,
+            )
         return BundleSet(
-            method=self.method, directions=ds, centre=self.gpu_scene.centre.copy(), radius=self.gpu_scene.radius,
-            resolution=self.R, offsets=offsets, depth=depth, normal=decode_normals(words[:, 0]), albedo=albedo,
-            emission=emission, prim_id=np.where(prim & SPLAT_BIT, SPLAT_PRIM_ID, triangle).astype(np.int32),
-            material=material, params=params, stats=dict(self.stats))
+            method=self.method,
+            directions=ds,
+            centre=self.gpu_scene.centre.copy(),
+            radius=self.gpu_scene.radius,
+            resolution=self.R,
+            offsets=offsets,
+            depth=depth,
+            normal=decode_normals(words[:, 0]),
+            albedo=albedo,
+            emission=emission,
+            prim_id=np.where(prim & SPLAT_BIT, SPLAT_PRIM_ID, triangle).astype(np.int32),
+            material=material,
+            params=params,
+            stats=dict(self.stats),
+        )
 
     def release(self) -> None:
         """Free every GL object this tracer made (not the scene upload: its maker owns that)."""
@@ -530,8 +610,10 @@ def trace_bundles(gl: GLContext, scene, directions: DirectionSet, method: str = 
     """The bundles of one `DirectionSet`, made once: ``scene`` (a `Scene`) uploaded, its bundles
     built and read back, and every GL object released. ``tracer_args`` go to `BundleTracer`; the
     build's statistics are in the result's ``stats``."""
-    with GpuScene(gl, scene) as gpu_scene, BundleTracer(gl, gpu_scene, method, directions=directions.count,
-                                                        **tracer_args) as tracer:
+    with (
+        GpuScene(gl, scene) as gpu_scene,
+        BundleTracer(gl, gpu_scene, method, directions=directions.count, **tracer_args) as tracer,
+    ):
         tracer.build(directions)
         return tracer.read()
 

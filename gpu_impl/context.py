@@ -33,19 +33,41 @@ SHADER_VARIANTS = {
     "imperfect_bundles": [{}, {"NULL_FRAGMENT": True}],
     "splat_points": [{"SAMPLER": sampler} for sampler in SAMPLERS.values()],
     "splat_lists": [{"COUNT_SPLATS": True}, {"COUNT_SPLATS": True, "COUNT_COVERED": True}, {"SCATTER_SPLATS": True}],
-    "resolve_lists": [{"COUNT_LISTS": True}, {"SORT_LISTS": True}, {"MERGE_LISTS": True},
-                      {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True}],
+    "resolve_lists": [
+        {"COUNT_LISTS": True},
+        {"SORT_LISTS": True},
+        {"MERGE_LISTS": True},
+        {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True},
+    ],
     "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],
     "expand_nodes": [{"BUNDLE_METHOD": method, "TEXTURES": method} for method in METHODS.values()],
     "gbuffer": [{}],
     "shadow_maps": [{}],
-    "irradiance": [{"SHADOW_LIGHTS": 1, "NODE_SIDES": sides, "TEXTURES": sides - 1, "BUNDLE_METHOD": method}
-                   for sides in (1, 2) for method in METHODS.values()],
-    "primary": [{"SHADOW_LIGHTS": lights, "ENVIRONMENT": env, "TEXTURES": t} for lights, env, t in ((0, 0, 0), (1, 1, 1), (0, 2, 1))],
-    "eye_paths": [{"SHADOW_LIGHTS": lights, "LAZY_LIGHTING": lazy, "ENVIRONMENT": env, "NODE_SIDES": sides, "TEXTURES": t,
-                   "BUNDLE_METHOD": method}
-                  for lights, lazy, env, sides, t, method in ((0, 0, 0, 1, 0, 0), (1, 0, 1, 2, 1, 1), (1, 1, 2, 1, 1, 0),
-                                                              (1, 1, 2, 2, 1, 1))],
+    "irradiance": [
+        {"SHADOW_LIGHTS": 1, "NODE_SIDES": sides, "TEXTURES": sides - 1, "BUNDLE_METHOD": method}
+        for sides in (1, 2)
+        for method in METHODS.values()
+    ],
+    "primary": [
+        {"SHADOW_LIGHTS": lights, "ENVIRONMENT": env, "TEXTURES": t}
+        for lights, env, t in ((0, 0, 0), (1, 1, 1), (0, 2, 1))
+    ],
+    "eye_paths": [
+        {
+            "SHADOW_LIGHTS": lights,
+            "LAZY_LIGHTING": lazy,
+            "ENVIRONMENT": env,
+            "NODE_SIDES": sides,
+            "TEXTURES": t,
+            "BUNDLE_METHOD": method,
+        }
+        for lights, lazy, env, sides, t, method in (
+            (0, 0, 0, 1, 0, 0),
+            (1, 0, 1, 2, 1, 1),
+            (1, 1, 2, 1, 1, 0),
+            (1, 1, 2, 2, 1, 1),
+        )
+    ],
     "resolve_images": [{}],
     "record_strides": [{"RECORD_GROUP": group} for group in (0, 1, 2)],
 }
@@ -76,9 +98,13 @@ class GLContext:
             device_index = int(env)
         self.device_index = device_index
         try:
-            self.ctx = moderngl.create_context(standalone=True, backend="egl", require=GL_REQUIRED, device_index=device_index)
+            self.ctx = moderngl.create_context(
+                standalone=True, backend="egl", require=GL_REQUIRED, device_index=device_index
+            )
         except Exception as e:  # glcontext and moderngl raise plain Exceptions with the driver's words
-            raise InputError(f"EGL device {device_index}", f"no OpenGL 4.5 context ({e}); `evalkit doctor` says what to install") from None
+            raise InputError(
+                f"EGL device {device_index}", f"no OpenGL 4.5 context ({e}); `evalkit doctor` says what to install"
+            ) from None
         self._programs: dict = {}
         for path in SHADER_DIR.glob("*.glsl"):
             text = path.read_text()
@@ -186,7 +212,7 @@ class GLContext:
         self.ctx.release()
         self._programs.clear()
 
-    def __enter__(self) -> "GLContext":
+    def __enter__(self) -> GLContext:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -229,7 +255,7 @@ class PassTimer:
     on a CPU rasterizer that is the rasterizer's own time.
     """
 
-    def __init__(self, gl: "GLContext"):
+    def __init__(self, gl: GLContext):
         self.ctx = gl.ctx
         self.host_timing = gl.is_llvmpipe
         self.queries: list[tuple[str, object]] = []

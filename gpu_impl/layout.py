@@ -15,20 +15,41 @@ import numpy as np
 # Storage-buffer binding points.
 BINDINGS = {
     # the scene (scene_buffers.py)
-    "MATERIALS": 0, "TEXELS": 1, "TRIANGLES": 2, "VERTICES": 3, "INDICES": 4, "AREA_CDF": 5, "CDF_GUIDE": 30,
+    "MATERIALS": 0,
+    "TEXELS": 1,
+    "TRIANGLES": 2,
+    "VERTICES": 3,
+    "INDICES": 4,
+    "AREA_CDF": 5,
+    "CDF_GUIDE": 30,
     # bundles: frames, splat points, build counters (bundles.py)
-    "FRAMES": 6, "POINTS": 7, "COUNTERS": 8,
+    "FRAMES": 6,
+    "POINTS": 7,
+    "COUNTERS": 8,
     # linked lists, appended to by the raster passes
-    "HEADS": 9, "NEXT": 10, "LIST_DEPTH": 11, "LIST_REF": 12,
+    "HEADS": 9,
+    "NEXT": 10,
+    "LIST_DEPTH": 11,
+    "LIST_REF": 12,
     # the lists in exact-size slot ranges: where each starts, its nodes (keys), and its length
     # (the build's counts, then the resolved lists the eye paths read)
-    "LIST_OFFSETS": 13, "NODES": 14, "LIST_COUNTS": 15,
+    "LIST_OFFSETS": 13,
+    "NODES": 14,
+    "LIST_COUNTS": 15,
     # the lines each splat covers, from the compute splatter's count pass to its scatter pass
     "SPLAT_LINES": 16,
     # prefix sums, and node attributes for the host (read-back only)
-    "SCAN_DATA": 20, "SCAN_SUMS": 21, "NODE_ATTRIBUTES": 22,
+    "SCAN_DATA": 20,
+    "SCAN_SUMS": 21,
+    "NODE_ATTRIBUTES": 22,
     # the renderer (renderer.py, lights.py)
-    "IRRADIANCE": 23, "PATHS": 24, "PATH_SUMS": 25, "IMAGES": 26, "LIGHTS": 27, "SHADOW_VIEWS": 28, "ALIVE_PATHS": 29,
+    "IRRADIANCE": 23,
+    "PATHS": 24,
+    "PATH_SUMS": 25,
+    "IMAGES": 26,
+    "LIGHTS": 27,
+    "SHADOW_VIEWS": 28,
+    "ALIVE_PATHS": 29,
 }
 
 # Bits and enumerations. np.uint32 values are written as GLSL uint literals (1u), Python ints as
@@ -58,12 +79,19 @@ PATH_ENDED = np.uint32(0xFFFFFFFF)
 PATH_FROM_CAMERA = np.uint32(0xFFFFFFFE)
 
 SHADER_CONSTANTS = {
-    "SPLAT_BIT": SPLAT_BIT, "MATERIAL_TEXTURED": MATERIAL_TEXTURED, "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,
-    "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH, "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL, "FACING_BIT": FACING_BIT,
-    "PATH_ENDED": PATH_ENDED, "PATH_FROM_CAMERA": PATH_FROM_CAMERA,
+    "SPLAT_BIT": SPLAT_BIT,
+    "MATERIAL_TEXTURED": MATERIAL_TEXTURED,
+    "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,
+    "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH,
+    "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL,
+    "FACING_BIT": FACING_BIT,
+    "PATH_ENDED": PATH_ENDED,
+    "PATH_FROM_CAMERA": PATH_FROM_CAMERA,
     **{f"LIGHT_{kind.upper()}": value for kind, value in LIGHT_KINDS.items()},
-    **{f"ENVIRONMENT_{'NONE' if kind is None else ('MAP' if kind == 'envmap' else kind.upper())}": value
-       for kind, value in ENVIRONMENT_KINDS.items()},
+    **{
+        f"ENVIRONMENT_{'NONE' if kind is None else ('MAP' if kind == 'envmap' else kind.upper())}": value
+        for kind, value in ENVIRONMENT_KINDS.items()
+    },
     **{f"METHOD_{name.upper()}": value for name, value in METHODS.items()},
     **{f"SAMPLER_{name.upper()}": value for name, value in SAMPLERS.items()},
     **{f"COUNTER_{name}": value for name, value in COUNTERS.items()},
@@ -75,17 +103,36 @@ TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.
 VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
 SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4")])  # bundle.glsl: SplatPoint (unorm16 b1, b2)
 BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])  # bundle.glsl: BundleFrame
-LIGHT = np.dtype([("position", "<f4", 4), ("direction", "<f4", 4), ("intensity", "<f4", 4), ("shape", "<f4", 4)])  # lights.glsl: Light
-SHADOW_VIEW = np.dtype([("to_clip", "<f4", (4, 4)), ("tile", "<f4", 4), ("origin", "<f4", 4), ("axis", "<f4", 4)])  # lights.glsl
-PATH = np.dtype([("position", "<f4", 3), ("normal", "<u4"), ("throughput", "<f4", 3), ("bundle", "<u4"),
-                 ("albedo", "<f4", 3), ("geometric", "<u4")])  # paths.glsl: Path
+LIGHT = np.dtype(
+    [("position", "<f4", 4), ("direction", "<f4", 4), ("intensity", "<f4", 4), ("shape", "<f4", 4)]
+)  # lights.glsl: Light
+SHADOW_VIEW = np.dtype(
+    [("to_clip", "<f4", (4, 4)), ("tile", "<f4", 4), ("origin", "<f4", 4), ("axis", "<f4", 4)]
+)  # lights.glsl
+PATH = np.dtype(
+    [
+        ("position", "<f4", 3),
+        ("normal", "<u4"),
+        ("throughput", "<f4", 3),
+        ("bundle", "<u4"),
+        ("albedo", "<f4", 3),
+        ("geometric", "<u4"),
+    ]
+)  # paths.glsl: Path
 PATH_SUMS = np.dtype([("direct", "<f4", 4), ("indirect", "<f4", 4)])  # paths.glsl: PathSums
 
 # Record name -> (dtype, the binding of its array): what tests/test_gl_context.py checks.
-RECORDS = {"Material": (MATERIAL, "MATERIALS"), "Triangle": (TRIANGLE, "TRIANGLES"), "Vertex": (VERTEX, "VERTICES"),
-           "BundleFrame": (BUNDLE_FRAME, "FRAMES"), "SplatPoint": (SPLAT_POINT, "POINTS"),
-           "Light": (LIGHT, "LIGHTS"), "ShadowView": (SHADOW_VIEW, "SHADOW_VIEWS"),
-           "Path": (PATH, "PATHS"), "PathSums": (PATH_SUMS, "PATH_SUMS")}
+RECORDS = {
+    "Material": (MATERIAL, "MATERIALS"),
+    "Triangle": (TRIANGLE, "TRIANGLES"),
+    "Vertex": (VERTEX, "VERTICES"),
+    "BundleFrame": (BUNDLE_FRAME, "FRAMES"),
+    "SplatPoint": (SPLAT_POINT, "POINTS"),
+    "Light": (LIGHT, "LIGHTS"),
+    "ShadowView": (SHADOW_VIEW, "SHADOW_VIEWS"),
+    "Path": (PATH, "PATHS"),
+    "PathSums": (PATH_SUMS, "PATH_SUMS"),
+}
 
 
 def glsl_literal(value) -> str:

@@ -22,6 +22,7 @@ from evalkit.core.scene.model import Light
 from gpu_impl.context import GLContext, set_uniforms
 from gpu_impl.layout import BINDINGS, ENVIRONMENT_KINDS, LIGHT, LIGHT_KINDS, SHADOW_VIEW
 from gpu_impl.scene_buffers import GpuScene
+
 # A spot light whose cone half-angle is within this of 90 degrees cannot use one perspective view.
 MAX_SPOT_VIEW_DEGREES = 60.0
 CUBE_FACES = ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1))  # lights.glsl: shadow_view_of
@@ -54,11 +55,24 @@ class EmitterSamples:
         emitters = [m for m in scene.meshes if scene.materials[m.material].emissive]
         self.triangles = np.concatenate([m.positions[m.faces] for m in emitters])
         # Vertex normals per corner where the mesh has them (Mitsuba's emitters use the shading normal).
-        self.corner_normals = (None if all(m.normals is None for m in emitters) else
-                               np.concatenate([_face_normals(m.positions[m.faces])[:, None, :].repeat(3, axis=1)
-                                               if m.normals is None else m.normals[m.faces] for m in emitters]))
-        self.radiance = np.concatenate([np.broadcast_to(np.asarray(scene.materials[m.material].emission, dtype=np.float64),
-                                                        (len(m.faces), 3)) for m in emitters])
+        self.corner_normals = (
+            None
+            if all(m.normals is None for m in emitters)
+            else np.concatenate(
+                [
+                    _face_normals(m.positions[m.faces])[:, None, :].repeat(3, axis=1)
+                    if m.normals is None
+                    else m.normals[m.faces]
+                    for m in emitters
+                ]
+            )
+        )
+        self.radiance = np.concatenate(
+            [
+                np.broadcast_to(np.asarray(scene.materials[m.material].emission, dtype=np.float64), (len(m.faces), 3))
+                for m in emitters
+            ]
+        )
         self.weights = self.radiance.mean(axis=1)
         power = self.weights * np.concatenate([m.triangle_areas() for m in emitters])
         self.total = float(power.sum())  # W in p(y) = w(y) / W
@@ -105,8 +119,10 @@ def pack_tiles(sizes: list[int], max_side: int) -> tuple[list[tuple[int, int]], 
         x, row = x + s, max(row, s)
     size = (side, y + row)
     if max(size) > max_side:
-        raise ValueError(f"{len(sizes)} shadow views ({sum(s * s for s in sizes):,} texels) exceed the GL texture "
-                         f"limit {max_side}; lower the shadow map sizes or the light samples")
+        raise ValueError(
+            f"{len(sizes)} shadow views ({sum(s * s for s in sizes):,} texels) exceed the GL texture "
+            f"limit {max_side}; lower the shadow map sizes or the light samples"
+        )
     return corners, size
 
 
@@ -159,18 +175,36 @@ class ShadowLights:
     ``sample_map_size`` their shadow views' side.
     """
 
-    def __init__(self, gl: GLContext, gpu_scene: GpuScene, map_size: int = 1024, bias: float = 1.0,
-                 slope_bias: float = 2.0, filter: int = 1, light_samples: int = 0, sample_map_size: int = 256):
+    def __init__(
+        self,
+        gl: GLContext,
+        gpu_scene: GpuScene,
+        map_size: int = 1024,
+        bias: float = 1.0,
+        slope_bias: float = 2.0,
+        filter: int = 1,
+        light_samples: int = 0,
+        sample_map_size: int = 256,
+    ):
         if map_size < 8 or sample_map_size < 8 or filter < 1 or light_samples < 0:
-            raise ValueError(f"need shadow map sizes >= 8, a filter >= 1 and light samples >= 0, got {map_size}, "
-                             f"{sample_map_size}, {filter} and {light_samples}")
+            raise ValueError(
+                f"need shadow map sizes >= 8, a filter >= 1 and light samples >= 0, got {map_size}, "
+                f"{sample_map_size}, {filter} and {light_samples}"
+            )
         self.gl, self.gpu_scene = gl, gpu_scene
-        self.map_size, self.bias, self.slope_bias, self.filter = int(map_size), float(bias), float(slope_bias), int(filter)
+        self.map_size, self.bias, self.slope_bias, self.filter = (
+            int(map_size),
+            float(bias),
+            float(slope_bias),
+            int(filter),
+        )
         self.sample_map_size = int(sample_map_size)
         lights = [light for light in gpu_scene.scene.lights if light.kind in LIGHT_KINDS]
         environments = [light for light in gpu_scene.scene.lights if light.kind in ("constant", "envmap")]
         self.environment = environments[0] if environments else None
-        self.emitter_samples = EmitterSamples(gpu_scene.scene, light_samples) if gpu_scene.features.emitters and light_samples else None
+        self.emitter_samples = (
+            EmitterSamples(gpu_scene.scene, light_samples) if gpu_scene.features.emitters and light_samples else None
+        )
         samples = 0 if self.emitter_samples is None else self.emitter_samples.count
         self.count = len(lights) + samples
         records, views = [], []
@@ -225,8 +259,12 @@ class ShadowLights:
                 if _faces_front(CUBE_FACES[f], normal):
                     drawn.append(first + f)
             kind = LIGHT_KINDS["emitter_sample"]
-            self.records[self.fixed_lights + m] = ((*position, kind), (*normal, 0.0), (*intensity, 0.0),
-                                                   (density, 0.0, first, 6))
+            self.records[self.fixed_lights + m] = (
+                (*position, kind),
+                (*normal, 0.0),
+                (*intensity, 0.0),
+                (density, 0.0, first, 6),
+            )
         self.buffers["LIGHTS"].write(self.records.tobytes())
         self.buffers["SHADOW_VIEWS"].write(self.view_records.tobytes())
         self._draw(drawn, clear=True)
@@ -247,16 +285,28 @@ class ShadowLights:
         near = max(far * 1e-5, 1e-30)
         if light.kind == "spot" and light.cutoff_angle <= MAX_SPOT_VIEW_DEGREES:
             tan_half = math.tan(math.radians(light.cutoff_angle)) * (1.0 + 2.0 * GUARD_TEXELS / s)
-            to_clip = perspective(tan_half, near, far) @ look_at_view(position, np.asarray(light.direction, dtype=np.float64))
+            to_clip = perspective(tan_half, near, far) @ look_at_view(
+                position, np.asarray(light.direction, dtype=np.float64)
+            )
             return [(to_clip, 2.0 * tan_half / s, position, True, np.zeros(3), far)]
         return self._cube_views(position, far, s)
 
     @staticmethod
-    def _cube_views(position: np.ndarray, far: float, size: int, axis: np.ndarray = np.zeros(3)) -> list:
+    def _cube_views(position: np.ndarray, far: float, size: int, axis: np.ndarray | None = None) -> list:
         near = max(far * 1e-5, 1e-30)
         tan_half = 1.0 + 2.0 * GUARD_TEXELS / size
-        return [(perspective(tan_half, near, far) @ look_at_view(position, np.array(face, dtype=np.float64)),
-                 2.0 * tan_half / size, position, True, axis, far) for face in CUBE_FACES]
+        axis = np.zeros(3) if axis is None else axis
+        return [
+            (
+                perspective(tan_half, near, far) @ look_at_view(position, np.array(face, dtype=np.float64)),
+                2.0 * tan_half / size,
+                position,
+                True,
+                axis,
+                far,
+            )
+            for face in CUBE_FACES
+        ]
 
     def _record(self, light: Light, first_view: int, views: int) -> tuple:
         """The light's `LIGHT` record (shaders/lights.glsl: Light)."""
@@ -267,8 +317,12 @@ class ShadowLights:
         beam = math.radians(light.beam_width if light.beam_width is not None else 0.75 * (light.cutoff_angle or 90.0))
         beam = min(beam, cutoff)
         inv_transition = 1.0 / (cutoff - beam) if cutoff > beam else 0.0
-        return ((*position, kind), (*direction, math.cos(cutoff)), (*light.intensity, math.cos(beam)),
-                (cutoff, inv_transition, first_view, views))
+        return (
+            (*position, kind),
+            (*direction, math.cos(cutoff)),
+            (*light.intensity, math.cos(beam)),
+            (cutoff, inv_transition, first_view, views),
+        )
 
     # -- passes --------------------------------------------------------------------------
 
@@ -297,8 +351,11 @@ class ShadowLights:
             self.gl.draw(self.vao, moderngl.TRIANGLES, self.framebuffer, depth_test=True)
 
     def defines(self) -> dict:
-        return {"SHADOW_LIGHTS": int(self.count > 0), "EMITTER_SAMPLES": int(self.emitter_samples is not None),
-                "ENVIRONMENT": ENVIRONMENT_KINDS[None if self.environment is None else self.environment.kind]}
+        return {
+            "SHADOW_LIGHTS": int(self.count > 0),
+            "EMITTER_SAMPLES": int(self.emitter_samples is not None),
+            "ENVIRONMENT": ENVIRONMENT_KINDS[None if self.environment is None else self.environment.kind],
+        }
 
     def bind(self, atlas_unit: int) -> None:
         """Bind the light buffers and the shadow atlas (at texture unit ``atlas_unit``)."""
@@ -309,8 +366,13 @@ class ShadowLights:
 
     def set_uniforms(self, program, atlas_unit: int) -> None:
         """Set ``program``'s lighting and environment uniforms (those it has); they never change."""
-        values = {"light_count": self.count, "shadow_bias": self.bias, "shadow_slope_bias": self.slope_bias,
-                  "shadow_filter": self.filter, "shadow_atlas": atlas_unit}
+        values = {
+            "light_count": self.count,
+            "shadow_bias": self.bias,
+            "shadow_slope_bias": self.slope_bias,
+            "shadow_filter": self.filter,
+            "shadow_atlas": atlas_unit,
+        }
         if self.emitter_samples is not None:
             values["emitter_sample_density"] = self.emitter_samples.density_scale
         env = self.environment

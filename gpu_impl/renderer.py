@@ -30,8 +30,16 @@ import numpy as np
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene
-from gpu_impl.bundles import (CAPACITY_SLACK, DEFAULT_NODE_BUDGET, DEFAULT_SAMPLER, DEFAULT_SPLAT_SCALE, SPLATTERS,
-                              BundleTracer, NodeBudgetExceeded, format_bytes)
+from gpu_impl.bundles import (
+    CAPACITY_SLACK,
+    DEFAULT_NODE_BUDGET,
+    DEFAULT_SAMPLER,
+    DEFAULT_SPLAT_SCALE,
+    SPLATTERS,
+    BundleTracer,
+    NodeBudgetExceeded,
+    format_bytes,
+)
 from gpu_impl.context import GLContext, PassTimer, set_uniforms
 from gpu_impl.layout import BINDINGS, METHODS, PATH, PATH_SUMS, SAMPLERS
 from gpu_impl.lights import DEFAULT_LIGHT_SAMPLE_MAP_SIZE, DEFAULT_LIGHT_SAMPLES, ShadowLights
@@ -98,8 +106,12 @@ class RenderSettings:
 
     def validate(self) -> None:
         """Raises ValueError naming the first setting out of range."""
-        for name, known in (("method", tuple(METHODS)), ("sampler", tuple(SAMPLERS)), ("splatter", SPLATTERS),
-                            ("lighting", LIGHTING)):
+        for name, known in (
+            ("method", tuple(METHODS)),
+            ("sampler", tuple(SAMPLERS)),
+            ("splatter", SPLATTERS),
+            ("lighting", LIGHTING),
+        ):
             if getattr(self, name) not in known:
                 raise ValueError(f"{name} must be one of {', '.join(known)}, got {getattr(self, name)!r}")
         for name in ("directions", "resolution", "points", "supersampling", "spp", "frames", "shadow_filter"):
@@ -163,25 +175,49 @@ class Renderer:
         self.frames_rendered = 0  # set by render()
         self.moving = scene.animated and settings.time_step != 0.0
         first = scene.at(self.times[0])
-        self.gpu_scene = GpuScene(gl, first, sphere=enclosing_sphere([scene.at(t) for t in self.times]) if self.moving else None)
-        self.tracer = BundleTracer(gl, self.gpu_scene, settings.method, directions=settings.directions,
-                                   resolution=settings.resolution, points=settings.points, splat_scale=settings.splat_scale,
-                                   sampler=settings.sampler, splatter=settings.splatter, node_budget=settings.node_budget)
+        self.gpu_scene = GpuScene(
+            gl, first, sphere=enclosing_sphere([scene.at(t) for t in self.times]) if self.moving else None
+        )
+        self.tracer = BundleTracer(
+            gl,
+            self.gpu_scene,
+            settings.method,
+            directions=settings.directions,
+            resolution=settings.resolution,
+            points=settings.points,
+            splat_scale=settings.splat_scale,
+            sampler=settings.sampler,
+            splatter=settings.splatter,
+            node_budget=settings.node_budget,
+        )
         # A static scene seen along the same directions every frame has the same bundles and the
         # same irradiance at their nodes or points: both are made once.
         self.reuse_bundles = not settings.rotate_directions and not self.moving
-        self.lights = ShadowLights(gl, self.gpu_scene, settings.shadow_map_size, settings.shadow_bias,
-                                   settings.shadow_slope_bias, settings.shadow_filter, settings.light_samples,
-                                   settings.light_sample_map_size)
+        self.lights = ShadowLights(
+            gl,
+            self.gpu_scene,
+            settings.shadow_map_size,
+            settings.shadow_bias,
+            settings.shadow_slope_bias,
+            settings.shadow_filter,
+            settings.light_samples,
+            settings.light_sample_map_size,
+        )
         self.warnings = list(scene.warnings)
         if self.gpu_scene.features.emitters and not settings.light_samples:
-            self.warnings.append("next-event estimation is off (light_samples = 0): emissive triangles light only the "
-                                 "paths that hit them, so images of small emitters converge slowly")
+            self.warnings.append(
+                "next-event estimation is off (light_samples = 0): emissive triangles light only the "
+                "paths that hit them, so images of small emitters converge slowly"
+            )
         features = self.gpu_scene.features
         # Shader variants from the scene's features: no shadow-map lookups without such lights, no
         # environment lookups without one, a node's back-side radiance only with two-sided materials.
-        self.defines = {**self.lights.defines(), "NODE_SIDES": 2 if features.twosided else 1,
-                        "TEXTURES": int(features.textures), **self.tracer.defines}
+        self.defines = {
+            **self.lights.defines(),
+            "NODE_SIDES": 2 if features.twosided else 1,
+            "TEXTURES": int(features.textures),
+            **self.tracer.defines,
+        }
         # The last bounce pass only collects emission and environment light; without either it adds nothing.
         self.steps = settings.bounces + (1 if features.emitters or features.environment else 0)
         self.gbuffer = gl.texture(self.gbuffer_size, 1, dtype="u4")
@@ -191,13 +227,17 @@ class Renderer:
         self.gbuffer_vao = self.gpu_scene.vertex_array(self.gbuffer_program)
         d = self.defines
         self.programs = {
-            "primary": gl.program("primary", SHADOW_LIGHTS=d["SHADOW_LIGHTS"], ENVIRONMENT=d["ENVIRONMENT"], TEXTURES=d["TEXTURES"]),
+            "primary": gl.program(
+                "primary", SHADOW_LIGHTS=d["SHADOW_LIGHTS"], ENVIRONMENT=d["ENVIRONMENT"], TEXTURES=d["TEXTURES"]
+            ),
             "eye_paths": gl.program("eye_paths", **d, LAZY_LIGHTING=0),
             "resolve_images": gl.program("resolve_images"),
         }
         if d["SHADOW_LIGHTS"]:
             self.programs["eye_paths_lazy"] = gl.program("eye_paths", **d, LAZY_LIGHTING=1)
-            self.programs["irradiance"] = gl.program("irradiance", **{k: d[k] for k in ("SHADOW_LIGHTS", "NODE_SIDES", "TEXTURES", "BUNDLE_METHOD")})
+            self.programs["irradiance"] = gl.program(
+                "irradiance", **{k: d[k] for k in ("SHADOW_LIGHTS", "NODE_SIDES", "TEXTURES", "BUNDLE_METHOD")}
+            )
         self.buffers = {
             "PATHS": gl.buffer(reserve=PATH.itemsize * self.paths),
             "PATH_SUMS": gl.buffer(reserve=PATH_SUMS.itemsize * self.paths),
@@ -210,11 +250,19 @@ class Renderer:
         self.camera = scene.camera.frame(self.gpu_scene.centre, self.width, self.height)
         # Uniforms that stay the same for every frame, set once.
         fixed = {
-            "radius": self.gpu_scene.radius, "resolution": settings.resolution, "bounces": settings.bounces,
-            "direction_count": settings.directions, "seed": settings.seed & 0xFFFFFFFF,
-            "self_hit_bias": settings.self_hit_bias, "image_size": (self.width, self.height), "supersampling": s,
-            "paths_per_sample": settings.spp, "gbuffer": GBUFFER_UNIT, "gbuffer_size": self.gbuffer_size,
-            "camera_origin": tuple(self.camera["origin"]), "camera_to_world": tuple(self.camera["to_world"].T.ravel()),
+            "radius": self.gpu_scene.radius,
+            "resolution": settings.resolution,
+            "bounces": settings.bounces,
+            "direction_count": settings.directions,
+            "seed": settings.seed & 0xFFFFFFFF,
+            "self_hit_bias": settings.self_hit_bias,
+            "image_size": (self.width, self.height),
+            "supersampling": s,
+            "paths_per_sample": settings.spp,
+            "gbuffer": GBUFFER_UNIT,
+            "gbuffer_size": self.gbuffer_size,
+            "camera_origin": tuple(self.camera["origin"]),
+            "camera_to_world": tuple(self.camera["to_world"].T.ravel()),
             "tan_half_fov": tuple(self.camera["tan_half"]),
         }
         for program in self.programs.values():
@@ -239,44 +287,65 @@ class Renderer:
             self._posed_at = self.times[f]
             reused = self.reuse_bundles and f > 0
             if reused:
-                stats = {**self.tracer.stats, "gpu_ms": {k: 0.0 for k in self.tracer.stats["gpu_ms"]}, "overflow_reruns": 0}
+                stats = {
+                    **self.tracer.stats,
+                    "gpu_ms": dict.fromkeys(self.tracer.stats["gpu_ms"], 0.0),
+                    "overflow_reruns": 0,
+                }
             else:
-                stats = self.tracer.build(DirectionSet.make(st.directions, seed=st.seed, frame=f if st.rotate_directions else 0,
-                                                            jitter=True))
+                stats = self.tracer.build(
+                    DirectionSet.make(st.directions, seed=st.seed, frame=f if st.rotate_directions else 0, jitter=True)
+                )
             bundle_stats.append(stats)
             self._frame(f, timer, shadow_maps=f == 0 or self.moving, build=0 if reused else f)
-            passes = {"bundles": _sum_ms(stats["gpu_ms"].values()), **{f"bundles.{k}": v for k, v in stats["gpu_ms"].items()},
-                      **timer.milliseconds()}
+            passes = {
+                "bundles": _sum_ms(stats["gpu_ms"].values()),
+                **{f"bundles.{k}": v for k, v in stats["gpu_ms"].items()},
+                **timer.milliseconds(),
+            }
             frames.append(passes)
             if progress is not None:
-                progress(f"frame {f + 1}/{st.frames}: {stats['nodes']:,} nodes, "
-                         f"{_sum_ms(v for k, v in passes.items() if '.' not in k):.1f} ms")
+                progress(
+                    f"frame {f + 1}/{st.frames}: {stats['nodes']:,} nodes, "
+                    f"{_sum_ms(v for k, v in passes.items() if '.' not in k):.1f} ms"
+                )
             # The pass timer's read waits for the frame's GPU work, so this is the frame's time.
             # The first frame (shadow maps) is left out of the estimate of the next once others exist.
             frame_s.append(time.perf_counter() - frame_start)
-            if st.time_budget and time.perf_counter() - start + float(np.median(frame_s[1:] or frame_s)) > st.time_budget:
+            if (
+                st.time_budget
+                and time.perf_counter() - start + float(np.median(frame_s[1:] or frame_s)) > st.time_budget
+            ):
                 break
         self.frames_rendered = len(frames)
         images = self._read_images()
         wall = time.perf_counter() - start
         timings = {
             "method": timer.method,
-            "median_ms": {name: _median([fr.get(name) for fr in frames]) for name in dict.fromkeys(k for fr in frames for k in fr)},
+            "median_ms": {
+                name: _median([fr.get(name) for fr in frames]) for name in dict.fromkeys(k for fr in frames for k in fr)
+            },
             "frames_ms": frames,
             "wall_s": wall,
         }
         # A frame's time: every pass, but static scenes render their shadow maps once, not per frame.
         once = set() if self.moving else {"shadow_maps"}
-        timings["median_ms"]["frame"] = _median([_sum_ms(v for k, v in fr.items() if "." not in k and k not in once)
-                                                 for fr in frames])
+        timings["median_ms"]["frame"] = _median(
+            [_sum_ms(v for k, v in fr.items() if "." not in k and k not in once) for fr in frames]
+        )
         nodes = [s["nodes"] for s in bundle_stats]
         stats = {
-            "nodes_median": int(np.median(nodes)), "nodes_max": int(max(nodes)),
+            "nodes_median": int(np.median(nodes)),
+            "nodes_max": int(max(nodes)),
             "overflow_reruns": sum(s["overflow_reruns"] for s in bundle_stats),
             "max_list_length": max(s["max_list_length"] for s in bundle_stats),
-            "paths_per_frame": self.paths, "bounce_passes": self.steps,
-            "bounce_passes_skipped": self.skipped_bounces, "bundles_reused": len(frames) - 1 if self.reuse_bundles else 0,
-            "lighting_frames": {mode: self.lighting_used.count(mode) for mode in ("precomputed", "lazy") if mode in self.lighting_used},
+            "paths_per_frame": self.paths,
+            "bounce_passes": self.steps,
+            "bounce_passes_skipped": self.skipped_bounces,
+            "bundles_reused": len(frames) - 1 if self.reuse_bundles else 0,
+            "lighting_frames": {
+                mode: self.lighting_used.count(mode) for mode in ("precomputed", "lazy") if mode in self.lighting_used
+            },
             "gpu_bytes": self.gpu_bytes,
         }
         return RenderResult(images, timings, stats, self.params(), list(self.warnings))
@@ -306,7 +375,9 @@ class Renderer:
                     self.buffers["IRRADIANCE"].bind_to_storage_buffer(BINDINGS["IRRADIANCE"])
                     # One invocation per splat point, or per list (its nodes in turn).
                     imperfect = st.method == "imperfect"
-                    gl.dispatch(self.programs["irradiance"], self._irradiance_items() if imperfect else self.tracer.list_count)
+                    gl.dispatch(
+                        self.programs["irradiance"], self._irradiance_items() if imperfect else self.tracer.list_count
+                    )
                 self.irradiance_of = build
         for j in range(1, self.steps + 1):
             # Once every path has ended (throughput zero, or nothing hit), the passes left add nothing.
@@ -340,10 +411,13 @@ class Renderer:
         needed = 12 * self.defines["NODE_SIDES"] * items
         if self.tracer.memory_bytes + needed > self.settings.node_budget:
             if mode == "precomputed":
-                raise NodeBudgetExceeded(self.scene.name, f"precomputed irradiance for {items:,} nodes or points needs "
-                                         f"{format_bytes(needed)} beside the bundles' {format_bytes(self.tracer.memory_bytes)}, "
-                                         f"over the node budget of {format_bytes(self.settings.node_budget)}; raise "
-                                         f"--node-budget or use --lighting lazy")
+                raise NodeBudgetExceeded(
+                    self.scene.name,
+                    f"precomputed irradiance for {items:,} nodes or points needs "
+                    f"{format_bytes(needed)} beside the bundles' {format_bytes(self.tracer.memory_bytes)}, "
+                    f"over the node budget of {format_bytes(self.settings.node_budget)}; raise "
+                    f"--node-budget or use --lighting lazy",
+                )
             return True
         if mode == "auto" and self.irradiance_of != build and alive * self.settings.bounces < items:
             return True
@@ -423,7 +497,7 @@ class Renderer:
         self.tracer.release()
         self.gpu_scene.release()
 
-    def __enter__(self) -> "Renderer":
+    def __enter__(self) -> Renderer:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -431,6 +505,7 @@ class Renderer:
 
 
 # -- camera ---------------------------------------------------------------------------------
+
 
 def enclosing_sphere(scenes: list[Scene]) -> tuple[np.ndarray, float]:
     """A sphere around every pose of an animated scene (centred on the union of their bounds)."""
@@ -444,22 +519,27 @@ def gbuffer_projection(cam: dict, size: tuple[int, int], subpixel: np.ndarray) -
     """Clip-space matrix of positions relative to the bundle centre, for a G-buffer of ``size``
     whose pixel (x, y) (y from the image's top) covers film position ((x, y) + subpixel) / size
     at its centre, where eye_paths.glsl (PRIMARY) sends that sample's camera ray."""
-    to_camera = np.linalg.inv(np.block([[cam["to_world"], cam["origin"][:, None]], [np.zeros((1, 3)), np.ones((1, 1))]]))
+    to_camera = np.linalg.inv(
+        np.block([[cam["to_world"], cam["origin"][:, None]], [np.zeros((1, 3)), np.ones((1, 1))]])
+    )
     tx, ty = cam["tan_half"]
     w, h = size
     n, f = cam["near"], cam["far"]
     # film u = 1/2 - x / (2 z tan_x) and v = 1/2 - y / (2 z tan_y); the rasterizer samples pixel
     # centres, so pixel x's centre x + 1/2 must sit at u w = x + subpixel_x.
-    proj = np.array([
-        [-1.0 / tx, 0.0, (1.0 - 2.0 * subpixel[0]) / w, 0.0],
-        [0.0, -1.0 / ty, (1.0 - 2.0 * subpixel[1]) / h, 0.0],
-        [0.0, 0.0, (f + n) / (f - n), -2.0 * f * n / (f - n)],
-        [0.0, 0.0, 1.0, 0.0],
-    ])
+    proj = np.array(
+        [
+            [-1.0 / tx, 0.0, (1.0 - 2.0 * subpixel[0]) / w, 0.0],
+            [0.0, -1.0 / ty, (1.0 - 2.0 * subpixel[1]) / h, 0.0],
+            [0.0, 0.0, (f + n) / (f - n), -2.0 * f * n / (f - n)],
+            [0.0, 0.0, 1.0, 0.0],
+        ]
+    )
     return proj @ to_camera
 
 
 # -- output ---------------------------------------------------------------------------------
+
 
 def write_render(result: RenderResult, out: str | os.PathLike) -> list[Path]:
     """direct.exr, indirect.exr and total.exr (float32, provenance in the header) and
@@ -473,8 +553,13 @@ def write_render(result: RenderResult, out: str | os.PathLike) -> list[Path]:
         write_exr(path, result.images[name], {**provenance, "image": name})
         written.append(path)
     path = out / "timings.json"
-    path.write_text(json.dumps({"timings": result.timings, "stats": result.stats, "params": result.params,
-                                "warnings": result.warnings}, indent=2) + "\n")
+    path.write_text(
+        json.dumps(
+            {"timings": result.timings, "stats": result.stats, "params": result.params, "warnings": result.warnings},
+            indent=2,
+        )
+        + "\n"
+    )
     written.append(path)
     return written
 

@@ -47,7 +47,11 @@ class GpuScene:
         self.envmap_first = sum(t.shape[0] * t.shape[1] for t in textures) if envmap is not None else None
         if envmap is not None:
             textures.append(envmap)
-        texels = np.concatenate([np.asarray(t, dtype=np.float32).reshape(-1) for t in textures]) if textures else np.zeros(3, np.float32)
+        texels = (
+            np.concatenate([np.asarray(t, dtype=np.float32).reshape(-1) for t in textures])
+            if textures
+            else np.zeros(3, np.float32)
+        )
 
         # The inclusive area CDF for area-weighted point sampling (shaders/splat_points.glsl), over
         # the triangles in the order of a space-filling curve through their centroids, so that
@@ -90,8 +94,14 @@ class GpuScene:
         vertices["position"], vertices["normal"], vertices["uv"] = positions, a.normals, a.uvs
         triangles = np.zeros(len(a.faces), dtype=TRIANGLE)
         triangles["normal"] = a.tri_normal
-        triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(a.tri_smooth, TRIANGLE_SMOOTH, 0).astype(np.uint32)
-        return {"POSITIONS": positions[self.raster_sources].tobytes(), "VERTICES": vertices.tobytes(), "TRIANGLES": triangles.tobytes()}
+        triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(
+            a.tri_smooth, TRIANGLE_SMOOTH, 0
+        ).astype(np.uint32)
+        return {
+            "POSITIONS": positions[self.raster_sources].tobytes(),
+            "VERTICES": vertices.tobytes(),
+            "TRIANGLES": triangles.tobytes(),
+        }
 
     def pose(self, scene: Scene) -> None:
         """Upload ``scene``, the same scene posed at another time (rigid motion: same triangles,
@@ -101,8 +111,10 @@ class GpuScene:
             raise ValueError(f"a posed scene must have the same {self.triangle_count} triangles, got {len(a.faces)}")
         reach = float(np.linalg.norm(a.positions - self.centre, axis=1).max())
         if reach > self.radius:
-            raise ValueError(f"{scene.name}: the moving geometry reaches {reach:.6g} from the bundle centre, "
-                             f"outside the frame radius {self.radius:.6g}")
+            raise ValueError(
+                f"{scene.name}: the moving geometry reaches {reach:.6g} from the bundle centre, "
+                f"outside the frame radius {self.radius:.6g}"
+            )
         for name, data in self._geometry(a).items():
             self.buffers[name].write(data)
         self.scene, self.arrays = scene, a
@@ -124,14 +136,16 @@ class GpuScene:
         passes read the rest from storage. The caller owns and releases it."""
         b = self.buffers
         content = [(b["POSITIONS"], "3f", "in_position"), (b["RASTER_TRIANGLE"], "1u", "in_triangle")]
-        return self.gl.vertex_array(program, content, index_buffer=b["RASTER_INDICES"], index_element_size=4, skip_errors=True)
+        return self.gl.vertex_array(
+            program, content, index_buffer=b["RASTER_INDICES"], index_element_size=4, skip_errors=True
+        )
 
     def release(self) -> None:
         for buffer in self.buffers.values():
             buffer.release()
         self.buffers.clear()
 
-    def __enter__(self) -> "GpuScene":
+    def __enter__(self) -> GpuScene:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -175,4 +189,3 @@ def provoking_vertices(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray
     sources = np.concatenate([np.arange(vertex_count), faces[copies, 0]])
     raster[copies, 2] = vertex_count + np.arange(len(copies))
     return raster, sources
-

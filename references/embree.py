@@ -120,7 +120,9 @@ class ExactTracer:
         point[hit] = origins[hit] + t[hit, None] * unit[hit]
         normal, geometric, albedo, emission = (np.zeros((n, 3)) for _ in range(4))
         material = np.full(n, -1, np.int32)
-        normal[hit], geometric[hit], albedo[hit], emission[hit], material[hit] = self._surface(prim[hit], b[hit, 0], b[hit, 1])
+        normal[hit], geometric[hit], albedo[hit], emission[hit], material[hit] = self._surface(
+            prim[hit], b[hit, 0], b[hit, 1]
+        )
         return Hits(depth, point, prim, normal, geometric, albedo, emission, material)
 
     def _cast(self, origins_local: np.ndarray, unit: np.ndarray, far: np.ndarray):
@@ -141,8 +143,12 @@ class ExactTracer:
         """One Embree query on one layer: float32 (t, b1, b2) and the global prim (-1: no hit) per
         ray; t in unit lengths."""
         embree, ids = self._layers[layer][:2]
-        r = embree.run(origins_local.astype(np.float32, copy=False), unit.astype(np.float32, copy=False),
-                       dists=far.astype(np.float32, copy=False), output=1)
+        r = embree.run(
+            origins_local.astype(np.float32, copy=False),
+            unit.astype(np.float32, copy=False),
+            dists=far.astype(np.float32, copy=False),
+            output=1,
+        )
         prim = r["primID"]
         prim = np.where(prim >= 0, ids[np.maximum(prim, 0)], -1).astype(np.int32)
         return r["tfar"], prim, r["u"], r["v"]
@@ -171,7 +177,9 @@ class ExactTracer:
         for m in self._textured:
             sel = np.nonzero(material == m)[0]
             if len(sel):
-                albedo[sel] = sample_texture(self.scene.materials[m].texture, self._interpolate(a.uvs, prim[sel], b1[sel], b2[sel]))
+                albedo[sel] = sample_texture(
+                    self.scene.materials[m].texture, self._interpolate(a.uvs, prim[sel], b1[sel], b2[sel])
+                )
         return normal, geometric, albedo, self._emission[material], material
 
     def _interpolate(self, values: np.ndarray, prim: np.ndarray, b1: np.ndarray, b2: np.ndarray) -> np.ndarray:
@@ -195,15 +203,39 @@ class ExactTracer:
         list_count = directions.count * resolution**2
         offsets = np.zeros(list_count + 1, np.int64)
         np.cumsum(np.bincount(nodes.pop("list"), minlength=list_count), out=offsets[1:])
-        params = {**bundle_params(self.scene, "exact", directions, resolution), "embreex": importlib.metadata.version("embreex"),
-                  "recast_epsilon": self.epsilon, "recast_ulps": RECAST_ULPS, "threads": self.threads,
-                  "coincidence_layers": len(self._layers), "coincident_pairs": len(self.coincident_pairs)}
+        params = {
+            **bundle_params(self.scene, "exact", directions, resolution),
+            "embreex": importlib.metadata.version("embreex"),
+            "recast_epsilon": self.epsilon,
+            "recast_ulps": RECAST_ULPS,
+            "threads": self.threads,
+            "coincidence_layers": len(self._layers),
+            "coincident_pairs": len(self.coincident_pairs),
+        }
         lengths = np.diff(offsets)
-        stats = {"nodes": int(offsets[-1]), "casts": casts, "max_list_length": int(lengths.max()) if len(lengths) else 0,
-                 "wall_s": time.perf_counter() - start, "threads": self.threads}
-        return BundleSet("exact", directions, self.centre.copy(), self.radius, int(resolution), offsets,
-                         depth=nodes["depth"], normal=nodes["normal"], albedo=nodes["albedo"], emission=nodes["emission"],
-                         prim_id=nodes["prim_id"], material=nodes["material"], params=params, stats=stats)
+        stats = {
+            "nodes": int(offsets[-1]),
+            "casts": casts,
+            "max_list_length": int(lengths.max()) if len(lengths) else 0,
+            "wall_s": time.perf_counter() - start,
+            "threads": self.threads,
+        }
+        return BundleSet(
+            "exact",
+            directions,
+            self.centre.copy(),
+            self.radius,
+            int(resolution),
+            offsets,
+            depth=nodes["depth"],
+            normal=nodes["normal"],
+            albedo=nodes["albedo"],
+            emission=nodes["emission"],
+            prim_id=nodes["prim_id"],
+            material=nodes["material"],
+            params=params,
+            stats=stats,
+        )
 
     @staticmethod
     def _lines_meeting_box(origins, unit, lo, hi):
@@ -222,12 +254,16 @@ class ExactTracer:
     def _trace_bundles(self, directions: DirectionSet, resolution: int, ks: range) -> dict:
         """Every hit on the lines of bundles ``ks``, sorted as a BundleSet stores them: node arrays
         plus "list" (each node's global list index) and "casts" (Embree rays cast)."""
-        origins = np.concatenate([line_origins(directions, k, np.zeros(3), self.radius, resolution) for k in ks])  # centre-relative
-        unit = np.repeat(directions.directions[ks.start:ks.stop], resolution**2, axis=0)
+        origins = np.concatenate(
+            [line_origins(directions, k, np.zeros(3), self.radius, resolution) for k in ks]
+        )  # centre-relative
+        unit = np.repeat(directions.directions[ks.start : ks.stop], resolution**2, axis=0)
         # The re-cast loop runs in float32, as Embree does: a re-cast origin is off by about one ulp
         # of 2r, far below the offset; final depths are recomputed in float64.
         origins32, unit32 = origins.astype(np.float32), unit.astype(np.float32)
-        line, depth, prim, b1, b2 = ([np.zeros(0, dtype)] for dtype in (np.int64, np.float32, np.int32, np.float32, np.float32))
+        line, depth, prim, b1, b2 = (
+            [np.zeros(0, dtype)] for dtype in (np.int64, np.float32, np.int32, np.float32, np.float32)
+        )
         casts = 0
         for layer, (_, _, lo, hi) in enumerate(self._layers):
             active, at = self._lines_meeting_box(origins, unit, lo, hi)
@@ -257,9 +293,16 @@ class ExactTracer:
             sub = sel[np.lexsort((prim[sel], depth[sel], line[sel]))]
             depth[sel], prim[sel], b1[sel], b2[sel] = depth[sub], prim[sub], b1[sub], b2[sub]
         normal, _, albedo, emission, material = self._surface(prim, b1.astype(np.float64), b2.astype(np.float64))
-        return {"list": ks.start * resolution**2 + line, "depth": depth, "normal": normal.astype(np.float32),
-                "albedo": albedo.astype(np.float32), "emission": emission.astype(np.float32),
-                "prim_id": prim, "material": material.astype(np.int32), "casts": np.array([casts])}
+        return {
+            "list": ks.start * resolution**2 + line,
+            "depth": depth,
+            "normal": normal.astype(np.float32),
+            "albedo": albedo.astype(np.float32),
+            "emission": emission.astype(np.float32),
+            "prim_id": prim,
+            "material": material.astype(np.int32),
+            "casts": np.array([casts]),
+        }
 
 
 def coincident_pairs(positions_local, faces, normals, tolerance):
@@ -270,7 +313,7 @@ def coincident_pairs(positions_local, faces, normals, tolerance):
     positions_local (V, 3) float64 around the origin; faces (T, 3); normals (T, 3) unit.
     """
     n = normals
-    p = positions_local[faces]                                   # (T, 3, 3)
+    p = positions_local[faces]  # (T, 3, 3)
     offset = np.einsum("ij,ij->i", n, p[:, 0])
     # A sign-free plane key: n n^T (scaled to lengths) and the plane's point closest to the origin.
     scale = np.abs(positions_local).max()
@@ -307,7 +350,9 @@ def _overlapping_in_groups(p, n, group, count, scale, tolerance):
     j = i + 1 + (np.arange(width.sum()) - np.repeat(np.cumsum(width) - width, width))
     a, b = tri[i], tri[j]
     # Full bounding boxes overlap, then the separating axis test in the plane.
-    box = np.all((p[a].max(axis=1) >= p[b].min(axis=1) - tolerance) & (p[b].max(axis=1) >= p[a].min(axis=1) - tolerance), axis=1)
+    box = np.all(
+        (p[a].max(axis=1) >= p[b].min(axis=1) - tolerance) & (p[b].max(axis=1) >= p[a].min(axis=1) - tolerance), axis=1
+    )
     a, b = a[box], b[box]
     # Same plane (a hashed bin may hold others), then the separating axis test in that plane.
     overlap = np.all(np.abs(np.einsum("ikj,ij->ik", p[b] - p[a, :1], n[a])) <= tolerance, axis=1)
@@ -334,4 +379,3 @@ def coincidence_layers(pairs: np.ndarray, triangle_count: int) -> np.ndarray:
         taken = {int(layer[u]) for u in neighbours[t] if u < t}
         layer[t] = next(i for i in range(len(taken) + 1) if i not in taken)
     return layer
-

@@ -62,8 +62,16 @@ class Reference:
     reused: bool
 
 
-def store_entry(scene_name: str, scene_hash: str, bounces: int, spp: int, width: int, height: int, seed: int,
-                store: Path = DEFAULT_STORE) -> Path:
+def store_entry(
+    scene_name: str,
+    scene_hash: str,
+    bounces: int,
+    spp: int,
+    width: int,
+    height: int,
+    seed: int,
+    store: Path = DEFAULT_STORE,
+) -> Path:
     """The store folder of one reference."""
     return Path(store) / f"{scene_name}-{scene_hash[:16]}" / f"b{bounces}_{width}x{height}_spp{spp}_seed{seed}"
 
@@ -73,9 +81,18 @@ def chunk_seed(seed: int, chunk: int) -> int:
     return int(np.random.SeedSequence([seed, chunk]).generate_state(1)[0])
 
 
-def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None = None, height: int | None = None,
-              seed: int = 0, chunks: int | None = None, variant: str | None = None, store: Path = DEFAULT_STORE,
-              progress=print) -> Reference:
+def reference(
+    scene: Scene,
+    bounces: int = 1,
+    spp: int = 1024,
+    width: int | None = None,
+    height: int | None = None,
+    seed: int = 0,
+    chunks: int | None = None,
+    variant: str | None = None,
+    store: Path = DEFAULT_STORE,
+    progress=print,
+) -> Reference:
     """The stored reference with these parameters, rendered (or resumed) first if it is missing.
 
     ``chunks`` (default ``min(32, spp)``) must divide ``spp``; ``progress`` gets one line per chunk.
@@ -85,7 +102,9 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
         raise ValueError(f"need bounces >= 0, spp >= 2 and a positive size, got {bounces}, {spp}, {width}x{height}")
     chunks = int(chunks or min(DEFAULT_CHUNKS, spp))
     if chunks < 2 or spp % chunks:
-        raise ValueError(f"{chunks} chunks must be at least 2 and divide spp={spp} (the variance comes from the chunks)")
+        raise ValueError(
+            f"{chunks} chunks must be at least 2 and divide spp={spp} (the variance comes from the chunks)"
+        )
     scene_hash = scene.content_hash()
     entry = store_entry(scene.name, scene_hash, bounces, spp, width, height, seed, store)
     if (entry / "manifest.json").is_file():
@@ -116,7 +135,10 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
         os.replace(tmp, state_path)
         elapsed = time.perf_counter() - start
         per_chunk = elapsed / (done - resumed_at)
-        progress(f"chunk {done}/{chunks}: {spp // chunks} spp, {elapsed:.1f} s, about {per_chunk * (chunks - done):.0f} s left")
+        progress(
+            f"chunk {done}/{chunks}: {spp // chunks} spp, {elapsed:.1f} s, "
+            f"about {per_chunk * (chunks - done):.0f} s left"
+        )
 
     mean = sums / chunks
     variance = np.maximum(squares - chunks * mean * mean, 0.0) / (chunks * (chunks - 1))
@@ -131,7 +153,8 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
         "chunks": chunks,
         "width": width,
         "height": height,
-        "integrator": f"path, max_depth 2 (direct) and {bounces + 2} (total), rr_depth = max_depth; indirect = total - direct",
+        "integrator": f"path, max_depth 2 (direct) and {bounces + 2} (total), rr_depth = max_depth; "
+        "indirect = total - direct",
         "variance": "variance of the pixel mean from the spread of the chunk means (batch means), per RGB channel",
         "mitsuba": mi.__version__,
         "variant": mi.variant(),
@@ -143,7 +166,9 @@ def reference(scene: Scene, bounces: int = 1, spp: int = 1024, width: int | None
     for i, name in enumerate(IMAGES):
         for suffix, image in (("", mean[i]), ("_variance", variance[i])):
             file = f"{name}{suffix}.exr"
-            write_exr(entry / file, image, {**{k: v for k, v in manifest.items() if k != "files"}, "image": name + suffix})
+            write_exr(
+                entry / file, image, {**{k: v for k, v in manifest.items() if k != "files"}, "image": name + suffix}
+            )
             manifest["files"][name + suffix] = file
     (entry / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
     state_path.unlink()
@@ -156,12 +181,15 @@ def _mitsuba_scene(scene: Scene, bounces: int, spp: int, width: int, height: int
 
     mi = mitsuba(variant)
     mi_scene = mi.load_dict(to_mitsuba_dict(scene, mi, spp=spp, width=width, height=height))
-    integrators = {depth: mi.load_dict({"type": "path", "max_depth": depth, "rr_depth": depth}) for depth in (2, bounces + 2)}
+    integrators = {
+        depth: mi.load_dict({"type": "path", "max_depth": depth, "rr_depth": depth}) for depth in (2, bounces + 2)
+    }
     return mi, mi_scene, integrators
 
 
-def timed_render(scene: Scene, bounces: int, spp: int, width: int, height: int, seed: int,
-                 variant: str | None = None) -> tuple[dict[str, np.ndarray], float, dict]:
+def timed_render(
+    scene: Scene, bounces: int, spp: int, width: int, height: int, seed: int, variant: str | None = None
+) -> tuple[dict[str, np.ndarray], float, dict]:
     """Mitsuba's direct, indirect and total images at ``spp`` and the seconds they took, for
     comparing speed against error: a 1-spp warm-up render first compiles Mitsuba's kernels, so the
     time is rendering only. Both the direct and the total render are timed, as the indirect image
@@ -175,7 +203,9 @@ def timed_render(scene: Scene, bounces: int, spp: int, width: int, height: int, 
     # spp given again: a render's spp argument stays set on the scene's sampler.
     start = time.perf_counter()
     direct = np.array(mi.render(mi_scene, integrator=integrators[2], seed=seed, spp=spp), dtype=np.float64)[..., :3]
-    total = np.array(mi.render(mi_scene, integrator=integrators[bounces + 2], seed=seed, spp=spp), dtype=np.float64)[..., :3]
+    total = np.array(mi.render(mi_scene, integrator=integrators[bounces + 2], seed=seed, spp=spp), dtype=np.float64)[
+        ..., :3
+    ]
     seconds = time.perf_counter() - start
     images = {"direct": direct, "indirect": total - direct, "total": total}
     return images, seconds, {"mitsuba": mi.__version__, "variant": mi.variant()}
@@ -192,7 +222,9 @@ def load_reference(entry: str | os.PathLike, reused: bool = True) -> Reference:
     except ValueError as e:
         raise InputError(str(manifest_path), f"malformed JSON: {e}") from None
     if manifest.get("store_format") != STORE_FORMAT:
-        raise InputError(str(manifest_path), f"reference store format {manifest.get('store_format')} is not {STORE_FORMAT}")
+        raise InputError(
+            str(manifest_path), f"reference store format {manifest.get('store_format')} is not {STORE_FORMAT}"
+        )
     images = {name: read_exr(entry / manifest["files"][name])[0] for name in IMAGES}
     variances = {name: read_exr(entry / manifest["files"][name + "_variance"])[0] for name in IMAGES}
     return Reference(entry, images, variances, manifest, reused)

@@ -20,11 +20,11 @@ def exact_lists(scene: Scene, template: BundleSet) -> list[list[np.ndarray]]:
         d = template.directions.directions[k]
         origins = template.line_origins(k)
         # Moller-Trumbore for all lines x triangles.
-        pvec = np.cross(d, e2)                      # (T, 3)
-        det = np.einsum("ij,ij->i", e1, pvec)       # (T,)
+        pvec = np.cross(d, e2)  # (T, 3)
+        det = np.einsum("ij,ij->i", e1, pvec)  # (T,)
         ok = np.abs(det) > 1e-300
         inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        tvec = origins[:, None, :] - p0[None]       # (L, T, 3)
+        tvec = origins[:, None, :] - p0[None]  # (L, T, 3)
         u = np.einsum("ltj,tj->lt", tvec, pvec) * inv
         qvec = np.cross(tvec, e1[None])
         v = np.einsum("j,ltj->lt", d, qvec) * inv
@@ -59,6 +59,10 @@ def agreement(test: BundleSet, exact: list[list[np.ndarray]], depth_tolerance: f
                     matched += 1
                     same_prim += int(prim[j] == r_prim)
             spurious += int((~used).sum())
-    return {"exact_nodes": total, "matched": matched, "spurious": spurious,
-            "agreement": matched / max(total, 1), "same_prim": same_prim / max(matched, 1)}
-
+    return {
+        "exact_nodes": total,
+        "matched": matched,
+        "spurious": spurious,
+        "agreement": matched / max(total, 1),
+        "same_prim": same_prim / max(matched, 1),
+    }

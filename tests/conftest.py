@@ -42,7 +42,9 @@ def rng():
 
 def run_evalkit(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
     """`evalkit ARGS` in a child process, as a user runs it."""
-    return subprocess.run([sys.executable, "-m", "evalkit.cli", *args], capture_output=True, text=True, timeout=timeout, cwd=REPO)
+    return subprocess.run(
+        [sys.executable, "-m", "evalkit.cli", *args], capture_output=True, text=True, timeout=timeout, cwd=REPO
+    )
 
 
 def write_texture(path, size: int = 8, seed: int = 0) -> np.ndarray:
@@ -69,7 +71,9 @@ class ImageOutput:
         write_exr(folder / "test.exr", test, {"test": self.folder.name, "image": name})
         write_exr(folder / "reference.exr", ref, {"test": self.folder.name, "image": name})
         error = metric(test.astype(np.float64), ref.astype(np.float64)).map
-        write_exr(folder / "relmse_map.exr", np.repeat(error[..., None], 3, axis=2).astype(np.float32), {"map": "relmse"})
+        write_exr(
+            folder / "relmse_map.exr", np.repeat(error[..., None], 3, axis=2).astype(np.float32), {"map": "relmse"}
+        )
         vmax = error_map_png(error, folder / "relmse_map.png")
         return f"{message}; test image, reference and relMSE map (magma, 0..{vmax:.3g}) in {folder}"
 
@@ -94,8 +98,19 @@ def relmse(test: np.ndarray, ref: np.ndarray, eps: float = 0.01) -> float:
 # draws fresh examples, many more of them.
 from hypothesis import HealthCheck, settings  # noqa: E402
 
-settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True,
-                          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-settings.register_profile("fuzz", derandomize=False, deadline=None, max_examples=5000, print_blob=True,
-                          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+settings.register_profile(
+    "ci",
+    derandomize=True,
+    deadline=None,
+    print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+settings.register_profile(
+    "fuzz",
+    derandomize=False,
+    deadline=None,
+    max_examples=5000,
+    print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))

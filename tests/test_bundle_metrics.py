@@ -6,19 +6,21 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from test_bundles import QUAD, QUAD_FACES, build, scene_of
 
 from evalkit.core.bundleset import DirectionSet
-from evalkit.metrics.bundles import SLOPE_BINS, compare_bundles, eye_vertices, next_hit_errors
 from evalkit.core.scene import Material, Mesh, load_scene
+from evalkit.metrics.bundles import SLOPE_BINS, compare_bundles, eye_vertices, next_hit_errors
 from references.embree import ExactTracer
-from test_bundles import QUAD, QUAD_FACES, build, scene_of
 
 
 def two_planes():
     """A floor facing up under a ceiling facing down, 4 x 4, 0.5 apart."""
     floor = (QUAD[:, [0, 2, 1]] - [0.5, 0, 0.5]) * 4
     ceiling = floor[:, :] + [0, 0.5, 0]
-    return scene_of([Mesh("floor", floor, QUAD_FACES[:, [0, 2, 1]], 0), Mesh("ceiling", ceiling, QUAD_FACES, 0)], [Material("grey")])
+    return scene_of(
+        [Mesh("floor", floor, QUAD_FACES[:, [0, 2, 1]], 0), Mesh("ceiling", ceiling, QUAD_FACES, 0)], [Material("grey")]
+    )
 
 
 def floor_vertices(count, rng):
@@ -49,11 +51,16 @@ def test_bundles_without_nodes_miss_every_hit_the_rays_find(rng):
     vertices = floor_vertices(1000, rng)
     tracer = ExactTracer(scene)
     exact = tracer.bundles(DirectionSet.make(8, seed=2), 32)
-    empty = replace(exact, offsets=np.zeros_like(exact.offsets),
-                    **{name: getattr(exact, name)[:0] for name in exact.NODE_FIELDS})
+    empty = replace(
+        exact, offsets=np.zeros_like(exact.offsets), **{name: getattr(exact, name)[:0] for name in exact.NODE_FIELDS}
+    )
     r = next_hit_errors(empty, tracer, vertices, seed=1)
-    hits = np.count_nonzero(tracer.next_hit(vertices["position"] + 1e-6 * vertices["normal"],
-                                            _directions_taken(exact, vertices, seed=1)).prim_id >= 0)
+    hits = np.count_nonzero(
+        tracer.next_hit(
+            vertices["position"] + 1e-6 * vertices["normal"], _directions_taken(exact, vertices, seed=1)
+        ).prim_id
+        >= 0
+    )
     assert r["false_miss_rate"] == r["error_rate"] == hits / 1000 > 0.5
 
 
@@ -71,8 +78,9 @@ def test_gl_perfect_lookups_err_no_more_than_exact_ones_and_imperfect_more(gl):
     directions = DirectionSet.make(16, seed=0)
     floor = next_hit_errors(tracer.bundles(directions, 128), tracer, vertices)["error_rate"]
     perfect = next_hit_errors(build(gl, scene, "perfect", K=16, R=128, seed=0), tracer, vertices)["error_rate"]
-    independent = next_hit_errors(build(gl, scene, "imperfect", K=16, R=128, seed=0, sampler="random", splat_scale=2.0),
-                                  tracer, vertices)["error_rate"]
+    independent = next_hit_errors(
+        build(gl, scene, "imperfect", K=16, R=128, seed=0, sampler="random", splat_scale=2.0), tracer, vertices
+    )["error_rate"]
     imperfect = next_hit_errors(build(gl, scene, "imperfect", K=16, R=128, seed=0), tracer, vertices)["error_rate"]
     # Measured: floor 2.44 %, perfect 2.67 %; imperfect with independent points at splat scale 2
     # (the old default) 6.8 %, with the default stratified points at 1.8 4.2 % (K=16, R=128).

@@ -8,9 +8,9 @@ import math
 
 import numpy as np
 import pytest
-
 from bundle_oracle import agreement, exact_lists
 from conftest import run_evalkit
+
 from evalkit.core.bundleset import FRAME_PADDING, SPLAT_PRIM_ID, BundleSet, DirectionSet
 from evalkit.core.scene import Material, Mesh, assemble, load_scene
 from evalkit.core.scene.model import sample_texture
@@ -36,8 +36,14 @@ def textured_quad():
 
 def nested_boxes():
     meshes = [Mesh(f"box{i}", *box(np.full(3, -s), np.full(3, s)), i) for i, s in enumerate((1.0, 0.6, 0.3))]
-    return scene_of(meshes, [Material("outer", albedo=(0.8, 0.2, 0.2)), Material("middle", albedo=(0.2, 0.8, 0.2)),
-                             Material("inner", albedo=(0.2, 0.2, 0.8), emission=(2.0, 1.0, 0.5))])
+    return scene_of(
+        meshes,
+        [
+            Material("outer", albedo=(0.8, 0.2, 0.2)),
+            Material("middle", albedo=(0.2, 0.8, 0.2)),
+            Material("inner", albedo=(0.2, 0.2, 0.8), emission=(2.0, 1.0, 0.5)),
+        ],
+    )
 
 
 def coplanar_stack():
@@ -46,8 +52,12 @@ def coplanar_stack():
     return scene_of(meshes, [Material("grey")])
 
 
-SCENES = {"quad": textured_quad, "nested-boxes": nested_boxes, "coplanar-stack": coplanar_stack,
-          "cornell-box": lambda: load_scene("cornell-box")}
+SCENES = {
+    "quad": textured_quad,
+    "nested-boxes": nested_boxes,
+    "coplanar-stack": coplanar_stack,
+    "cornell-box": lambda: load_scene("cornell-box"),
+}
 
 
 def build(gl, scene, method="perfect", K=12, R=40, seed=3, **kw) -> BundleSet:
@@ -106,8 +116,10 @@ def test_coincident_triangles_are_kept_and_counted_redundant(gl):
 
 
 def flat_square(size: float = 1.0):
-    return scene_of([Mesh("square", QUAD * size, QUAD_FACES, 0, uvs=QUAD[:, :2].copy())],
-                    [Material("checker", texture=textured_quad().materials[0].texture)])
+    return scene_of(
+        [Mesh("square", QUAD * size, QUAD_FACES, 0, uvs=QUAD[:, :2].copy())],
+        [Material("checker", texture=textured_quad().materials[0].texture)],
+    )
 
 
 @pytest.mark.parametrize("splat_scale", [1.0, 1.5, 2.0])
@@ -116,11 +128,13 @@ def test_independent_points_leave_the_holes_of_the_coverage_model(gl, splat_scal
     # exp(-splat_scale^2); the circular cut-out makes each splat cover exactly pi r^2, so the
     # nodes per surface crossing, unmerged, are splat_scale^2.
     scene = flat_square()
-    bundles = build(gl, scene, "imperfect", K=8, R=64, points=8192, splat_scale=splat_scale, sampler="random", merge=False)
+    bundles = build(
+        gl, scene, "imperfect", K=8, R=64, points=8192, splat_scale=splat_scale, sampler="random", merge=False
+    )
     assert (bundles.prim_id == SPLAT_PRIM_ID).all() and (bundles.material == 0).all()
     result = agreement(bundles, exact_lists(scene, bundles), 1e-5 * bundles.radius)
     holes = 1 - result["agreement"]
-    model = math.exp(-splat_scale**2)
+    model = math.exp(-(splat_scale**2))
     assert abs(holes - model) < 0.15 * model + 0.004, (holes, model)
     overlap = bundles.node_count / result["exact_nodes"]
     assert abs(overlap - splat_scale**2) < 0.05 * splat_scale**2 + 0.02, overlap
@@ -134,7 +148,7 @@ def test_stratified_points_leave_far_fewer_holes(gl, splat_scale, fraction):
     scene = flat_square()
     bundles = build(gl, scene, "imperfect", K=8, R=64, points=8192, splat_scale=splat_scale, sampler="stratified")
     holes = 1 - agreement(bundles, exact_lists(scene, bundles), 1e-5 * bundles.radius)["agreement"]
-    assert holes < fraction * math.exp(-splat_scale**2), holes
+    assert holes < fraction * math.exp(-(splat_scale**2)), holes
 
 
 def test_redundant_splat_nodes_merge_into_one_per_crossing(gl):
@@ -151,7 +165,10 @@ def test_redundant_splat_nodes_merge_into_one_per_crossing(gl):
     assert merged.stats["raw_nodes"] < 0.5 * unmerged.stats["raw_nodes"]
     assert merged.node_count + merged.stats["redundant_nodes"] == merged.stats["raw_nodes"]
     assert merged.list_lengths().max() == 1 and merged.node_count >= 0.999 * crossings
-    assert agreement(merged, exact, 1e-5 * merged.radius)["agreement"] == agreement(unmerged, exact, 1e-5 * merged.radius)["agreement"]
+    assert (
+        agreement(merged, exact, 1e-5 * merged.radius)["agreement"]
+        == agreement(unmerged, exact, 1e-5 * merged.radius)["agreement"]
+    )
 
 
 def test_splat_uvs_keep_texture_detail_inside_a_splat(gl):
@@ -181,10 +198,15 @@ def test_overflow_reruns_and_loses_no_node(gl):
 
 
 def test_node_budget_is_a_clear_error_with_the_memory_needed(gl):
-    with pytest.raises(NodeBudgetExceeded, match=r"analytic: perfect bundles \(K=8, R=32\) need [\d.]+ KiB for [\d,]+ nodes in "
-                                                 r"linked lists, over the node budget of 64.00 KiB"):
+    with pytest.raises(
+        NodeBudgetExceeded,
+        match=r"analytic: perfect bundles \(K=8, R=32\) need [\d.]+ KiB for [\d,]+ nodes in "
+        r"linked lists, over the node budget of 64.00 KiB",
+    ):
         build(gl, nested_boxes(), K=8, R=32, node_budget=64 * 1024)
-    with pytest.raises(NodeBudgetExceeded, match=r"imperfect bundles \(K=8, R=32, N=20000\) need .* for 160,000 splat points"):
+    with pytest.raises(
+        NodeBudgetExceeded, match=r"imperfect bundles \(K=8, R=32, N=20000\) need .* for 160,000 splat points"
+    ):
         build(gl, nested_boxes(), "imperfect", K=8, R=32, points=20000, node_budget=1 << 20)
 
 
@@ -201,8 +223,23 @@ def test_same_seed_same_lists_and_atlas_batching_changes_nothing(gl):
 
 def test_cli_builds_and_saves_bundles(tmp_path):
     out = tmp_path / "sub" / "b.npz"
-    r = run_evalkit("bundles", "cornell-box", "--method", "imperfect", "--directions", "8", "--resolution", "32",
-                    "--points", "2048", "--seed", "4", "--out", str(out), "--json")
+    r = run_evalkit(
+        "bundles",
+        "cornell-box",
+        "--method",
+        "imperfect",
+        "--directions",
+        "8",
+        "--resolution",
+        "32",
+        "--points",
+        "2048",
+        "--seed",
+        "4",
+        "--out",
+        str(out),
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout.strip().splitlines()[-1])
     stats = summary["stats"]
@@ -237,8 +274,20 @@ def test_every_builtin_scene_builds_both_ways(gl, name):
 
 
 def test_cli_reports_an_exceeded_budget_in_one_line(tmp_path):
-    r = run_evalkit("bundles", "cornell-box", "--method", "perfect", "--directions", "8", "--resolution", "32",
-                    "--node-budget", "10kB", "--out", str(tmp_path / "b.npz"))
+    r = run_evalkit(
+        "bundles",
+        "cornell-box",
+        "--method",
+        "perfect",
+        "--directions",
+        "8",
+        "--resolution",
+        "32",
+        "--node-budget",
+        "10kB",
+        "--out",
+        str(tmp_path / "b.npz"),
+    )
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "over the node budget" in r.stderr and "Traceback" not in r.stderr
 
@@ -254,25 +303,44 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
     found = {}
     with GpuScene(gl, scene) as gpu_scene:
         for splatter in ("compute", "raster"):
-            with BundleTracer(gl, gpu_scene, "imperfect", directions=8, resolution=64, points=4096, splat_scale=1.5,
-                              splatter=splatter, merge=False) as tracer:
+            with BundleTracer(
+                gl,
+                gpu_scene,
+                "imperfect",
+                directions=8,
+                resolution=64,
+                points=4096,
+                splat_scale=1.5,
+                splatter=splatter,
+                merge=False,
+            ) as tracer:
                 tracer.build(directions)
                 offsets, depth, ref, _ = tracer.node_refs()
                 lists = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-                found[splatter] = {(int(l), int(p)): float(z) for l, p, z in zip(lists, ref, depth)}
+                found[splatter] = {(int(i), int(p)): float(z) for i, p, z in zip(lists, ref, depth)}
                 points, radius = tracer.read_points(), tracer.splat_radius
-        bundles = BundleSet(method="imperfect", directions=directions, centre=gpu_scene.centre, radius=gpu_scene.radius,
-                            resolution=64, offsets=np.zeros(8 * 64 * 64 + 1, dtype=np.int64), depth=np.zeros(0, np.float32),
-                            normal=np.zeros((0, 3), np.float32), albedo=np.zeros((0, 3), np.float32),
-                            emission=np.zeros((0, 3), np.float32), prim_id=np.zeros(0, np.int32), material=np.zeros(0, np.int32))
+        bundles = BundleSet(
+            method="imperfect",
+            directions=directions,
+            centre=gpu_scene.centre,
+            radius=gpu_scene.radius,
+            resolution=64,
+            offsets=np.zeros(8 * 64 * 64 + 1, dtype=np.int64),
+            depth=np.zeros(0, np.float32),
+            normal=np.zeros((0, 3), np.float32),
+            albedo=np.zeros((0, 3), np.float32),
+            emission=np.zeros((0, 3), np.float32),
+            prim_id=np.zeros(0, np.int32),
+            material=np.zeros(0, np.int32),
+        )
         arrays = gpu_scene.arrays
     compute, raster = found["compute"], found["raster"]
     common = compute.keys() & raster.keys()
     assert len(common) > 100_000 and len(common) > 0.999 * max(len(compute), len(raster))
     assert max(abs(compute[n] - raster[n]) for n in common) <= 1e-6 * bundles.radius
     # Where they differ: the line's distance from the splat centre, over the radius, is 1.
-    for l, p in compute.keys() ^ raster.keys():
-        k, cell = divmod(l, 64 * 64)
+    for line, p in compute.keys() ^ raster.keys():
+        k, cell = divmod(line, 64 * 64)
         origin = bundles.line_origins(k)[cell]
         t = int(points["triangle"][p])
         b = np.array([points["barycentrics"][p] & 0xFFFF, points["barycentrics"][p] >> 16]) / 65535.0
@@ -284,14 +352,30 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
         assert abs(np.linalg.norm(q - centre) - radius) < snap
 
 
-@pytest.mark.parametrize("args, said", [
-    (["--points", "0"], "argument --points: 0 must be at least 1"),
-    (["--splat-scale", "-1"], "argument --splat-scale: -1.0 must be positive and finite"),
-    (["--points", "65536", "--node-budget", "10MiB"], "need 416.01 MiB for 16,777,216 splat points, their lines and the list offsets, "
-                                                       "over the node budget of 10.00 MiB"),
-])
+@pytest.mark.parametrize(
+    "args, said",
+    [
+        (["--points", "0"], "argument --points: 0 must be at least 1"),
+        (["--splat-scale", "-1"], "argument --splat-scale: -1.0 must be positive and finite"),
+        (
+            ["--points", "65536", "--node-budget", "10MiB"],
+            "need 416.01 MiB for 16,777,216 splat points, their lines and the list offsets, "
+            "over the node budget of 10.00 MiB",
+        ),
+    ],
+)
 def test_bad_imperfect_settings_are_one_line_saying_what_was_asked_and_what_is_needed(tmp_path, args, said):
-    r = run_evalkit("bundles", "cornell-box", "--method", "imperfect", "--directions", "256", *args, "--out", str(tmp_path / "b.npz"))
+    r = run_evalkit(
+        "bundles",
+        "cornell-box",
+        "--method",
+        "imperfect",
+        "--directions",
+        "256",
+        *args,
+        "--out",
+        str(tmp_path / "b.npz"),
+    )
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and said in r.stderr and "Traceback" not in r.stderr
 
 

@@ -49,9 +49,22 @@ def small_bundles(method="exact", nodes_per_list=None) -> BundleSet:
     rng = np.random.default_rng(0)
     depth = np.concatenate([np.sort(rng.uniform(0, 2, n)) for n in lengths]).astype(np.float32)
     normal = np.tile(np.float32([0, 0, 1]), (m, 1))
-    return BundleSet(method, ds, np.zeros(3), 1.0, R, offsets, depth, normal, np.full((m, 3), 0.5, np.float32),
-                     np.zeros((m, 3), np.float32), np.arange(m, dtype=np.int32), np.zeros(m, np.int32),
-                     params={"seed": 1}, stats={"nodes": m})
+    return BundleSet(
+        method,
+        ds,
+        np.zeros(3),
+        1.0,
+        R,
+        offsets,
+        depth,
+        normal,
+        np.full((m, 3), 0.5, np.float32),
+        np.zeros((m, 3), np.float32),
+        np.arange(m, dtype=np.int32),
+        np.zeros(m, np.int32),
+        params={"seed": 1},
+        stats={"nodes": m},
+    )
 
 
 def test_line_origins_follow_the_documented_grid():
@@ -74,7 +87,13 @@ def test_npz_round_trip_keeps_every_field(tmp_path):
     for name in ("offsets", *BundleSet.NODE_FIELDS):
         assert np.array_equal(getattr(b, name), getattr(c, name)), name
     assert np.array_equal(b.directions.jitter, c.directions.jitter)
-    assert (c.method, c.radius, c.resolution, c.params, c.stats) == (b.method, b.radius, b.resolution, b.params, b.stats)
+    assert (c.method, c.radius, c.resolution, c.params, c.stats) == (
+        b.method,
+        b.radius,
+        b.resolution,
+        b.params,
+        b.stats,
+    )
 
 
 def test_bad_bundle_files_are_one_line_errors(tmp_path):

@@ -8,8 +8,8 @@ import os
 import re
 
 import pytest
-
 from conftest import run_evalkit
+
 from evalkit import doctor
 from evalkit.core.mitsuba_env import find_libllvm, llvm_major
 
@@ -78,8 +78,11 @@ BAD_INPUTS = {
     "garbage.ply": ("\x00\x01garbage", "cannot be read|no triangle geometry"),
     "bad.xml": ("<scene><shape>\n</scene>", "malformed XML"),
     "nogeometry.xml": ('<scene version="3.0.0"><emitter type="constant"/></scene>', "no triangle geometry"),
-    "zeroarea.xml": ('<scene version="3.0.0"><shape type="rectangle"/><shape type="rectangle">'
-                     '<emitter type="area"/><transform name="to_world"><scale value="0"/></transform></shape></scene>', "zero area"),
+    "zeroarea.xml": (
+        '<scene version="3.0.0"><shape type="rectangle"/><shape type="rectangle">'
+        '<emitter type="area"/><transform name="to_world"><scale value="0"/></transform></shape></scene>',
+        "zero area",
+    ),
     "missing.obj": (None, "file not found"),
 }
 

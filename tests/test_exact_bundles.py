@@ -8,15 +8,15 @@ import json
 
 import numpy as np
 import pytest
-
 from bundle_oracle import agreement, exact_lists
 from conftest import run_evalkit
+from test_bundles import QUAD, QUAD_FACES, build, coplanar_stack, nested_boxes, scene_of, textured_quad
+
 from evalkit.core.bundleset import BundleSet, DirectionSet
-from evalkit.metrics.bundles import compare_bundles
 from evalkit.core.scene import Material, Mesh, load_scene
 from evalkit.core.scene.tessellate import box, unit_sphere
+from evalkit.metrics.bundles import compare_bundles
 from references.embree import ExactTracer
-from test_bundles import QUAD, QUAD_FACES, build, coplanar_stack, nested_boxes, scene_of, textured_quad
 
 # Exact depths are float64 plane depths stored as float32: a few 1e-8 of the radius.
 EXACT_DEPTH_TOLERANCE = 1e-6
@@ -26,7 +26,9 @@ def thin_slabs():
     """Parallel quads 1e-3, 1e-5 and 1e-7 apart (relative to about unit size); the last gap is
     below the re-cast offset, so only the coincidence layers can find both."""
     zs = (0.0, 1e-3, 1e-3 + 1e-5, 1e-3 + 1e-5 + 1e-7)
-    return scene_of([Mesh(f"slab{i}", QUAD + [0.0, 0.0, z], QUAD_FACES, 0) for i, z in enumerate(zs)], [Material("grey")])
+    return scene_of(
+        [Mesh(f"slab{i}", QUAD + [0.0, 0.0, z], QUAD_FACES, 0) for i, z in enumerate(zs)], [Material("grey")]
+    )
 
 
 def exact(scene, K=8, R=32, seed=3) -> BundleSet:
@@ -139,9 +141,20 @@ def rebuilt(template: BundleSet, lists: np.ndarray, depth: np.ndarray, prim: np.
     offsets = np.zeros(template.list_count + 1, np.int64)
     np.cumsum(np.bincount(lists, minlength=template.list_count), out=offsets[1:])
     m = len(depth)
-    return BundleSet("test", template.directions, template.centre, template.radius, template.resolution, offsets,
-                     depth.astype(np.float32), np.zeros((m, 3), np.float32), np.zeros((m, 3), np.float32),
-                     np.zeros((m, 3), np.float32), prim.astype(np.int32), np.zeros(m, np.int32))
+    return BundleSet(
+        "test",
+        template.directions,
+        template.centre,
+        template.radius,
+        template.resolution,
+        offsets,
+        depth.astype(np.float32),
+        np.zeros((m, 3), np.float32),
+        np.zeros((m, 3), np.float32),
+        np.zeros((m, 3), np.float32),
+        prim.astype(np.int32),
+        np.zeros(m, np.int32),
+    )
 
 
 def test_compare_bundles_counts_known_holes_spurious_and_redundant_nodes():
@@ -149,20 +162,25 @@ def test_compare_bundles_counts_known_holes_spurious_and_redundant_nodes():
     lists, depth, prim = truth.node_lists(), truth.depth.astype(np.float64), truth.prim_id
     tau = 1e-4 * truth.radius
     i = np.arange(len(depth))
-    keep = i % 10 != 0                      # every 10th exact node missing: holes
-    dup = keep & (i % 7 == 1)               # a second node on a kept surface: redundant
-    fake = i % 13 == 2                      # a node before the line enters the scene: spurious
-    error = 0.2 * tau * np.sin(i)           # depth errors within the tolerance
-    test = rebuilt(truth, np.concatenate([lists[keep], lists[dup], lists[fake]]),
-                   np.concatenate([depth[keep] + error[keep], depth[dup] + 0.5 * tau, np.full(fake.sum(), -0.05 * truth.radius)]),
-                   np.concatenate([prim[keep], prim[dup], prim[fake]]))
+    keep = i % 10 != 0  # every 10th exact node missing: holes
+    dup = keep & (i % 7 == 1)  # a second node on a kept surface: redundant
+    fake = i % 13 == 2  # a node before the line enters the scene: spurious
+    error = 0.2 * tau * np.sin(i)  # depth errors within the tolerance
+    test = rebuilt(
+        truth,
+        np.concatenate([lists[keep], lists[dup], lists[fake]]),
+        np.concatenate([depth[keep] + error[keep], depth[dup] + 0.5 * tau, np.full(fake.sum(), -0.05 * truth.radius)]),
+        np.concatenate([prim[keep], prim[dup], prim[fake]]),
+    )
     r = compare_bundles(test, truth)
     assert r["exact_nodes"] == len(depth) and r["test_nodes"] == keep.sum() + dup.sum() + fake.sum()
     assert r["holes"] == (~keep).sum() and r["redundant"] == dup.sum() and r["spurious"] == fake.sum()
     assert r["matched"] == keep.sum() and r["agreement"] == pytest.approx(keep.mean())
     assert r["same_prim_rate"] == 1.0
     assert r["depth_error"]["max"] == pytest.approx(np.abs(error[keep]).max() / truth.radius, rel=1e-3, abs=1e-7)
-    holes_k = np.bincount(lists[~keep] // truth.resolution**2, minlength=8) / np.bincount(lists // truth.resolution**2, minlength=8)
+    holes_k = np.bincount(lists[~keep] // truth.resolution**2, minlength=8) / np.bincount(
+        lists // truth.resolution**2, minlength=8
+    )
     assert np.allclose(r["per_direction"]["hole_rate"], holes_k)
     with pytest.raises(ValueError, match="not on the same lines"):
         compare_bundles(test, exact(nested_boxes(), seed=4))
@@ -175,8 +193,12 @@ def test_coincident_exact_nodes_need_one_test_node_each():
     keep = prim < 6
     r = compare_bundles(rebuilt(truth, lists[keep], depth[keep], prim[keep]), truth)
     assert r["holes"] == (~keep).sum() > 500 and r["redundant"] == 0 and r["spurious"] == 0
-    doubled = rebuilt(truth, np.concatenate([lists, lists[~keep]]), np.concatenate([depth, depth[~keep]]),
-                      np.concatenate([prim, prim[~keep]]))
+    doubled = rebuilt(
+        truth,
+        np.concatenate([lists, lists[~keep]]),
+        np.concatenate([depth, depth[~keep]]),
+        np.concatenate([prim, prim[~keep]]),
+    )
     r = compare_bundles(doubled, truth)
     assert r["holes"] == 0 and r["redundant"] == (~keep).sum()
 
@@ -195,14 +217,26 @@ def test_gl_perfect_bundles_agree_with_exact_bundles_on_builtin_scenes(gl):
 def test_cli_exact_bundles_and_compare_bundles(tmp_path):
     common = ["cornell-box", "--directions", "8", "--resolution", "32", "--seed", "2"]
     assert run_evalkit("bundles", *common, "--method", "exact", "--out", str(tmp_path / "exact.npz")).returncode == 0
-    assert run_evalkit("bundles", *common, "--method", "perfect", "--out", str(tmp_path / "perfect.npz")).returncode == 0
+    assert (
+        run_evalkit("bundles", *common, "--method", "perfect", "--out", str(tmp_path / "perfect.npz")).returncode == 0
+    )
     r = run_evalkit("compare-bundles", str(tmp_path / "perfect.npz"), str(tmp_path / "exact.npz"), "--json")
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout.strip().splitlines()[-1])
     assert result["agreement"] >= 0.995 and result["depth_tolerance"] == 1e-4 and "tolerance" in r.stdout
     assert len(result["per_direction"]["hole_rate"]) == 8
-    other = run_evalkit("bundles", "cornell-box", "--directions", "8", "--resolution", "16", "--method", "exact",
-                        "--out", str(tmp_path / "other.npz"))
+    other = run_evalkit(
+        "bundles",
+        "cornell-box",
+        "--directions",
+        "8",
+        "--resolution",
+        "16",
+        "--method",
+        "exact",
+        "--out",
+        str(tmp_path / "other.npz"),
+    )
     assert other.returncode == 0
     bad = run_evalkit("compare-bundles", str(tmp_path / "perfect.npz"), str(tmp_path / "other.npz"))
     assert bad.returncode == 2 and "not on the same lines" in bad.stderr and bad.stderr.count("\n") == 1

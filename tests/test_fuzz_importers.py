@@ -47,8 +47,15 @@ def seed_file(ext: str) -> bytes:
 
 SEEDS = {ext: seed_file(ext) for ext in FORMATS}
 
-edits = st.lists(st.tuples(st.sampled_from(["insert", "delete", "replace", "duplicate"]), st.floats(0, 1),
-                           st.binary(min_size=1, max_size=12)), min_size=1, max_size=8)
+edits = st.lists(
+    st.tuples(
+        st.sampled_from(["insert", "delete", "replace", "duplicate"]),
+        st.floats(0, 1),
+        st.binary(min_size=1, max_size=12),
+    ),
+    min_size=1,
+    max_size=8,
+)
 
 
 def mutate(data: bytes, ops) -> bytes:
@@ -57,11 +64,11 @@ def mutate(data: bytes, ops) -> bytes:
         if op == "insert":
             data = data[:i] + chunk + data[i:]
         elif op == "delete":
-            data = data[:i] + data[i + len(chunk):]
+            data = data[:i] + data[i + len(chunk) :]
         elif op == "replace":
-            data = data[:i] + chunk + data[i + len(chunk):]
+            data = data[:i] + chunk + data[i + len(chunk) :]
         else:  # a run of the file repeated, as truncated or concatenated writes leave
-            data = data[:i] + data[i:i + 64] + data[i:]
+            data = data[:i] + data[i : i + 64] + data[i:]
     return data
 
 
@@ -86,8 +93,10 @@ def load_or_one_line_error(path) -> Scene | None:
 
 
 def examples():
-    return settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", CI_EXAMPLES)),
-                    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+    return settings(
+        max_examples=int(os.environ.get("FUZZ_EXAMPLES", CI_EXAMPLES)),
+        suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+    )
 
 
 @pytest.mark.parametrize("ext", FORMATS)

@@ -19,8 +19,11 @@ def test_every_shader_compiles(gl):
 
 
 # The records of gpu_impl/layout.py by RECORD_GROUP of shaders/record_strides.glsl, in its order.
-RECORD_GROUPS = {0: ["Material", "Triangle", "Vertex", "BundleFrame", "SplatPoint"], 1: ["Light", "ShadowView"],
-                 2: ["Path", "PathSums"]}
+RECORD_GROUPS = {
+    0: ["Material", "Triangle", "Vertex", "BundleFrame", "SplatPoint"],
+    1: ["Light", "ShadowView"],
+    2: ["Path", "PathSums"],
+}
 
 
 def test_python_records_have_the_shaders_strides(gl):
@@ -36,7 +39,7 @@ def test_python_records_have_the_shaders_strides(gl):
         lengths.bind_to_storage_buffer(BINDINGS["SCAN_DATA"])
         gl.run_groups(gl.program("record_strides", RECORD_GROUP=group), 1)
         found = np.frombuffer(lengths.read(), dtype=np.uint32)
-        assert dict(zip(names, found.tolist())) == {name: n for name in names}
+        assert dict(zip(names, found.tolist())) == dict.fromkeys(names, n)
         for buffer in [*buffers, lengths]:
             buffer.release()
 
@@ -47,7 +50,9 @@ def test_shared_constants_are_written_as_glsl_literals_of_their_type():
     assert glsl_literal(SHADER_CONSTANTS["SPLAT_BIT"]) == "2147483648u"
     assert glsl_literal(SHADER_CONSTANTS["ENVIRONMENT_MAP"]) == "2"
     assert glsl_literal(SHADER_CONSTANTS["LIGHT_DIRECTIONAL"]) == "2.0"
-    assert {glsl_literal(v)[-1] for k, v in SHADER_CONSTANTS.items() if k.startswith(("MATERIAL_", "TRIANGLE_"))} == {"u"}
+    assert {glsl_literal(v)[-1] for k, v in SHADER_CONSTANTS.items() if k.startswith(("MATERIAL_", "TRIANGLE_"))} == {
+        "u"
+    }
 
 
 def test_include_files_are_not_programs(gl):

@@ -42,7 +42,7 @@ def test_the_recommendation_is_the_minimum_of_the_model_cost():
 
 
 def test_validation_finds_the_grid_minimum_and_the_regret():
-    hole = np.exp(-SCALES**2)
+    hole = np.exp(-(SCALES**2))
     nodes = SCALES**2
     best = validate(2.0, SCALES, hole, nodes, node_cost=0.01)
     assert best["measured_best_scale"] == 2.0 and best["regret"] == 0.0
@@ -56,11 +56,28 @@ def test_measured_holes_fall_and_redundant_nodes_rise_with_the_splat_scale(gl):
     exact = ExactTracer(scene).bundles(directions, 64)
     rows = []
     for scale in (0.5, 0.75, 1.0, 1.5, 2.0):
-        bundles = trace_bundles(gl, scene, directions, "imperfect", resolution=64, points=4096, splat_scale=scale,
-                                sampler="random", merge=False)
+        bundles = trace_bundles(
+            gl,
+            scene,
+            directions,
+            "imperfect",
+            resolution=64,
+            points=4096,
+            splat_scale=scale,
+            sampler="random",
+            merge=False,
+        )
         r = compare_bundles(bundles, exact)
-        rows.append({"scene": "cornell-box", "sampler": "random", "points": 4096, "splat_scale": scale,
-                     "nodes_per_crossing": bundles.stats["covered_nodes"] / r["exact_nodes"], **r})
+        rows.append(
+            {
+                "scene": "cornell-box",
+                "sampler": "random",
+                "points": 4096,
+                "splat_scale": scale,
+                "nodes_per_crossing": bundles.stats["covered_nodes"] / r["exact_nodes"],
+                **r,
+            }
+        )
     holes = [r["hole_rate"] for r in rows]
     redundant = [r["redundant_rate"] for r in rows]
     assert all(a > b for a, b in zip(holes, holes[1:])), holes

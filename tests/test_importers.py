@@ -6,14 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from conftest import write_texture
 from PIL import Image
 
-from conftest import write_texture
 from evalkit.core.errors import InputError
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.builtin import FURNACE_ALBEDO, FURNACE_EMISSION, furnace_radiance
 from evalkit.core.scene.mitsuba_io import SPHERE_SEGMENTS, load_mitsuba_dict
 from evalkit.core.scene.model import srgb_to_linear
+
 
 def xml_scene(tmp_path, body: str, name: str = "scene.xml") -> str:
     path = tmp_path / name
@@ -25,15 +26,19 @@ def xml_scene(tmp_path, body: str, name: str = "scene.xml") -> str:
 def mixed_xml(tmp_path):
     """An XML scene with an obj and a ply mesh, a sphere, a textured diffuse, a plastic, a medium,
     and point, spot, directional and constant emitters."""
-    (tmp_path / "quad.obj").write_text("v -2 0 -2\nv 2 0 -2\nv 2 0 2\nv -2 0 2\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
-                                       "f 1/1 3/3 2/2\nf 1/1 4/4 3/3\n")
+    (tmp_path / "quad.obj").write_text(
+        "v -2 0 -2\nv 2 0 -2\nv 2 0 2\nv -2 0 2\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 3/3 2/2\nf 1/1 4/4 3/3\n"
+    )
     trimesh.creation.icosphere(subdivisions=2, radius=0.4).apply_translation([1, 0.4, 0]).export(tmp_path / "ball.ply")
     write_texture(tmp_path / "tex.png")
-    return xml_scene(tmp_path, """
+    return xml_scene(
+        tmp_path,
+        """
   <sensor type="perspective"><float name="fov" value="40"/><string name="fov_axis" value="y"/>
     <transform name="to_world"><lookat origin="0, 3, 6" target="0, 0, 0" up="0, 1, 0"/></transform>
     <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="32"/></film></sensor>
-  <bsdf type="twosided" id="floor"><bsdf type="diffuse"><texture type="bitmap" name="reflectance"><string name="filename" value="tex.png"/></texture></bsdf></bsdf>
+  <bsdf type="twosided" id="floor"><bsdf type="diffuse">
+    <texture type="bitmap" name="reflectance"><string name="filename" value="tex.png"/></texture></bsdf></bsdf>
   <bsdf type="roughplastic" id="plastic"><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/></bsdf>
   <medium type="homogeneous" id="fog"/>
   <shape type="obj"><string name="filename" value="quad.obj"/><ref id="floor"/></shape>
@@ -46,9 +51,11 @@ def mixed_xml(tmp_path):
   <emitter type="point"><point name="position" x="0" y="3" z="0"/><rgb name="intensity" value="5, 4, 3"/></emitter>
   <emitter type="spot"><transform name="to_world"><lookat origin="0, 4, 0" target="0, 0, 0" up="0, 0, 1"/></transform>
     <float name="cutoff_angle" value="30"/></emitter>
-  <emitter type="directional"><vector name="direction" x="0" y="-1" z="0"/><rgb name="irradiance" value="2, 2, 2"/></emitter>
+  <emitter type="directional"><vector name="direction" x="0" y="-1" z="0"/>
+    <rgb name="irradiance" value="2, 2, 2"/></emitter>
   <emitter type="constant"><rgb name="radiance" value="0.1, 0.1, 0.1"/></emitter>
-""")
+""",
+    )
 
 
 def test_mitsuba_xml_with_obj_ply_sphere_textures_and_lights(mixed_xml, tmp_path):
@@ -86,19 +93,28 @@ def test_mitsuba_xml_with_obj_ply_sphere_textures_and_lights(mixed_xml, tmp_path
 
 def test_mitsuba_dict_envmap_roundtrip(mi):
     env = np.random.default_rng(3).random((8, 16, 3)).astype(np.float32)
-    s = load_mitsuba_dict({"type": "scene", "e": {"type": "envmap", "bitmap": mi.Bitmap(env), "scale": 2.0},
-                           "r": {"type": "rectangle"}}, name="env")
+    s = load_mitsuba_dict(
+        {"type": "scene", "e": {"type": "envmap", "bitmap": mi.Bitmap(env), "scale": 2.0}, "r": {"type": "rectangle"}},
+        name="env",
+    )
     (light,) = s.lights
     assert light.kind == "envmap" and light.intensity == (2.0, 2.0, 2.0)
     np.testing.assert_allclose(light.envmap, env, rtol=1e-6)
     assert any("no camera" in w for w in s.warnings)
 
 
-@pytest.mark.parametrize("body, message", [
-    ('<shape type="obj"><string name="filename" value="nowhere.obj"/></shape>', "Mitsuba could not load it"),
-    ('<shape type="rectangle"/><shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1,1,1"/></emitter>'
-     '<transform name="to_world"><scale x="0" y="0" z="1"/></transform></shape>', "zero area"),
-])
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        ('<shape type="obj"><string name="filename" value="nowhere.obj"/></shape>', "Mitsuba could not load it"),
+        (
+            '<shape type="rectangle"/><shape type="rectangle">'
+            '<emitter type="area"><rgb name="radiance" value="1,1,1"/></emitter>'
+            '<transform name="to_world"><scale x="0" y="0" z="1"/></transform></shape>',
+            "zero area",
+        ),
+    ],
+)
 def test_mitsuba_errors_are_one_line_and_name_the_file(tmp_path, body, message):
     path = xml_scene(tmp_path, body)
     with pytest.raises(InputError, match=message) as e:
@@ -117,8 +133,10 @@ def test_obj_with_mtl_texture(tmp_path):
     texels = write_texture(tmp_path / "t.png")
     (tmp_path / "m.mtl").write_text("newmtl painted\nKd 1 1 1\nmap_Kd t.png\n")
     path = tmp_path / "m.obj"
-    path.write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
-                    "usemtl painted\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    path.write_text(
+        "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "usemtl painted\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
     s = load_scene(path)
     (mat,) = s.materials
     np.testing.assert_allclose(mat.texture, srgb_to_linear(texels / 255.0), atol=1e-6)
@@ -133,7 +151,10 @@ def test_gltf_glb_ply(tmp_path, ext):
     m = trimesh.creation.box(extents=[1, 2, 3])
     m.visual = trimesh.visual.TextureVisuals(
         uv=np.random.default_rng(0).random((len(m.vertices), 2)),
-        material=trimesh.visual.material.PBRMaterial(baseColorFactor=[0.2, 0.4, 0.6, 1.0], emissiveFactor=[1.0, 0.5, 0.0]))
+        material=trimesh.visual.material.PBRMaterial(
+            baseColorFactor=[0.2, 0.4, 0.6, 1.0], emissiveFactor=[1.0, 0.5, 0.0]
+        ),
+    )
     path = tmp_path / f"box.{ext}"
     m.export(path)
     s = load_scene(path)

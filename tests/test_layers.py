@@ -55,8 +55,12 @@ def layer(module: str) -> str:
     return module.split(".")[0] if not module.startswith("evalkit") else "evalkit"
 
 
-ALLOWED = {"core": {"core"}, "gpu_impl": {"core", "gpu_impl"}, "references": {"core", "references"},
-           "evalkit": {"core", "gpu_impl", "references", "evalkit"}}
+ALLOWED = {
+    "core": {"core"},
+    "gpu_impl": {"core", "gpu_impl"},
+    "references": {"core", "references"},
+    "evalkit": {"core", "gpu_impl", "references", "evalkit"},
+}
 
 
 def graph() -> tuple[dict[str, set[str]], list[str]]:
@@ -73,8 +77,12 @@ def graph() -> tuple[dict[str, set[str]], list[str]]:
 
 def test_layers_import_downward_only():
     edges, _ = graph()
-    wrong = [f"{m} ({layer(m)}) imports {t} ({layer(t)})" for m, targets in edges.items() for t in targets
-             if layer(t) not in ALLOWED[layer(m)]]
+    wrong = [
+        f"{m} ({layer(m)}) imports {t} ({layer(t)})"
+        for m, targets in edges.items()
+        for t in targets
+        if layer(t) not in ALLOWED[layer(m)]
+    ]
     assert not wrong, "\n".join(wrong)
 
 
@@ -117,7 +125,9 @@ def test_no_module_import_cycles():
 
 def test_imports_inside_functions_say_why():
     _, undeclared = graph()
-    assert not undeclared, "\n".join(undeclared) + f"\n(a deferred import needs a '{DEFERRED} <heavy dependency>' comment)"
+    assert not undeclared, (
+        "\n".join(undeclared) + f"\n(a deferred import needs a '{DEFERRED} <heavy dependency>' comment)"
+    )
 
 
 def test_the_checks_see_what_they_check():
@@ -129,5 +139,6 @@ def test_the_checks_see_what_they_check():
     found = imports_of(source, {**modules, "layers_probe": source})
     assert ("gpu_impl.bundles", 4, True) in found and ("evalkit.core.errors", 1, False) in found
     # A cycle the code once had, hidden in imports inside functions: check -> report -> study -> report.
-    assert cycles({"check": {"report"}, "report": {"study", "check"}, "study": {"report"}, "cli": {"check"}}) == \
-        [["check", "report", "study"]]
+    assert cycles({"check": {"report"}, "report": {"study", "check"}, "study": {"report"}, "cli": {"check"}}) == [
+        ["check", "report", "study"]
+    ]

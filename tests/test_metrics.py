@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import ImageOutput, run_evalkit
 
 from evalkit.core.errors import InputError
 from evalkit.core.exr import read_exr, write_exr
 from evalkit.metrics.images import bias_variance, compare_images, delta_e2000, flip, mse, relmse, smape
-from conftest import ImageOutput, run_evalkit
 
 
 def test_a_constant_offset_gives_the_closed_form_values():
@@ -65,7 +65,9 @@ def test_delta_e2000_matches_sharmas_published_pair():
     m = delta_e2000(np.full((4, 4, 3), b), np.full((4, 4, 3), a))
     assert m.value == pytest.approx(2.3669, abs=5e-4)
     # One stop of exposure is applied before the display: the same pair, half as bright, matches.
-    assert delta_e2000(np.full((4, 4, 3), b / 2), np.full((4, 4, 3), a / 2), exposure=1.0).value == pytest.approx(2.3669, abs=5e-4)
+    assert delta_e2000(np.full((4, 4, 3), b / 2), np.full((4, 4, 3), a / 2), exposure=1.0).value == pytest.approx(
+        2.3669, abs=5e-4
+    )
 
 
 def test_bad_images_are_refused_with_the_image_named():
@@ -103,7 +105,9 @@ def test_compare_cli_prints_metrics_and_writes_error_maps(tmp_path):
     ref = np.full((16, 16, 3), 0.25, np.float32)
     write_exr(tmp_path / "ref.exr", ref, {"what": "reference"})
     write_exr(tmp_path / "test.exr", ref + 0.05, {"what": "test"})
-    r = run_evalkit("compare", str(tmp_path / "test.exr"), str(tmp_path / "ref.exr"), "--maps", str(tmp_path / "maps"), "--json")
+    r = run_evalkit(
+        "compare", str(tmp_path / "test.exr"), str(tmp_path / "ref.exr"), "--maps", str(tmp_path / "maps"), "--json"
+    )
     assert r.returncode == 0, r.stderr
     import json
 
@@ -117,7 +121,9 @@ def test_compare_cli_prints_metrics_and_writes_error_maps(tmp_path):
     write_exr(tmp_path / "bad.exr", bad, {})
     r = run_evalkit("compare", str(tmp_path / "bad.exr"), str(tmp_path / "ref.exr"))
     assert r.returncode == 2
-    assert r.stderr.strip().splitlines() == [f"evalkit: error: {tmp_path / 'bad.exr'}: 1 pixel(s) are NaN or Inf, the first at x=0, y=0"]
+    assert r.stderr.strip().splitlines() == [
+        f"evalkit: error: {tmp_path / 'bad.exr'}: 1 pixel(s) are NaN or Inf, the first at x=0, y=0"
+    ]
 
 
 def test_a_failing_image_comparison_keeps_its_images_where_the_message_says(tmp_path):

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import relmse, write_texture
+
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.mitsuba_io import load_mitsuba_dict, to_mitsuba_dict
 
@@ -55,12 +55,26 @@ def test_textured_sphere_scene_export_renders_like_the_original(mi, tmp_path, im
     T = mi.ScalarTransform4f
     original = {
         "type": "scene",
-        "sensor": {"type": "perspective", "fov": 45, "to_world": T().look_at(origin=[0, 1, 4], target=[0, 0, 0], up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": SIZE, "height": SIZE, "rfilter": {"type": "box"}}},
-        "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3),
-                  "bsdf": {"type": "diffuse", "reflectance": {"type": "bitmap", "filename": str(tmp_path / "t.png")}}},
-        "ball": {"type": "sphere", "center": [0, 0.6, 0], "radius": 0.6,
-                 "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.7, 0.3, 0.2]}}}},
+        "sensor": {
+            "type": "perspective",
+            "fov": 45,
+            "to_world": T().look_at(origin=[0, 1, 4], target=[0, 0, 0], up=[0, 1, 0]),
+            "film": {"type": "hdrfilm", "width": SIZE, "height": SIZE, "rfilter": {"type": "box"}},
+        },
+        "floor": {
+            "type": "rectangle",
+            "to_world": T().rotate([1, 0, 0], -90).scale(3),
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "bitmap", "filename": str(tmp_path / "t.png")}},
+        },
+        "ball": {
+            "type": "sphere",
+            "center": [0, 0.6, 0],
+            "radius": 0.6,
+            "bsdf": {
+                "type": "twosided",
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.7, 0.3, 0.2]}},
+            },
+        },
         "sun": {"type": "directional", "direction": [0.3, -1, -0.2], "irradiance": 3.0},
         "sky": {"type": "constant", "radiance": 0.2},
         "lamp": {"type": "point", "position": [1, 2, 1], "intensity": 2.0},

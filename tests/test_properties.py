@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from evalkit.core.bundleset import DirectionSet
-from evalkit.metrics.bundles import compare_bundles
-from evalkit.core.scene import Mesh
-from references.embree import ExactTracer
 from test_bundles import build, nested_boxes, scene_of
 from test_stress import transformed
+
+from evalkit.core.bundleset import DirectionSet
+from evalkit.core.scene import Mesh
+from evalkit.metrics.bundles import compare_bundles
+from references.embree import ExactTracer
 
 EXAMPLES = settings(max_examples=6)
 
@@ -21,9 +21,13 @@ EXAMPLES = settings(max_examples=6)
 def rotation(q) -> np.ndarray:
     """The rotation of a (non-zero) quaternion."""
     w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 quaternions = st.tuples(*[st.floats(-1, 1)] * 4).filter(lambda q: np.linalg.norm(q) > 0.1)
@@ -88,8 +92,13 @@ def test_splitting_triangles_in_two_keeps_coverage_watertight(gl, triangle, t):
         else:
             faces.append(list(face))
     assert len(faces) == len(m.faces) + 2
-    split = scene_of([Mesh(m.name, positions, np.array(faces), m.material),
-                      *[Mesh(x.name, x.positions + base.origin, x.faces, x.material) for x in base.meshes[1:]]], base.materials)
+    split = scene_of(
+        [
+            Mesh(m.name, positions, np.array(faces), m.material),
+            *[Mesh(x.name, x.positions + base.origin, x.faces, x.material) for x in base.meshes[1:]],
+        ],
+        base.materials,
+    )
     before, after = build(gl, base, "perfect", K=6, R=48), build(gl, split, "perfect", K=6, R=48)
     # Every line crosses the split surface exactly as often as before: no line falls through
     # the new edges (a hole) or is counted on both sides of one (a duplicate).

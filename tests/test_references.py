@@ -7,8 +7,8 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import relmse, run_evalkit
+
 from evalkit.core.exr import read_exr
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.builtin import furnace_radiance
@@ -63,7 +63,9 @@ def test_export_renders_like_mitsuba_for_a_sphere_and_a_ply_mesh(mi, tmp_path, i
     # The sphere is tessellated (128 x 64), so paths that hit it decorrelate from Mitsuba's: more spp
     # than for the Cornell box bring that noise under the threshold; the tessellation bias is below it.
     spp = 1024
-    original = np.array(mi.render(mi.load_file(str(tmp_path / "scene.xml")), integrator=integrator, spp=spp, seed=7))[..., :3]
+    original = np.array(mi.render(mi.load_file(str(tmp_path / "scene.xml")), integrator=integrator, spp=spp, seed=7))[
+        ..., :3
+    ]
     exported = render(mi, to_mitsuba_dict(load_scene(str(tmp_path / "scene.xml")), mi), spp=spp)
     assert original.mean() > 0.02
     images.relmse_at_most("export", exported, original, EXPORT_RELMSE)
@@ -100,8 +102,15 @@ def test_store_keys_reuses_and_resumes(tmp_path):
 @pytest.mark.parametrize("name,bounces", CI_REFERENCES)
 def test_committed_ci_references_are_current(name, bounces):
     scene = load_scene(name)
-    ref = reference(scene, bounces=bounces, spp=16384, width=128, height=128, store=DEFAULT_STORE,
-                    progress=lambda line: pytest.fail(f"the committed reference is stale and would be re-rendered: {line}"))
+    ref = reference(
+        scene,
+        bounces=bounces,
+        spp=16384,
+        width=128,
+        height=128,
+        store=DEFAULT_STORE,
+        progress=lambda line: pytest.fail(f"the committed reference is stale and would be re-rendered: {line}"),
+    )
     assert ref.reused and ref.manifest["scene_hash"] == scene.content_hash()
     image, provenance = read_exr(ref.path / "indirect.exr")
     assert np.array_equal(image, ref.images["indirect"])
@@ -124,15 +133,44 @@ def test_furnace_references_equal_the_analytic_radiance(bounces):
 
 
 def test_cli_reference_writes_images_and_manifest(tmp_path):
-    r = run_evalkit("reference", "furnace", "--bounces", "1", "--spp", "8", "--width", "8", "--height", "8",
-                    "--chunks", "4", "--store", str(tmp_path / "store"), "--out", str(tmp_path / "out"), "--json")
+    r = run_evalkit(
+        "reference",
+        "furnace",
+        "--bounces",
+        "1",
+        "--spp",
+        "8",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--chunks",
+        "4",
+        "--store",
+        str(tmp_path / "store"),
+        "--out",
+        str(tmp_path / "out"),
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout.strip().splitlines()[-1])
     assert result["spp"] == 8 and not result["reused"] and "progress    chunk 4/4" in r.stdout
     names = {p.name for p in (tmp_path / "out").iterdir()}
-    assert names == {f"{n}{s}.exr" for n in ("direct", "indirect", "total") for s in ("", "_variance")} | {"manifest.json"}
-    bad = run_evalkit("reference", "furnace", "--spp", "10", "--chunks", "4", "--store", str(tmp_path / "store"),
-                      "--out", str(tmp_path / "out2"))
+    assert names == {f"{n}{s}.exr" for n in ("direct", "indirect", "total") for s in ("", "_variance")} | {
+        "manifest.json"
+    }
+    bad = run_evalkit(
+        "reference",
+        "furnace",
+        "--spp",
+        "10",
+        "--chunks",
+        "4",
+        "--store",
+        str(tmp_path / "store"),
+        "--out",
+        str(tmp_path / "out2"),
+    )
     assert bad.returncode == 2 and "divide spp=10" in bad.stderr and bad.stderr.count("\n") == 1
 
 

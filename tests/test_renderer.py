@@ -11,8 +11,8 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import relmse, run_evalkit
+
 from evalkit.core.exr import read_exr
 from evalkit.core.scene import Light, Material, Mesh, assemble, load_scene
 from evalkit.core.scene.builtin import furnace_radiance
@@ -49,11 +49,23 @@ FURNACE_TOLERANCE = 0.01
 
 def furnace_ratio(gl, resolution, frames, bounces=1, light_samples=0, seed=0):
     """The furnace's (16x16, K=16) direct and indirect image means over the analytic values."""
-    result = render(gl, load_scene("furnace"), bounces=bounces, directions=16, resolution=resolution, frames=frames,
-                    width=16, height=16, light_samples=light_samples, seed=seed)
+    result = render(
+        gl,
+        load_scene("furnace"),
+        bounces=bounces,
+        directions=16,
+        resolution=resolution,
+        frames=frames,
+        width=16,
+        height=16,
+        light_samples=light_samples,
+        seed=seed,
+    )
     assert np.allclose(result.images["total"], result.images["direct"] + result.images["indirect"])
-    return (result.images["direct"].mean() / furnace_radiance(2),
-            result.images["indirect"].mean() / (furnace_radiance(bounces + 2) - furnace_radiance(2)))
+    return (
+        result.images["direct"].mean() / furnace_radiance(2),
+        result.images["indirect"].mean() / (furnace_radiance(bounces + 2) - furnace_radiance(2)),
+    )
 
 
 @pytest.mark.parametrize("bounces", [1, 3])
@@ -73,8 +85,9 @@ def test_furnace_matches_the_analytic_radiance_with_next_event_estimation(gl, bo
     # -0.88 % (mean -0.73 %); before the bundle paths' weight took the distance to the emitter's
     # plane (shaders/eye_paths.glsl), -1.09, -0.77, -2.16, -1.55 %. B=3 -0.58, -0.36, -1.57, -0.90 %
     # (mean -0.85 %). Direct: -0.20 to +0.08 %.
-    direct, indirect = np.mean([furnace_ratio(gl, 128, 1024, bounces, light_samples=8, seed=seed) for seed in range(4)],
-                               axis=0)
+    direct, indirect = np.mean(
+        [furnace_ratio(gl, 128, 1024, bounces, light_samples=8, seed=seed) for seed in range(4)], axis=0
+    )
     assert direct == pytest.approx(1.0, abs=FURNACE_TOLERANCE)
     assert indirect == pytest.approx(1.0, abs=FURNACE_TOLERANCE)
 
@@ -98,9 +111,12 @@ def test_furnace_bias_falls_as_the_bundle_resolution_grows(gl):
 
 # -- cornell-box against the committed Mitsuba references (128x128, 16384 spp) --------------------
 
+
 def cornell_reference(bounces):
     scene = load_scene("cornell-box")
-    return scene, load_reference(store_entry(scene.name, scene.content_hash(), bounces, 16384, 128, 128, 0, DEFAULT_STORE))
+    return scene, load_reference(
+        store_entry(scene.name, scene.content_hash(), bounces, 16384, 128, 128, 0, DEFAULT_STORE)
+    )
 
 
 # Noise dominates these images: per-pixel relMSE falls as 1 / paths. Measured (seed 0, B=3, K=32,
@@ -114,14 +130,24 @@ def test_cornell_box_converges_to_the_mitsuba_reference(gl, images):
     scene, ref = cornell_reference(3)
     errors = {}
     for frames in (8, 32):
-        result = render(gl, scene, bounces=3, directions=32, resolution=256, spp=16, frames=frames, width=128, height=128)
+        result = render(
+            gl, scene, bounces=3, directions=32, resolution=256, spp=16, frames=frames, width=128, height=128
+        )
         errors[frames] = relmse(result.images["indirect"], ref.images["indirect"])
     # Noise falls as 1 / frames: 4x the frames must at least halve the error.
-    assert errors[32] < 0.5 * errors[8], images.keep("indirect", result.images["indirect"], ref.images["indirect"],
-                                                     f"indirect relMSE {errors}: not halved by 4x the frames")
+    assert errors[32] < 0.5 * errors[8], images.keep(
+        "indirect",
+        result.images["indirect"],
+        ref.images["indirect"],
+        f"indirect relMSE {errors}: not halved by 4x the frames",
+    )
     for name in ("direct", "indirect"):
-        images.relmse_at_most(f"{name}-8x8-blocks", block_mean(result.images[name], 8), block_mean(ref.images[name], 8),
-                              CORNELL_BLOCK_RELMSE)
+        images.relmse_at_most(
+            f"{name}-8x8-blocks",
+            block_mean(result.images[name], 8),
+            block_mean(ref.images[name], 8),
+            CORNELL_BLOCK_RELMSE,
+        )
 
 
 @pytest.mark.slow
@@ -155,6 +181,7 @@ def test_cornell_box_at_256_directions_converges_to_within_one_percent(gl, image
 
 # -- next-event estimation for emissive triangles -------------------------------------------------
 
+
 def test_next_event_estimation_cuts_the_noise_of_a_small_emitter(gl, images):
     # Measured (seed 0, B=1, K=32, R=128, 128x128, 8 frames x 4 spp): indirect relMSE 0.83 without
     # next-event estimation, 0.0114 with 8 emitter samples per frame; direct 0.94 and 0.00077.
@@ -174,8 +201,16 @@ def test_next_event_estimation_cuts_the_noise_of_a_small_emitter(gl, images):
 def test_emitter_samples_follow_emitted_power_and_sum_to_it():
     quad = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
     faces = np.array([[0, 1, 2], [0, 2, 3]])
-    meshes = [Mesh("bright", quad, faces, 0), Mesh("dim", quad * 2.0 + [3, 0, 0], faces, 1), Mesh("wall", quad + [0, 0, 2], faces, 2)]
-    materials = [Material("bright", emission=(8.0, 8.0, 8.0)), Material("dim", emission=(1.0, 1.0, 1.0)), Material("wall")]
+    meshes = [
+        Mesh("bright", quad, faces, 0),
+        Mesh("dim", quad * 2.0 + [3, 0, 0], faces, 1),
+        Mesh("wall", quad + [0, 0, 2], faces, 2),
+    ]
+    materials = [
+        Material("bright", emission=(8.0, 8.0, 8.0)),
+        Material("dim", emission=(1.0, 1.0, 1.0)),
+        Material("wall"),
+    ]
     scene = assemble("lamps", "lamps", meshes, materials, [], None)
     samples = EmitterSamples(scene, 60)
     positions, normals, intensities, densities = samples.frame_lights(seed=0, frame=3)
@@ -187,7 +222,9 @@ def test_emitter_samples_follow_emitted_power_and_sum_to_it():
     assert intensities.sum(axis=0) == pytest.approx([12.0, 12.0, 12.0])
     assert np.allclose(densities, 60 * np.where(bright, 8.0, 1.0) / 12.0)  # M p(y) = M w(y) / W
     again = samples.frame_lights(seed=0, frame=3)
-    assert np.array_equal(positions, again[0]) and not np.array_equal(positions, samples.frame_lights(seed=0, frame=4)[0])
+    assert np.array_equal(positions, again[0]) and not np.array_equal(
+        positions, samples.frame_lights(seed=0, frame=4)[0]
+    )
 
 
 def test_bad_next_event_settings_are_one_line_errors():
@@ -200,11 +237,14 @@ def test_bad_next_event_settings_are_one_line_errors():
 
 # -- shadow-mapped lights against Mitsuba --------------------------------------------------------
 
+
 def lit_stage(*lights: Light, eye=(0.0, 4.0, 4.5), target=(0.0, 0.3, 0.0), fov=45.0, size=64):
     """A floor with a box on it, lit by ``lights``, seen from above at an angle (by default)."""
     floor = np.array([[-2.0, 0, -2], [2, 0, -2], [2, 0, 2], [-2, 0, 2]])
-    meshes = [Mesh("floor", floor, np.array([[0, 2, 1], [0, 3, 2]]), 0),
-              Mesh("box", *box(np.array([-0.5, 0.0, -0.5]), np.array([0.5, 1.0, 0.5])), 1)]
+    meshes = [
+        Mesh("floor", floor, np.array([[0, 2, 1], [0, 3, 2]]), 0),
+        Mesh("box", *box(np.array([-0.5, 0.0, -0.5]), np.array([0.5, 1.0, 0.5])), 1),
+    ]
     materials = [Material("floor", albedo=(0.7, 0.7, 0.7)), Material("box", albedo=(0.8, 0.3, 0.2))]
     camera = Camera(look_at(list(eye), list(target), [0, 1, 0]), fov=fov, fov_axis="x", width=size, height=size)
     return assemble("stage", "stage", meshes, materials, list(lights), camera)
@@ -212,8 +252,14 @@ def lit_stage(*lights: Light, eye=(0.0, 4.0, 4.5), target=(0.0, 0.3, 0.0), fov=4
 
 SUN = Light("directional", (3.0, 3.0, 3.0), direction=np.array([0.4, -1.0, 0.3]) / np.linalg.norm([0.4, -1.0, 0.3]))
 LAMP = Light("point", (8.0, 7.0, 6.0), position=np.array([-1.5, 2.5, 1.0]))
-SPOT = Light("spot", (20.0, 20.0, 20.0), position=np.array([1.5, 3.0, 1.5]),
-             direction=np.array([-0.4, -1.0, -0.4]) / np.linalg.norm([-0.4, -1.0, -0.4]), cutoff_angle=35.0, beam_width=25.0)
+SPOT = Light(
+    "spot",
+    (20.0, 20.0, 20.0),
+    position=np.array([1.5, 3.0, 1.5]),
+    direction=np.array([-0.4, -1.0, -0.4]) / np.linalg.norm([-0.4, -1.0, -0.4]),
+    cutoff_angle=35.0,
+    beam_width=25.0,
+)
 
 # Measured relMSE of the direct image against Mitsuba's (1024 spp, 64x64, 16 frames, shadow maps
 # 1024^2): directional 9.8e-4, point 1.1e-4, spot 1.6e-4 (Mitsuba's own noise: 4e-5 or less).
@@ -233,6 +279,7 @@ def test_shadow_mapped_direct_light_matches_mitsuba(gl, tmp_path, images, light)
 
 # -- environment light against Mitsuba -----------------------------------------------------------
 
+
 def sky_stage(light: Light, size: int = 32):
     """The stage seen from low down: the sky fills the top of the image (its top 3/16)."""
     return lit_stage(light, eye=(0.0, 1.6, 4.5), target=(0.0, 0.7, 0.0), fov=60.0, size=size)
@@ -241,8 +288,12 @@ def sky_stage(light: Light, size: int = 32):
 SKY = Light("constant", (0.9, 1.0, 1.2))
 _TURN = np.array([[np.cos(0.6), 0, np.sin(0.6), 0], [0, 1, 0, 0], [-np.sin(0.6), 0, np.cos(0.6), 0], [0, 0, 0, 1.0]])
 # Random texels: any misplaced texel shows. Turned about y, so the map's frame is checked too.
-ENVMAP = Light("envmap", (1.5, 1.5, 1.5), envmap=(0.2 + np.random.default_rng(7).random((8, 16, 3))).astype(np.float32),
-               to_world=_TURN)
+ENVMAP = Light(
+    "envmap",
+    (1.5, 1.5, 1.5),
+    envmap=(0.2 + np.random.default_rng(7).random((8, 16, 3))).astype(np.float32),
+    to_world=_TURN,
+)
 
 # Measured (seed 0, 32x32, B=1, K=16, R=128, 256 frames; Mitsuba 1024 spp; before nodes behind
 # concave edges were skipped), relMSE with both
@@ -263,7 +314,9 @@ def test_environment_light_matches_mitsuba(gl, tmp_path, images, light):
     scene = sky_stage(light)
     ref = reference(scene, bounces=1, spp=1024, width=32, height=32, store=tmp_path, progress=lambda line: None)
     result = render(gl, scene, bounces=1, directions=16, resolution=128, frames=256, width=32, height=32)
-    images.relmse_at_most("direct", *normalized(result.images["direct"], ref.images["direct"]), ENVIRONMENT_DIRECT_RELMSE)
+    images.relmse_at_most(
+        "direct", *normalized(result.images["direct"], ref.images["direct"]), ENVIRONMENT_DIRECT_RELMSE
+    )
     indirect = normalized(block_mean(result.images["indirect"], 4), block_mean(ref.images["indirect"], 4))
     images.relmse_at_most("indirect-4x4-blocks", *indirect, ENVIRONMENT_INDIRECT_BLOCK_RELMSE)
     assert indirect[0].mean() == pytest.approx(1.0, abs=0.06)
@@ -296,6 +349,7 @@ def test_bounce_accounting_matches_mitsubas_max_depth(gl, tmp_path):
 
 # -- determinism, outputs and the CLI ------------------------------------------------------------
 
+
 @pytest.mark.parametrize("method", ["perfect", "imperfect"])
 def test_same_seed_same_image_and_a_new_seed_changes_it(gl, method):
     scene = load_scene("cornell-box")
@@ -325,8 +379,18 @@ def test_imperfect_bundles_render_the_furnace_close_to_its_value(gl):
     # Holes let paths escape, so imperfect bundles lose light; at the default splat scale the loss
     # stays small. Measured (seed 0, 16x16, K=16, R=128, N=16384, 16 frames): direct 1.4954
     # (-0.3 %), indirect 0.2438 (-2.5 %).
-    result = render(gl, load_scene("furnace"), method="imperfect", bounces=1, directions=16, resolution=128, points=16384,
-                    frames=16, width=16, height=16)
+    result = render(
+        gl,
+        load_scene("furnace"),
+        method="imperfect",
+        bounces=1,
+        directions=16,
+        resolution=128,
+        points=16384,
+        frames=16,
+        width=16,
+        height=16,
+    )
     assert result.images["direct"].mean() == pytest.approx(furnace_radiance(2), rel=0.02)
     assert result.images["indirect"].mean() == pytest.approx(furnace_radiance(3) - furnace_radiance(2), rel=0.05)
 
@@ -335,8 +399,29 @@ def test_imperfect_bundles_render_the_furnace_close_to_its_value(gl):
 def test_cli_renders_every_builtin_scene_both_ways(tmp_path, name):
     for method in ("perfect", "imperfect"):
         out = tmp_path / method
-        r = run_evalkit("render", name, "--method", method, "--width", "24", "--height", "16", "--directions", "4",
-                        "--resolution", "32", "--points", "1024", "--bounces", "1", "--frames", "2", "--out", str(out), "--json")
+        r = run_evalkit(
+            "render",
+            name,
+            "--method",
+            method,
+            "--width",
+            "24",
+            "--height",
+            "16",
+            "--directions",
+            "4",
+            "--resolution",
+            "32",
+            "--points",
+            "1024",
+            "--bounces",
+            "1",
+            "--frames",
+            "2",
+            "--out",
+            str(out),
+            "--json",
+        )
         assert r.returncode == 0, r.stderr
         summary = json.loads(r.stdout.strip().splitlines()[-1])
         assert summary["params"]["method"] == method and summary["timings_ms"]["bundles"] > 0
@@ -349,8 +434,27 @@ def test_cli_renders_every_builtin_scene_both_ways(tmp_path, name):
 
 
 def test_cli_preset_and_bad_settings(tmp_path):
-    r = run_evalkit("render", "furnace", "--method", "perfect", "--preset", "paper", "--width", "16", "--height", "8",
-                    "--resolution", "16", "--directions", "2", "--points", "64", "--out", str(tmp_path / "p"), "--json")
+    r = run_evalkit(
+        "render",
+        "furnace",
+        "--method",
+        "perfect",
+        "--preset",
+        "paper",
+        "--width",
+        "16",
+        "--height",
+        "8",
+        "--resolution",
+        "16",
+        "--directions",
+        "2",
+        "--points",
+        "64",
+        "--out",
+        str(tmp_path / "p"),
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     params = json.loads(r.stdout.strip().splitlines()[-1])["params"]
     assert params["supersampling"] == 2 and params["width"] == 16  # the preset, with explicit options on top
@@ -359,6 +463,7 @@ def test_cli_preset_and_bad_settings(tmp_path):
 
 
 # -- animation ------------------------------------------------------------------------------------
+
 
 def test_animated_scene_moves_rigidly_and_renders_each_pose(gl):
     scene = load_scene("atrium-animated")
@@ -377,6 +482,7 @@ def test_animated_scene_moves_rigidly_and_renders_each_pose(gl):
 
 # -- where node light is computed -----------------------------------------------------------------
 
+
 @pytest.mark.parametrize("method", ["perfect", "imperfect"])
 def test_precomputed_and_lazy_lighting_render_the_same_image(gl, images, method):
     # Precomputed: the irradiance of every node (perfect) or splat point (imperfect) once per frame;
@@ -391,7 +497,9 @@ def test_precomputed_and_lazy_lighting_render_the_same_image(gl, images, method)
     assert precomputed.stats["lighting_frames"] == {"precomputed": 4} and lazy.stats["lighting_frames"] == {"lazy": 4}
     assert precomputed.timings["median_ms"]["irradiance"] > 0 and "irradiance" not in lazy.timings["median_ms"]
     noise = relmse(other_seed.images["indirect"], lazy.images["indirect"])
-    difference = images.relmse_at_most("indirect", precomputed.images["indirect"], lazy.images["indirect"], 0.25 * noise)
+    difference = images.relmse_at_most(
+        "indirect", precomputed.images["indirect"], lazy.images["indirect"], 0.25 * noise
+    )
     if method == "perfect":
         assert difference < 1e-6  # the same points, the same light, up to float32 rounding
     assert np.array_equal(precomputed.images["direct"], lazy.images["direct"])  # the G-buffer's own light
@@ -403,7 +511,8 @@ def test_auto_lighting_picks_the_cheaper_way_per_frame(gl):
     small = render(gl, scene, bounces=1, directions=16, resolution=64, frames=2, width=16, height=16)
     assert small.stats["lighting_frames"] == {"lazy": 2}
     # Fixed directions on a static scene: the irradiance made in frame 0 serves every frame.
-    reused = render(gl, scene, bounces=1, directions=4, resolution=16, frames=3, width=64, height=64, spp=4,
-                    rotate_directions=False)
+    reused = render(
+        gl, scene, bounces=1, directions=4, resolution=16, frames=3, width=64, height=64, spp=4, rotate_directions=False
+    )
     assert reused.stats["lighting_frames"] == {"precomputed": 3}
     assert [fr.get("irradiance") is not None for fr in reused.timings["frames_ms"]] == [True, False, False]

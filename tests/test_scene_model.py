@@ -9,7 +9,7 @@ import pytest
 
 from evalkit.core.errors import InputError
 from evalkit.core.scene import Material, Mesh, assemble
-from evalkit.core.scene.model import Light, look_at, default_camera
+from evalkit.core.scene.model import Light, default_camera, look_at
 from evalkit.core.scene.tessellate import box, unit_sphere
 
 QUAD = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
@@ -25,7 +25,9 @@ def test_nan_and_inf_vertices_are_errors_naming_file_and_vertex():
     for bad in (np.nan, np.inf, -np.inf):
         p = QUAD.copy()
         p[2, 1] = bad
-        with pytest.raises(InputError, match=r"test\.obj: mesh 'q': 1 vertices have NaN or Inf coordinates \(first: vertex 2\)"):
+        with pytest.raises(
+            InputError, match=r"test\.obj: mesh 'q': 1 vertices have NaN or Inf coordinates \(first: vertex 2\)"
+        ):
             scene_of(Mesh("q", p, QUAD_FACES, 0))
 
 
@@ -84,7 +86,10 @@ def test_bad_lights_are_errors():
     with pytest.raises(InputError, match="negative intensity"):
         scene_of(q, lights=[Light("directional", (-1, 1, 1), direction=np.array([0, -1.0, 0]))])
     with pytest.raises(InputError, match="cutoff angle"):
-        scene_of(q, lights=[Light("spot", (1, 1, 1), position=np.zeros(3), direction=np.array([0, -1.0, 0]), cutoff_angle=0.0)])
+        scene_of(
+            q,
+            lights=[Light("spot", (1, 1, 1), position=np.zeros(3), direction=np.array([0, -1.0, 0]), cutoff_angle=0.0)],
+        )
 
 
 def test_far_from_origin_geometry_keeps_float32_precision_after_recentring():
@@ -99,8 +104,14 @@ def test_far_from_origin_geometry_keeps_float32_precision_after_recentring():
     assert zb - za == pytest.approx(1e-4, rel=1e-3)
     np.testing.assert_allclose(s.origin, offset + [0.5, 0.5, 5e-5])
     # the camera and point lights move with the geometry
-    s2 = assemble("t", "t", [Mesh("a", a, QUAD_FACES, 0)], [Material("m")],
-                  [Light("point", (1, 1, 1), position=offset + [0.5, 0.5, 2.0])], default_camera(a.min(0), a.max(0)))
+    s2 = assemble(
+        "t",
+        "t",
+        [Mesh("a", a, QUAD_FACES, 0)],
+        [Material("m")],
+        [Light("point", (1, 1, 1), position=offset + [0.5, 0.5, 2.0])],
+        default_camera(a.min(0), a.max(0)),
+    )
     np.testing.assert_allclose(s2.lights[0].position, [0, 0, 2.0])
     assert np.linalg.norm(s2.camera.position) < 10
 
@@ -122,7 +133,9 @@ def test_features_report_what_the_scene_uses():
     f = scene_of(q, materials=mats).features()
     assert (f.textures, f.emitters, f.environment, f.light_types) == (False, False, None, ())
     lights = [Light("constant", (0.2, 0.2, 0.2)), Light("point", (1, 1, 1), position=np.ones(3))]
-    f = scene_of(q, Mesh("t", QUAD + 2, QUAD_FACES, 1), Mesh("l", QUAD + 4, QUAD_FACES, 2), materials=mats, lights=lights).features()
+    f = scene_of(
+        q, Mesh("t", QUAD + 2, QUAD_FACES, 1), Mesh("l", QUAD + 4, QUAD_FACES, 2), materials=mats, lights=lights
+    ).features()
     assert f.textures and f.emitters and f.environment == "constant"
     assert f.light_types == ("area", "constant", "point")
     assert f.triangle_count == 6

@@ -38,7 +38,10 @@ def test_scenes_without_textures_build_without_texture_fetches_and_the_same_list
                 lists.append(tracer.read())
     for name in ("offsets", *lists[0].NODE_FIELDS):
         assert np.array_equal(getattr(lists[0], name), getattr(lists[1], name)), name
-    with GpuScene(gl, load_scene("atrium")) as gpu_scene, BundleTracer(gl, gpu_scene, "perfect", directions=4, resolution=32) as textured:
+    with (
+        GpuScene(gl, load_scene("atrium")) as gpu_scene,
+        BundleTracer(gl, gpu_scene, "perfect", directions=4, resolution=32) as textured,
+    ):
         assert textured.textures == 1
 
 
@@ -71,16 +74,24 @@ def test_fixed_directions_reuse_bundles_on_static_scenes_and_the_change_is_bound
     # within 4x, above the worst seed.
     e_fixed = relmse(fixed.images["indirect"], ref.images["indirect"]).value
     e_rotating = relmse(rotating.images["indirect"], ref.images["indirect"]).value
-    assert e_fixed < 4 * e_rotating, images.keep("indirect-fixed", fixed.images["indirect"], ref.images["indirect"],
-                                                 f"relMSE fixed {e_fixed:.4g} against rotating {e_rotating:.4g}")
-    moving = render(gl, load_scene("atrium-animated"), replace(SMALL, rotate_directions=False, time_step=0.5, bounces=1))
+    assert e_fixed < 4 * e_rotating, images.keep(
+        "indirect-fixed",
+        fixed.images["indirect"],
+        ref.images["indirect"],
+        f"relMSE fixed {e_fixed:.4g} against rotating {e_rotating:.4g}",
+    )
+    moving = render(
+        gl, load_scene("atrium-animated"), replace(SMALL, rotate_directions=False, time_step=0.5, bounces=1)
+    )
     assert moving.stats["bundles_reused"] == 0  # a moving scene rebuilds its bundles every frame
 
 
 def test_the_node_buffer_is_sized_from_the_last_frames_count(gl):
     scene = load_scene("furnace")
-    with GpuScene(gl, scene) as gpu_scene, BundleTracer(gl, gpu_scene, "perfect", directions=8, resolution=64,
-                                                        initial_capacity=10_000_000) as tracer:
+    with (
+        GpuScene(gl, scene) as gpu_scene,
+        BundleTracer(gl, gpu_scene, "perfect", directions=8, resolution=64, initial_capacity=10_000_000) as tracer,
+    ):
         first = tracer.build(DirectionSet.make(8, seed=0, frame=0))
         assert tracer.capacity == 10_000_000
         second = tracer.build(DirectionSet.make(8, seed=0, frame=1))

@@ -8,6 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from test_bundles import QUAD, QUAD_FACES, build, coplanar_stack, scene_of
+from test_exact_bundles import thin_slabs
 
 from evalkit.core.bundleset import DirectionSet, orthonormal_frames
 from evalkit.core.scene import Material, Mesh, assemble, load_scene
@@ -17,8 +19,6 @@ from evalkit.metrics.bundles import compare_bundles
 from gpu_impl.bundles import trace_bundles
 from gpu_impl.renderer import Renderer, RenderSettings
 from references.embree import ExactTracer
-from test_bundles import QUAD, QUAD_FACES, build, coplanar_stack, scene_of
-from test_exact_bundles import thin_slabs
 
 TINY_RENDER = dict(bounces=1, directions=8, resolution=64, width=32, height=32, frames=2, spp=2, seed=5)
 
@@ -37,12 +37,20 @@ def transformed(scene, scale: float = 1.0, rotation: np.ndarray | None = None, s
     meshes = []
     for i, m in enumerate(scene.meshes):
         faces = m.faces if order is None else m.faces[order[i]]
-        meshes.append(replace(m, positions=point(m.positions), faces=faces,
-                              normals=None if m.normals is None else m.normals @ r.T))
-    lights = [replace(light, position=None if light.position is None else point(light.position),
-                      direction=None if light.direction is None else r @ light.direction,
-                      intensity=tuple(np.asarray(light.intensity) * (scale**2 if light.kind in ("point", "spot") else 1.0)))
-              for light in scene.lights]
+        meshes.append(
+            replace(
+                m, positions=point(m.positions), faces=faces, normals=None if m.normals is None else m.normals @ r.T
+            )
+        )
+    lights = [
+        replace(
+            light,
+            position=None if light.position is None else point(light.position),
+            direction=None if light.direction is None else r @ light.direction,
+            intensity=tuple(np.asarray(light.intensity) * (scale**2 if light.kind in ("point", "spot") else 1.0)),
+        )
+        for light in scene.lights
+    ]
     cam = scene.camera
     to_world = cam.to_world.copy()
     to_world[:3, :3] = r @ cam.to_world[:3, :3]
@@ -59,8 +67,11 @@ def render(gl, scene, method="perfect", **kw):
         renderer.release()
 
 
-@pytest.mark.parametrize("scale, shift", [(1e-3, 0.0), (1e4, 0.0), (1.0, 1e5), (1e-3, 1e5)],
-                         ids=["scale-1e-3", "scale-1e4", "shift-1e5", "scale-1e-3-shift-1e5"])
+@pytest.mark.parametrize(
+    "scale, shift",
+    [(1e-3, 0.0), (1e4, 0.0), (1.0, 1e5), (1e-3, 1e5)],
+    ids=["scale-1e-3", "scale-1e4", "shift-1e5", "scale-1e-3-shift-1e5"],
+)
 def test_scale_and_distance_change_neither_bundle_agreement_nor_the_image(gl, images, scale, shift):
     base = load_scene("cornell-box")
     moved = transformed(base, scale, shift=(shift, -shift, shift))
@@ -98,8 +109,9 @@ def scene_with_light(scene):
     lamp = (QUAD - 0.5) * 0.5 * (hi - lo).max() + [0.5 * (lo + hi)[0], 0.5 * (lo + hi)[1], hi[2] + 0.5]
     meshes = [replace(m, positions=m.positions + scene.origin) for m in scene.meshes]
     meshes.append(Mesh("lamp", lamp + scene.origin, QUAD_FACES[:, ::-1], len(scene.materials)))
-    return assemble(scene.name, scene.source, meshes, [*scene.materials, Material("lamp", emission=(5.0, 5.0, 5.0))],
-                    [], None, [])
+    return assemble(
+        scene.name, scene.source, meshes, [*scene.materials, Material("lamp", emission=(5.0, 5.0, 5.0))], [], None, []
+    )
 
 
 def test_slivers_are_kept_and_degenerate_triangles_removed_and_counted(gl, rng):
@@ -110,9 +122,12 @@ def test_slivers_are_kept_and_degenerate_triangles_removed_and_counted(gl, rng):
     faces = np.column_stack([np.zeros(n, int), np.arange(1, n + 1), np.arange(2, n + 2)])
     sliver = np.array([[0, 0, 0], [1, 0, 0], [1, 1e-6, 0]], float)
     degenerate = np.array([[0, 0, 1], [1, 0, 1], [2, 0, 1]], float)  # collinear
-    meshes = [Mesh("fan", fan, faces, 0), Mesh("sliver", sliver + [0, -0.5, 0.2], np.array([[0, 1, 2]]), 0),
-              Mesh("degenerate", np.vstack([degenerate, [[0, 0, 1]]]), np.array([[0, 1, 2], [0, 3, 0]]), 0),
-              Mesh("floor", (QUAD - 0.5) * 4 + [0, 0, -0.5], QUAD_FACES, 0)]
+    meshes = [
+        Mesh("fan", fan, faces, 0),
+        Mesh("sliver", sliver + [0, -0.5, 0.2], np.array([[0, 1, 2]]), 0),
+        Mesh("degenerate", np.vstack([degenerate, [[0, 0, 1]]]), np.array([[0, 1, 2], [0, 3, 0]]), 0),
+        Mesh("floor", (QUAD - 0.5) * 4 + [0, 0, -0.5], QUAD_FACES, 0),
+    ]
     scene = scene_of(meshes, [Material("grey")])
     # Expected: the two zero-area triangles removed and counted; the 1e-6 sliver kept.
     assert scene.degenerate_removed == 2 and scene.triangle_count == n + 1 + 2

@@ -7,8 +7,8 @@ import csv
 import json
 
 import pytest
-
 from conftest import run_evalkit
+
 from evalkit.core.errors import InputError
 from evalkit.report import matched_time_rows
 from evalkit.study.executors import run_study
@@ -18,11 +18,25 @@ from evalkit.study.spec import RUN_DEFAULTS, load_study, run_id, study_from_dict
 # own store (the committed ones are 128x128).
 TINY = {
     "name": "tiny",
-    "defaults": {"scene": "cornell-box", "bounces": 1, "directions": 4, "resolution": 32, "points": 1024, "width": 32,
-                 "height": 32, "frames": 1, "spp": 2},
+    "defaults": {
+        "scene": "cornell-box",
+        "bounces": 1,
+        "directions": 4,
+        "resolution": 32,
+        "points": 1024,
+        "width": 32,
+        "height": 32,
+        "frames": 1,
+        "spp": 2,
+    },
     "grid": [{"method": ["perfect", "imperfect"], "seed": [0, 1]}, {"method": "mitsuba", "spp": 4, "seed": [0, 1]}],
-    "measure": {"bundles": True, "images": ["indirect"], "metrics": ["relmse", "flip"], "reference_spp": 64,
-                "eye_vertices": 256},
+    "measure": {
+        "bundles": True,
+        "images": ["indirect"],
+        "metrics": ["relmse", "flip"],
+        "reference_spp": 64,
+        "eye_vertices": 256,
+    },
     "plot": [{"x": "wall_s", "y": "indirect_relmse", "group": "method", "log": "xy", "pareto": True}],
 }
 
@@ -30,22 +44,27 @@ TINY = {
 def test_grids_expand_to_the_union_of_their_products():
     study = study_from_dict(TINY)
     assert len(study.runs) == 6
-    assert {(r["method"], r["seed"]) for r in study.runs} == {(m, s) for m in ("perfect", "imperfect", "mitsuba") for s in (0, 1)}
+    assert {(r["method"], r["seed"]) for r in study.runs} == {
+        (m, s) for m in ("perfect", "imperfect", "mitsuba") for s in (0, 1)
+    }
     assert all(r["resolution"] == 32 and r["scene"] == "cornell-box" for r in study.runs)
     assert len({run_id(r) for r in study.runs}) == 6
 
 
-@pytest.mark.parametrize("spec, problem", [
-    ({"grid": [{"method": ["raytraced"]}]}, "method 'raytraced' is not one of"),
-    ({"grid": [{"directions": [0]}]}, "directions must be at least 1, got 0"),
-    ({"grid": [{"splat_scale": [0.0]}]}, "splat_scale must be positive and finite, got 0.0"),
-    ({"grid": [{"frames": [2.5]}]}, "frames = 2.5 must be a whole number"),
-    ({"grid": [{"stop_early": [1]}]}, "stop_early = 1 must be true or false"),
-    ({"grid": [{"colour": [1]}]}, "unknown run parameter"),
-    ({"measure": {"metrics": ["psnr"]}}, "unknown psnr"),
-    ({"plots": []}, "unknown key"),
-    ({"plot": [{"x": "wall_s"}]}, "needs x and y"),
-])
+@pytest.mark.parametrize(
+    "spec, problem",
+    [
+        ({"grid": [{"method": ["raytraced"]}]}, "method 'raytraced' is not one of"),
+        ({"grid": [{"directions": [0]}]}, "directions must be at least 1, got 0"),
+        ({"grid": [{"splat_scale": [0.0]}]}, "splat_scale must be positive and finite, got 0.0"),
+        ({"grid": [{"frames": [2.5]}]}, "frames = 2.5 must be a whole number"),
+        ({"grid": [{"stop_early": [1]}]}, "stop_early = 1 must be true or false"),
+        ({"grid": [{"colour": [1]}]}, "unknown run parameter"),
+        ({"measure": {"metrics": ["psnr"]}}, "unknown psnr"),
+        ({"plots": []}, "unknown key"),
+        ({"plot": [{"x": "wall_s"}]}, "needs x and y"),
+    ],
+)
 def test_bad_studies_are_refused_with_the_problem_named(spec, problem):
     with pytest.raises(InputError, match=problem):
         study_from_dict(spec)
@@ -79,14 +98,29 @@ def test_a_study_writes_one_row_per_run_with_parameters_metrics_timings_and_vers
         table = list(csv.DictReader(f))
     assert len(table) == 6
     for row in table:
-        for column in ("run_id", "scene", "method", "seed", "directions", "resolution", "indirect_relmse", "indirect_flip",
-                       "wall_s", "version_mitsuba", "version_raybundle-evalkit", "scene_hash", "reference"):
+        for column in (
+            "run_id",
+            "scene",
+            "method",
+            "seed",
+            "directions",
+            "resolution",
+            "indirect_relmse",
+            "indirect_flip",
+            "wall_s",
+            "version_mitsuba",
+            "version_raybundle-evalkit",
+            "scene_hash",
+            "reference",
+        ):
             assert row[column] != "", column
         assert float(row["indirect_relmse"]) > 0
     bundles = [r for r in rows if r["method"] != "mitsuba"]
     assert all(r["hole_rate"] < 1e-3 for r in bundles if r["method"] == "perfect")
     # Splats overlap; the nodes they put on one line for one surface are merged into one.
-    assert all(r["raw_nodes"] >= r["test_nodes"] and r["redundant_rate"] < 0.05 for r in bundles if r["method"] == "imperfect")
+    assert all(
+        r["raw_nodes"] >= r["test_nodes"] and r["redundant_rate"] < 0.05 for r in bundles if r["method"] == "imperfect"
+    )
     assert all(0 <= r["next_hit_error_rate"] <= 1 and r["next_hit_lookups"] > 100 for r in bundles)
     # Different seeds give different images.
     perfect = [r for r in rows if r["method"] == "perfect"]
@@ -96,8 +130,15 @@ def test_a_study_writes_one_row_per_run_with_parameters_metrics_timings_and_vers
 def test_the_report_shows_tables_plots_images_and_the_bias_variance_split(tiny_study):
     out, _, _ = tiny_study
     report = (out / "report.html").read_text()
-    for text in ("Results", "Pareto front", "Bias and variance over seeds", "Images", "pytest tiny", "mitsuba 3.9.1",
-                 "Scene warnings"):
+    for text in (
+        "Results",
+        "Pareto front",
+        "Bias and variance over seeds",
+        "Images",
+        "pytest tiny",
+        "mitsuba 3.9.1",
+        "Scene warnings",
+    ):
         assert text in report, text
     assert (out / "plots" / "plot0.png").stat().st_size > 1000
     assert len(list((out / "images").glob("*.png"))) >= 4
@@ -115,8 +156,11 @@ def test_a_second_start_resumes_and_recomputes_nothing(tiny_study):
 
 def test_the_dask_executor_gives_the_same_rows_as_the_local_one(tiny_study, tmp_path):
     out, rows, _ = tiny_study
-    spec = {**TINY, "grid": [{"method": ["perfect", "mitsuba"], "seed": 1}],
-            "measure": {**TINY["measure"], "bundles": False}}
+    spec = {
+        **TINY,
+        "grid": [{"method": ["perfect", "mitsuba"], "seed": 1}],
+        "measure": {**TINY["measure"], "bundles": False},
+    }
     dask_rows = run_study(study_from_dict(spec), tmp_path, workers=2, executor="dask", progress=lambda line: None)
     local = {r["run_id"]: r for r in run_study(study_from_dict(spec), tmp_path / "local", progress=lambda line: None)}
     assert [r["status"] for r in dask_rows] == ["ok", "ok"]
@@ -142,10 +186,18 @@ def test_the_demo_renders_compares_and_reports(tmp_path):
 
 
 def test_runs_build_imperfect_bundles_with_their_own_sampler(tmp_path):
-    spec = {"defaults": {"scene": "cornell-box", "method": "imperfect", "directions": 4, "resolution": 64, "points": 4096,
-                         "splat_scale": 1.5},
-            "grid": [{"sampler": ["random", "stratified"]}],
-            "measure": {"bundles": True, "render": False, "images": [], "eye_vertices": 256}}
+    spec = {
+        "defaults": {
+            "scene": "cornell-box",
+            "method": "imperfect",
+            "directions": 4,
+            "resolution": 64,
+            "points": 4096,
+            "splat_scale": 1.5,
+        },
+        "grid": [{"sampler": ["random", "stratified"]}],
+        "measure": {"bundles": True, "render": False, "images": [], "eye_vertices": 256},
+    }
     rows = {r["sampler"]: r for r in run_study(study_from_dict(spec), tmp_path, progress=lambda line: None)}
     # Independent points leave about exp(-1.5^2) = 0.105 of the crossings uncovered; stratified ones far fewer.
     assert rows["random"]["hole_rate"] == pytest.approx(0.105, rel=0.2)
@@ -155,12 +207,23 @@ def test_runs_build_imperfect_bundles_with_their_own_sampler(tmp_path):
 
 def test_matched_time_compares_each_bundle_setting_with_mitsuba_at_the_same_time():
     def row(scene, method, wall_s, error, seed, **kw):
-        return {**RUN_DEFAULTS, "scene": scene, "method": method, "seed": seed, "wall_s": wall_s, "total_relmse": error, **kw}
+        return {
+            **RUN_DEFAULTS,
+            "scene": scene,
+            "method": method,
+            "seed": seed,
+            "wall_s": wall_s,
+            "total_relmse": error,
+            **kw,
+        }
+
     # Mitsuba's error falls as 1 / time: 1 at 1 s, 0.25 at 4 s, so 0.5 at 2 s in log-log.
-    rows = [row("a", "mitsuba", 1.0, 1.0, s, spp=4) for s in (0, 1)] + [row("a", "mitsuba", 4.0, 0.25, s, spp=16) for s in (0, 1)]
-    rows += [row("a", "perfect", 2.0, e, s, frames=2) for s, e in ((0, 0.2), (1, 0.4))]   # mean 0.3
-    rows += [row("a", "perfect", 9.0, 0.1, 0, frames=8)]                                  # beyond Mitsuba's times
-    rows += [row("b", "perfect", 2.0, 0.3, 0)]                                            # no Mitsuba in scene b
+    rows = [row("a", "mitsuba", 1.0, 1.0, s, spp=4) for s in (0, 1)] + [
+        row("a", "mitsuba", 4.0, 0.25, s, spp=16) for s in (0, 1)
+    ]
+    rows += [row("a", "perfect", 2.0, e, s, frames=2) for s, e in ((0, 0.2), (1, 0.4))]  # mean 0.3
+    rows += [row("a", "perfect", 9.0, 0.1, 0, frames=8)]  # beyond Mitsuba's times
+    rows += [row("b", "perfect", 2.0, 0.3, 0)]  # no Mitsuba in scene b
     matched = matched_time_rows(rows, "wall_s", "total_relmse")
     assert [(r["scene"], r["frames"]) for r in matched] == [("a", 2), ("a", 8)]
     assert matched[0]["seeds"] == 2 and matched[0]["total_relmse"] == pytest.approx(0.3)

@@ -8,8 +8,8 @@ import os
 import xml.etree.ElementTree as ET
 
 import pytest
-
 from conftest import REPO, run_evalkit
+
 from evalkit.check import evaluate
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 
@@ -20,7 +20,9 @@ ARTIFACTS = os.path.join(REPO, "out", "thresholds")
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_declared_threshold(case):
     outcome = evaluate(case, ARTIFACTS)
-    assert outcome.passed, f"{outcome.message}; why: {case.why}; calibration: {case.calibration}; look at {outcome.folder}"
+    assert outcome.passed, (
+        f"{outcome.message}; why: {case.why}; calibration: {case.calibration}; look at {outcome.folder}"
+    )
 
 
 def test_every_case_says_why_and_how_it_was_calibrated():
@@ -36,8 +38,16 @@ kind = "max"
 threshold = {threshold}
 why = "a test of evalkit check"
 calibration = "none"
-run = {{ scene = "cornell-box", method = "perfect", directions = 4, resolution = 32, width = 32, height = 32, frames = 1, spp = 2 }}
 measure = {{ images = ["indirect"], metrics = ["relmse", "flip"], reference_spp = 64 }}
+[case.run]
+scene = "cornell-box"
+method = "perfect"
+directions = 4
+resolution = 32
+width = 32
+height = 32
+frames = 1
+spp = 2
 """
 
 
@@ -54,8 +64,13 @@ def test_check_prints_a_table_writes_junit_and_keeps_failures_for_inspection(tmp
     failed = [c for c in suite.iter("testcase") if c.find("failure") is not None]
     assert [c.get("name") for c in failed] == ["impossible"]
     run = next((tmp_path / "out" / "impossible" / "runs").iterdir())
-    for name in ("indirect.exr", "indirect_reference.exr", "indirect_relmse_map.exr", "indirect_relmse_map.png",
-                 "indirect_flip_map.png"):
+    for name in (
+        "indirect.exr",
+        "indirect_reference.exr",
+        "indirect_relmse_map.exr",
+        "indirect_relmse_map.png",
+        "indirect_flip_map.png",
+    ):
         assert (run / name).is_file(), name
     r = run_evalkit("check", str(table), "--case", "loose", "--out", str(tmp_path / "out2"))
     assert r.returncode == 0 and "1 of 1 cases pass" in r.stdout
@@ -65,4 +80,6 @@ def test_bad_threshold_tables_end_in_one_line(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('[[case]]\nname = "x"\nmetric = "hole_rate"\nkind = "below"\nwhy = "w"\ncalibration = "c"\n')
     r = run_evalkit("check", str(bad))
-    assert r.returncode == 2 and r.stderr.strip().splitlines() == [f"evalkit: error: {bad}: case 1 (x): kind 'below' is not one of max, min, falls"]
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"evalkit: error: {bad}: case 1 (x): kind 'below' is not one of max, min, falls"
+    ]

@@ -8,15 +8,19 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import run_evalkit
+
 from evalkit.core.errors import InputError
 from evalkit.tune import CALIBRATION, GRID, Model, compare_with_grid, fit_model, optimise
 
-TIME = {"perfect": {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0},
-        "imperfect": {"t_once": 0.2, "t0": 0.05, "t_lists": 0.2, "t_points": 0.02, "t_nodes": 0.1}}
-ERROR = {"perfect": {"b": 0.004, "v": 0.05, "w": 0.5},
-         "imperfect": {"b": 0.004, "v": 0.05, "w": 0.5, "h": 0.3, "g": 0.002}}
+TIME = {
+    "perfect": {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0},
+    "imperfect": {"t_once": 0.2, "t0": 0.05, "t_lists": 0.2, "t_points": 0.02, "t_nodes": 0.1},
+}
+ERROR = {
+    "perfect": {"b": 0.004, "v": 0.05, "w": 0.5},
+    "imperfect": {"b": 0.004, "v": 0.05, "w": 0.5, "h": 0.3, "g": 0.002},
+}
 
 
 def synthetic_rows(method: str) -> list[dict]:
@@ -25,8 +29,18 @@ def synthetic_rows(method: str) -> list[dict]:
     splats = [(4096, 1.4), (16384, 1.8), (8192, 2.4)] if method == "imperfect" else [(16384, 1.8)]
     rows = []
     for K, R, F, (N, s) in itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats):
-        rows.append({"method": method, "directions": K, "resolution": R, "points": N, "splat_scale": s, "frames_rendered": F,
-                     "wall_s": float(time_model.predict(K, R, N, s, F)), "indirect_relmse": float(error_model.predict(K, R, N, s, F))})
+        rows.append(
+            {
+                "method": method,
+                "directions": K,
+                "resolution": R,
+                "points": N,
+                "splat_scale": s,
+                "frames_rendered": F,
+                "wall_s": float(time_model.predict(K, R, N, s, F)),
+                "indirect_relmse": float(error_model.predict(K, R, N, s, F)),
+            }
+        )
     return rows
 
 
@@ -62,15 +76,30 @@ def test_a_weighted_row_pulls_the_fit_towards_it():
 
 def test_the_grid_comparison_takes_the_best_run_within_the_budget(tmp_path):
     image = {"width": 32, "height": 32, "bounces": 3, "spp": 16}
-    run = {"status": "ok", "scene": "cornell-box", "method": "perfect", "directions": 8, "resolution": 64, "frames_rendered": 9, **image}
-    rows = [{**run, "time_budget": 10.0, "wall_s": 9.5, "indirect_relmse": 0.02},
-            {**run, "time_budget": 10.0, "wall_s": 9.8, "indirect_relmse": 0.01, "directions": 16},
-            {**run, "time_budget": 10.0, "wall_s": 10.5, "indirect_relmse": 0.001},  # over the budget
-            {**run, "time_budget": 60.0, "wall_s": 59.0, "indirect_relmse": 0.002},  # another budget
-            {**run, "time_budget": 10.0, "wall_s": 9.0, "indirect_relmse": 0.003, "scene": "atrium"}]
+    run = {
+        "status": "ok",
+        "scene": "cornell-box",
+        "method": "perfect",
+        "directions": 8,
+        "resolution": 64,
+        "frames_rendered": 9,
+        **image,
+    }
+    rows = [
+        {**run, "time_budget": 10.0, "wall_s": 9.5, "indirect_relmse": 0.02},
+        {**run, "time_budget": 10.0, "wall_s": 9.8, "indirect_relmse": 0.01, "directions": 16},
+        {**run, "time_budget": 10.0, "wall_s": 10.5, "indirect_relmse": 0.001},  # over the budget
+        {**run, "time_budget": 60.0, "wall_s": 59.0, "indirect_relmse": 0.002},  # another budget
+        {**run, "time_budget": 10.0, "wall_s": 9.0, "indirect_relmse": 0.003, "scene": "atrium"},
+    ]
     (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
-    result = {"scene": "cornell-box", "budget_s": 10.0, "metric": "indirect_relmse", "image": image,
-              "measured": {"time_s": 9.9, "error": 0.011}}
+    result = {
+        "scene": "cornell-box",
+        "budget_s": 10.0,
+        "metric": "indirect_relmse",
+        "image": image,
+        "measured": {"time_s": 9.9, "error": 0.011},
+    }
     grid = compare_with_grid(result, tmp_path)
     assert grid["runs"] == 2 and grid["best"]["directions"] == 16 and grid["best"]["error"] == 0.01
     assert grid["ratio"] == pytest.approx(1.1)
@@ -98,18 +127,28 @@ def test_optimisation_finds_the_best_grid_setting_within_the_budget(method, budg
 
 
 def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
-    time_model, error_model = Model("perfect", "time", TIME["perfect"], []), Model("perfect", "error", ERROR["perfect"], [])
-    # The cheapest: K=8, R=32, one frame: 0.2 + 0.05 + 0.3 * 8 * 32^2 * 1e-6 + 2.0 * 8 * 1e-3 = 0.2685 s (shown to 3 digits).
-    with pytest.raises(InputError, match=r"a budget of 0.1 s is below the cheapest perfect setting \(K=8, R=32, 1 frame: "
-                                         r"0.268 s predicted\); give at least 0.268 s"):
+    time_model, error_model = (
+        Model("perfect", "time", TIME["perfect"], []),
+        Model("perfect", "error", ERROR["perfect"], []),
+    )
+    # The cheapest: K=8, R=32, one frame: 0.2 + 0.05 + 0.3 * 8 * 32^2 * 1e-6 + 2.0 * 8 * 1e-3 = 0.2685 s
+    # (shown to 3 digits).
+    with pytest.raises(
+        InputError,
+        match=r"a budget of 0.1 s is below the cheapest perfect setting \(K=8, R=32, 1 frame: "
+        r"0.268 s predicted\); give at least 0.268 s",
+    ):
         optimise(time_model, error_model, 0.1)
 
 
-@pytest.mark.parametrize("args, said", [
-    (["--budget", "0"], "the budget must be a positive number of seconds, got 0.0"),
-    (["--budget", "10", "--metric", "indirect_psnr"], "unknown metric 'indirect_psnr'; known: direct_mse"),
-    (["--budget", "10", "--method", "mitsuba"], "method must be perfect, imperfect or both, got 'mitsuba'"),
-])
+@pytest.mark.parametrize(
+    "args, said",
+    [
+        (["--budget", "0"], "the budget must be a positive number of seconds, got 0.0"),
+        (["--budget", "10", "--metric", "indirect_psnr"], "unknown metric 'indirect_psnr'; known: direct_mse"),
+        (["--budget", "10", "--method", "mitsuba"], "method must be perfect, imperfect or both, got 'mitsuba'"),
+    ],
+)
 def test_bad_tune_input_is_one_line(tmp_path, args, said):
     r = run_evalkit("tune", "cornell-box", *args, "--out", str(tmp_path))
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and said in r.stderr and "Traceback" not in r.stderr
@@ -118,7 +157,9 @@ def test_bad_tune_input_is_one_line(tmp_path, args, said):
 def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     """The whole chain on cornell-box at 1 s: calibration, refinement, a check of each method's
     optimum, --json's last line, tune.json and report.html."""
-    r = run_evalkit("tune", "cornell-box", "--budget", "1", "--calibration-share", "1", "--json", "--out", str(tmp_path))
+    r = run_evalkit(
+        "tune", "cornell-box", "--budget", "1", "--calibration-share", "1", "--json", "--out", str(tmp_path)
+    )
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout.strip().splitlines()[-1])
     rec = result["recommended"]
@@ -126,7 +167,10 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     assert rec["method"] == "perfect" or {"points", "splat_scale"} <= rec.keys()
     for side in ("predicted", "measured"):
         assert result[side]["time_s"] > 0 and result[side]["error"] > 0
-    assert result["chosen_by"] == "measured error" and [c["method"] for c in result["candidates"]] == ["perfect", "imperfect"]
+    assert result["chosen_by"] == "measured error" and [c["method"] for c in result["candidates"]] == [
+        "perfect",
+        "imperfect",
+    ]
     assert result["measured"]["error"] == min(c["measured"]["error"] for c in result["candidates"])
     for method in ("perfect", "imperfect"):  # a residual per calibration run and one for the refinement run
         for kind in ("time", "error"):

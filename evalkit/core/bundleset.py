@@ -72,7 +72,7 @@ class DirectionSet:
     frame: int
 
     @staticmethod
-    def make(count: int, seed: int = 0, frame: int = 0, jitter: bool = True) -> "DirectionSet":
+    def make(count: int, seed: int = 0, frame: int = 0, jitter: bool = True) -> DirectionSet:
         """The frame's directions; the same (count, seed, frame, jitter) always gives the same set."""
         if count < 1:
             raise ValueError(f"a direction set needs at least one direction, got {count}")
@@ -90,8 +90,11 @@ class DirectionSet:
 
     def same_as(self, other: DirectionSet) -> bool:
         """Whether both sets hold the same directions and grid jitter, so the same lines."""
-        return (self.count == other.count and np.allclose(self.directions, other.directions, rtol=0, atol=1e-12)
-                and np.allclose(self.jitter, other.jitter, rtol=0, atol=1e-12))
+        return (
+            self.count == other.count
+            and np.allclose(self.directions, other.directions, rtol=0, atol=1e-12)
+            and np.allclose(self.jitter, other.jitter, rtol=0, atol=1e-12)
+        )
 
 
 def line_origins(directions: DirectionSet, k: int, centre: np.ndarray, radius: float, resolution: int) -> np.ndarray:
@@ -101,18 +104,29 @@ def line_origins(directions: DirectionSet, k: int, centre: np.ndarray, radius: f
     s = radius * (2.0 * (np.arange(R) + 0.5 + directions.jitter[k, 0]) / R - 1.0)
     t = radius * (2.0 * (np.arange(R) + 0.5 + directions.jitter[k, 1]) / R - 1.0)
     tt, ss = np.meshgrid(t, s, indexing="ij")
-    return (centre + ss.reshape(-1, 1) * directions.axis_u[k] + tt.reshape(-1, 1) * directions.axis_v[k]
-            - radius * directions.directions[k])
+    return (
+        centre
+        + ss.reshape(-1, 1) * directions.axis_u[k]
+        + tt.reshape(-1, 1) * directions.axis_v[k]
+        - radius * directions.directions[k]
+    )
 
 
 def bundle_params(scene, method: str, directions: DirectionSet, resolution: int) -> dict:
     """The provenance every builder records in `BundleSet.params` (builders add their own)."""
     import importlib.metadata
 
-    return {"evalkit": importlib.metadata.version("raybundle-evalkit"), "scene": scene.name,
-            "scene_hash": scene.content_hash(), "method": method, "directions": directions.count,
-            "resolution": int(resolution), "seed": directions.seed, "frame": directions.frame,
-            "jitter": bool(np.any(directions.jitter != 0))}
+    return {
+        "evalkit": importlib.metadata.version("raybundle-evalkit"),
+        "scene": scene.name,
+        "scene_hash": scene.content_hash(),
+        "method": method,
+        "directions": directions.count,
+        "resolution": int(resolution),
+        "seed": directions.seed,
+        "frame": directions.frame,
+        "jitter": bool(np.any(directions.jitter != 0)),
+    }
 
 
 @dataclass(eq=False)
@@ -167,15 +181,30 @@ class BundleSet:
 
     def save(self, path: str | os.PathLike) -> None:
         ds = self.directions
-        meta = {"format_version": FORMAT_VERSION, "method": self.method, "radius": self.radius,
-                "resolution": self.resolution, "seed": ds.seed, "frame": ds.frame,
-                "params": self.params, "stats": self.stats}
-        np.savez(path, meta=np.array(json.dumps(meta)), centre=self.centre, directions=ds.directions,
-                 axis_u=ds.axis_u, axis_v=ds.axis_v, jitter=ds.jitter, offsets=self.offsets,
-                 **{name: getattr(self, name) for name in self.NODE_FIELDS})
+        meta = {
+            "format_version": FORMAT_VERSION,
+            "method": self.method,
+            "radius": self.radius,
+            "resolution": self.resolution,
+            "seed": ds.seed,
+            "frame": ds.frame,
+            "params": self.params,
+            "stats": self.stats,
+        }
+        np.savez(
+            path,
+            meta=np.array(json.dumps(meta)),
+            centre=self.centre,
+            directions=ds.directions,
+            axis_u=ds.axis_u,
+            axis_v=ds.axis_v,
+            jitter=ds.jitter,
+            offsets=self.offsets,
+            **{name: getattr(self, name) for name in self.NODE_FIELDS},
+        )
 
     @staticmethod
-    def load(path: str | os.PathLike) -> "BundleSet":
+    def load(path: str | os.PathLike) -> BundleSet:
         """Read a `save`d file; a missing, foreign or inconsistent file raises `InputError`."""
         path = os.fspath(path)
         if not os.path.exists(path):
@@ -185,16 +214,35 @@ class BundleSet:
                 arrays = {name: z[name] for name in z.files}
         except Exception as e:  # zipfile, pickle and format errors alike: not a bundle file
             raise InputError(path, f"not a BundleSet .npz file ({e})") from None
-        missing = {"meta", "centre", "directions", "axis_u", "axis_v", "jitter", "offsets", *BundleSet.NODE_FIELDS} - set(arrays)
+        missing = {
+            "meta",
+            "centre",
+            "directions",
+            "axis_u",
+            "axis_v",
+            "jitter",
+            "offsets",
+            *BundleSet.NODE_FIELDS,
+        } - set(arrays)
         if missing:
             raise InputError(path, f"not a BundleSet file: missing {', '.join(sorted(missing))}")
         meta = json.loads(str(arrays["meta"]))
         if meta.get("format_version") != FORMAT_VERSION:
             raise InputError(path, f"BundleSet format version {meta.get('format_version')} is not {FORMAT_VERSION}")
-        ds = DirectionSet(arrays["directions"], arrays["axis_u"], arrays["axis_v"], arrays["jitter"], meta["seed"], meta["frame"])
-        bundles = BundleSet(meta["method"], ds, arrays["centre"], float(meta["radius"]), int(meta["resolution"]),
-                            arrays["offsets"], *(arrays[name] for name in BundleSet.NODE_FIELDS),
-                            params=meta["params"], stats=meta["stats"])
+        ds = DirectionSet(
+            arrays["directions"], arrays["axis_u"], arrays["axis_v"], arrays["jitter"], meta["seed"], meta["frame"]
+        )
+        bundles = BundleSet(
+            meta["method"],
+            ds,
+            arrays["centre"],
+            float(meta["radius"]),
+            int(meta["resolution"]),
+            arrays["offsets"],
+            *(arrays[name] for name in BundleSet.NODE_FIELDS),
+            params=meta["params"],
+            stats=meta["stats"],
+        )
         problem = bundles.check()
         if problem:
             raise InputError(path, problem)

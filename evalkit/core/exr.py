@@ -58,7 +58,7 @@ def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
     for key, value in header.items():
         if isinstance(key, str) and key.startswith(PREFIX):
             try:
-                provenance[key[len(PREFIX):]] = json.loads(value)
+                provenance[key[len(PREFIX) :]] = json.loads(value)
             except (TypeError, ValueError):
-                provenance[key[len(PREFIX):]] = value
+                provenance[key[len(PREFIX) :]] = value
     return rgb.astype(np.float32), provenance

@@ -15,8 +15,8 @@ when that node is within the depth tolerance. Then:
 
 So test nodes = matched + redundant + spurious, and exact nodes = matched + holes. Node agreement
 is matched / exact nodes. The spurious rate is per test node; spurious nodes per exact crossing
-compares lists of different density (imperfect bundles with and without merging) on one scale. The tolerance is relative to the frame radius, so the numbers do not
-change with the scene's scale.
+compares lists of different density (imperfect bundles with and without merging) on one scale.
+The tolerance is relative to the frame radius, so the numbers do not change with the scene's scale.
 
 The rates are also broken down by direction and by **slope**: |cos| between the bundle direction
 and the node's surface normal, in `SLOPE_BINS` (0 is grazing, 1 head-on). Holes are counted at
@@ -44,7 +44,9 @@ def frame_mismatch(test: BundleSet, exact: BundleSet) -> str | None:
     if a.count != b.count or test.resolution != exact.resolution:
         return f"K={a.count}, R={test.resolution} against K={b.count}, R={exact.resolution}"
     if not a.same_as(b):
-        return f"different direction sets (seed {a.seed} frame {a.frame} against seed {b.seed} frame {b.frame}, or jitter)"
+        return (
+            f"different direction sets (seed {a.seed} frame {a.frame} against seed {b.seed} frame {b.frame}, or jitter)"
+        )
     scale = max(exact.radius, 1e-300)
     if abs(test.radius - exact.radius) > 1e-9 * scale or np.abs(test.centre - exact.centre).max() > 1e-9 * scale:
         return "different bundle frames (bounding sphere centre or radius): not the same scene?"
@@ -73,7 +75,11 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
     for candidate in (pos - 1, pos):
         ok = (candidate >= 0) & (candidate < len(e_key))
         c = np.where(ok, candidate, 0)
-        gap = np.where(ok & (e_list[c] == t_list), np.abs(e_depth[c] - t_depth), np.inf) if len(e_key) else np.full(len(t_key), np.inf)
+        gap = (
+            np.where(ok & (e_list[c] == t_list), np.abs(e_depth[c] - t_depth), np.inf)
+            if len(e_key)
+            else np.full(len(t_key), np.inf)
+        )
         closer = (gap <= tau) & (gap < error)
         assigned[closer], error[closer] = c[closer], gap[closer]
 
@@ -206,11 +212,21 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
         r, phi = np.sqrt(u1), 2 * np.pi * u2
         rays = (r * np.cos(phi))[:, None] * t1 + (r * np.sin(phi))[:, None] * t2 + np.sqrt(1 - u1)[:, None] * ng
         origins = hits.point[ok] + tracer.epsilon * ng
-    return {"position": np.concatenate(points), "normal": np.concatenate(normals), "geometric": np.concatenate(geometric)}
+    return {
+        "position": np.concatenate(points),
+        "normal": np.concatenate(normals),
+        "geometric": np.concatenate(geometric),
+    }
 
 
-def bundle_lookup(bundles: BundleSet, position: np.ndarray, normal: np.ndarray, geometric: np.ndarray, k: np.ndarray,
-                  self_hit_bias: float = 0.25) -> dict:
+def bundle_lookup(
+    bundles: BundleSet,
+    position: np.ndarray,
+    normal: np.ndarray,
+    geometric: np.ndarray,
+    k: np.ndarray,
+    self_hit_bias: float = 0.25,
+) -> dict:
     """The renderer's next-vertex lookup (shaders/eye_paths.glsl) on a `BundleSet`, in float64:
     per vertex, the direction taken (d_k or -d_k, in the shading hemisphere), whether it leaves the
     geometric surface, and the node found (index into the set's nodes, -1: none)."""
@@ -223,13 +239,22 @@ def bundle_lookup(bundles: BundleSet, position: np.ndarray, normal: np.ndarray, 
     cg = np.einsum("ij,ij->i", geometric, d)
     leaves = np.where(forward, cg > 0, cg < 0)
     p = position - bundles.centre
-    grid = np.stack([(np.einsum("ij,ij->i", p, u) / bundles.radius * 0.5 + 0.5) * R - ds.jitter[k, 0] - 0.5,
-                     (np.einsum("ij,ij->i", p, v) / bundles.radius * 0.5 + 0.5) * R - ds.jitter[k, 1] - 0.5], axis=1)
+    grid = np.stack(
+        [
+            (np.einsum("ij,ij->i", p, u) / bundles.radius * 0.5 + 0.5) * R - ds.jitter[k, 0] - 0.5,
+            (np.einsum("ij,ij->i", p, v) / bundles.radius * 0.5 + 0.5) * R - ds.jitter[k, 1] - 0.5,
+        ],
+        axis=1,
+    )
     above = np.stack([np.einsum("ij,ij->i", geometric, u), np.einsum("ij,ij->i", geometric, v)], axis=1)
     pixel = np.clip(np.where(above >= 0, np.ceil(grid), np.floor(grid)), 0, R - 1).astype(np.int64)
     lists = k * R * R + pixel[:, 1] * R + pixel[:, 0]
-    origin = (bundles.centre + (bundles.radius * (2.0 * (pixel[:, :1] + 0.5 + ds.jitter[k, :1]) / R - 1.0)) * u
-              + (bundles.radius * (2.0 * (pixel[:, 1:] + 0.5 + ds.jitter[k, 1:]) / R - 1.0)) * v - bundles.radius * d)
+    origin = (
+        bundles.centre
+        + (bundles.radius * (2.0 * (pixel[:, :1] + 0.5 + ds.jitter[k, :1]) / R - 1.0)) * u
+        + (bundles.radius * (2.0 * (pixel[:, 1:] + 0.5 + ds.jitter[k, 1:]) / R - 1.0)) * v
+        - bundles.radius * d
+    )
     depth = np.einsum("ij,ij->i", position - origin, d)
     off_line = position - (origin + depth[:, None] * d)
     crossing = depth + np.einsum("ij,ij->i", geometric, off_line) / np.where(leaves, cg, 1.0)
@@ -239,7 +264,7 @@ def bundle_lookup(bundles: BundleSet, position: np.ndarray, normal: np.ndarray, 
     depths = bundles.depth.astype(np.float64)
     node = np.full(len(k), -1, np.int64)
     for i in np.nonzero(leaves)[0]:  # vertices are thousands; each search is a few steps
-        span = depths[first[i]:last[i]]
+        span = depths[first[i] : last[i]]
         if forward[i]:
             j = np.searchsorted(span, bound[i], side="right")
             node[i] = first[i] + j if j < len(span) else -1
@@ -269,11 +294,17 @@ def next_hit_errors(bundles: BundleSet, tracer, vertices: dict, seed: int = 0, s
     exact = tracer.next_hit(vertices["position"][use] + tracer.epsilon * ng, omega)
     bundle_hit, exact_hit = node >= 0, exact.prim_id >= 0
     facing = np.zeros(len(node), bool)
-    facing[bundle_hit] = np.einsum("ij,ij->i", bundles.normal[node[bundle_hit]].astype(np.float64), exact.normal[bundle_hit]) > 0
+    facing[bundle_hit] = (
+        np.einsum("ij,ij->i", bundles.normal[node[bundle_hit]].astype(np.float64), exact.normal[bundle_hit]) > 0
+    )
     distance = np.linalg.norm(np.nan_to_num(point) - exact.point, axis=1)
     cos = np.abs(np.einsum("ij,ij->i", exact.geometric_normal, omega))
-    same = (bundle_hit & exact_hit & facing
-            & (distance <= NEXT_HIT_PIXELS * bundles.pixel_size() / np.maximum(cos, NEXT_HIT_MIN_COS)))
+    same = (
+        bundle_hit
+        & exact_hit
+        & facing
+        & (distance <= NEXT_HIT_PIXELS * bundles.pixel_size() / np.maximum(cos, NEXT_HIT_MIN_COS))
+    )
     agree = (~bundle_hit & ~exact_hit) | same
     false_miss = ~bundle_hit & exact_hit
     false_hit = bundle_hit & ~exact_hit
@@ -292,8 +323,13 @@ def next_hit_errors(bundles: BundleSet, tracer, vertices: dict, seed: int = 0, s
         "false_miss_rate": float(false_miss.sum() / n),
         "false_hit_rate": float(false_hit.sum() / n),
         "wrong_surface_rate": float(wrong_surface.sum() / n),
-        "per_direction": {"lookups": n_k.tolist(),
-                          "error_rate": (np.bincount(k[~agree], minlength=K) / np.maximum(n_k, 1)).tolist()},
-        "per_slope": {"bins": list(SLOPE_BINS), "lookups": n_s.tolist(),
-                      "error_rate": (np.bincount(slope[exact_hit & ~agree], minlength=bins) / np.maximum(n_s, 1)).tolist()},
+        "per_direction": {
+            "lookups": n_k.tolist(),
+            "error_rate": (np.bincount(k[~agree], minlength=K) / np.maximum(n_k, 1)).tolist(),
+        },
+        "per_slope": {
+            "bins": list(SLOPE_BINS),
+            "lookups": n_s.tolist(),
+            "error_rate": (np.bincount(slope[exact_hit & ~agree], minlength=bins) / np.maximum(n_s, 1)).tolist(),
+        },
     }

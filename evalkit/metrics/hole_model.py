@@ -83,6 +83,7 @@ def recommend(c: float, c_nodes: float, node_cost: float = DEFAULT_NODE_COST, h0
     """The splat scale minimising P(hole) + node_cost c_n s^2, by Dr.Jit AD (gradient descent on
     log s), with a direct search of the same cost beside it as a check (and, for q = 2, the closed
     form)."""
+
     def cost(dr, log_s):
         s2 = dr.exp(2 * log_s)
         return h0 + (1.0 - h0) * dr.exp(-c * dr.exp(q * log_s)) + node_cost * c_nodes * s2
@@ -94,21 +95,37 @@ def recommend(c: float, c_nodes: float, node_cost: float = DEFAULT_NODE_COST, h0
     closed = (math.sqrt(math.log(ratio) / c) if ratio > 1 else 0.0) if q == 2.0 else None
     s = math.exp(log_s)
     hole = float(hole_rate_model(s * s, c, h0, q))
-    return {"node_cost": node_cost, "splat_scale": s, "searched": searched, "closed_form": closed, "predicted_hole_rate": hole,
-            "predicted_nodes_per_crossing": c_nodes * s * s, "predicted_cost": hole + node_cost * c_nodes * s * s}
+    return {
+        "node_cost": node_cost,
+        "splat_scale": s,
+        "searched": searched,
+        "closed_form": closed,
+        "predicted_hole_rate": hole,
+        "predicted_nodes_per_crossing": c_nodes * s * s,
+        "predicted_cost": hole + node_cost * c_nodes * s * s,
+    }
 
 
-def validate(recommended: float, scale: np.ndarray, hole_rate: np.ndarray, nodes_per_crossing: np.ndarray,
-             node_cost: float = DEFAULT_NODE_COST) -> dict:
+def validate(
+    recommended: float,
+    scale: np.ndarray,
+    hole_rate: np.ndarray,
+    nodes_per_crossing: np.ndarray,
+    node_cost: float = DEFAULT_NODE_COST,
+) -> dict:
     """The measured cost on the sweep's grid: its best scale, and the regret of taking the grid
     scale nearest (in log) to the recommendation instead."""
     scale = np.asarray(scale, dtype=np.float64)
     measured = np.asarray(hole_rate) + node_cost * np.asarray(nodes_per_crossing)
     best = int(np.argmin(measured))
     nearest = int(np.argmin(np.abs(np.log(scale) - math.log(recommended))))
-    return {"measured_best_scale": float(scale[best]), "measured_best_cost": float(measured[best]),
-            "nearest_grid_scale": float(scale[nearest]), "nearest_grid_cost": float(measured[nearest]),
-            "regret": float(measured[nearest] / measured[best] - 1.0)}
+    return {
+        "measured_best_scale": float(scale[best]),
+        "measured_best_cost": float(measured[best]),
+        "nearest_grid_scale": float(scale[nearest]),
+        "nearest_grid_cost": float(measured[nearest]),
+        "regret": float(measured[nearest] / measured[best] - 1.0),
+    }
 
 
 def analyse(rows: list[dict], node_cost: float = DEFAULT_NODE_COST) -> list[dict]:
@@ -122,13 +139,29 @@ def analyse(rows: list[dict], node_cost: float = DEFAULT_NODE_COST) -> list[dict
             group = [r for r in mine if points is None or int(r["points"]) == points]
             if len({r["splat_scale"] for r in group}) < 2:
                 continue
-            col = {k: np.array([float(r[k]) for r in group]) for k in ("splat_scale", "hole_rate", "nodes_per_crossing", "exact_nodes")}
+            col = {
+                k: np.array([float(r[k]) for r in group])
+                for k in ("splat_scale", "hole_rate", "nodes_per_crossing", "exact_nodes")
+            }
             model = fit(col["splat_scale"], col["hole_rate"], col["nodes_per_crossing"], col["exact_nodes"])
             rec = recommend(model["c"], model["c_nodes"], node_cost, model["h0"], model["q"])
-            entry = {"scene": scene, "sampler": sampler, "points": points if points is not None else "all", **model, **rec}
+            entry = {
+                "scene": scene,
+                "sampler": sampler,
+                "points": points if points is not None else "all",
+                **model,
+                **rec,
+            }
             if points is not None:  # one point count: the grid is one curve to validate on
                 order = np.argsort(col["splat_scale"])
-                entry.update(validate(rec["splat_scale"], col["splat_scale"][order], col["hole_rate"][order],
-                                      col["nodes_per_crossing"][order], node_cost))
+                entry.update(
+                    validate(
+                        rec["splat_scale"],
+                        col["splat_scale"][order],
+                        col["hole_rate"][order],
+                        col["nodes_per_crossing"][order],
+                        node_cost,
+                    )
+                )
             out.append(entry)
     return out

@@ -49,7 +49,9 @@ def check_images(test: np.ndarray, ref: np.ndarray, test_name: str = "test", ref
             y, x = np.argwhere(bad.any(axis=2))[0]
             raise InputError(name, f"{int(bad.any(axis=2).sum())} pixel(s) are NaN or Inf, the first at x={x}, y={y}")
     if test.shape != ref.shape:
-        raise InputError(test_name, f"is {test.shape[1]}x{test.shape[0]} but {ref_name} is {ref.shape[1]}x{ref.shape[0]}")
+        raise InputError(
+            test_name, f"is {test.shape[1]}x{test.shape[0]} but {ref_name} is {ref.shape[1]}x{ref.shape[0]}"
+        )
 
 
 def mse(test: np.ndarray, ref: np.ndarray) -> Metric:
@@ -72,8 +74,13 @@ def flip(test: np.ndarray, ref: np.ndarray, ppd: float = FLIP_PPD) -> Metric:
 
     # FLIP needs non-negative HDR input; the renderer and Mitsuba never write negative radiance,
     # but a difference image (indirect = total - direct) can be -1e-9, which is clamped.
-    error_map, mean, used = flip_evaluator.evaluate(np.maximum(ref, 0).astype(np.float32), np.maximum(test, 0).astype(np.float32),
-                                                    "HDR", applyMagma=False, parameters={"ppd": ppd})
+    error_map, mean, used = flip_evaluator.evaluate(
+        np.maximum(ref, 0).astype(np.float32),
+        np.maximum(test, 0).astype(np.float32),
+        "HDR",
+        applyMagma=False,
+        parameters={"ppd": ppd},
+    )
     error_map = np.asarray(error_map, dtype=np.float64).reshape(ref.shape[:2])
     return Metric("flip", float(mean), error_map, {"dynamic_range": "HDR", **{k: _plain(v) for k, v in used.items()}})
 
@@ -87,12 +94,17 @@ def delta_e2000(test: np.ndarray, ref: np.ndarray, exposure: float = DELTA_E_EXP
         return colour.XYZ_to_Lab(xyz, colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
 
     m = np.asarray(colour.delta_E(lab(test), lab(ref), method="CIE 2000"), dtype=np.float64)
-    return Metric("delta_e2000", float(m.mean()), m,
-                  {"exposure": exposure, "display": "linear sRGB x 2^exposure clipped to [0, 1], D65"})
+    return Metric(
+        "delta_e2000",
+        float(m.mean()),
+        m,
+        {"exposure": exposure, "display": "linear sRGB x 2^exposure clipped to [0, 1], D65"},
+    )
 
 
-def compare_images(test: np.ndarray, ref: np.ndarray, metrics=METRICS, test_name: str = "test", ref_name: str = "reference",
-                   **params) -> dict[str, Metric]:
+def compare_images(
+    test: np.ndarray, ref: np.ndarray, metrics=METRICS, test_name: str = "test", ref_name: str = "reference", **params
+) -> dict[str, Metric]:
     """Every metric named in ``metrics``; ``params`` override a metric's parameters by name
     (``relmse_eps``, ``smape_eps``, ``flip_ppd``, ``exposure``)."""
     check_images(test, ref, test_name, ref_name)
@@ -110,8 +122,9 @@ def compare_images(test: np.ndarray, ref: np.ndarray, metrics=METRICS, test_name
     return {name: calls[name]() for name in metrics}
 
 
-def bias_variance(images: list[np.ndarray], ref: np.ndarray, ref_variance: np.ndarray | None = None,
-                  eps: float = RELMSE_EPSILON) -> dict:
+def bias_variance(
+    images: list[np.ndarray], ref: np.ndarray, ref_variance: np.ndarray | None = None, eps: float = RELMSE_EPSILON
+) -> dict:
     """Split the error of a stochastic method over n seeds into bias and variance (Celarek et al.,
     CGF 2019), relative to the reference as relMSE is: per pixel and channel w = 1 / (r^2 + eps).
 

@@ -41,8 +41,13 @@ def reference_for(scene: Scene, run: dict, measure: dict, out: Path, progress=pr
     """The committed reference when the store has it, else one rendered into ``reference_store`` of
     ``measure`` (default: the study folder's references/), or found there from an earlier run."""
     width, height = film_size(scene, run)
-    args = dict(bounces=int(run["bounces"]), spp=int(measure["reference_spp"]), width=width, height=height,
-                seed=int(measure["reference_seed"]))
+    args = dict(
+        bounces=int(run["bounces"]),
+        spp=int(measure["reference_spp"]),
+        width=width,
+        height=height,
+        seed=int(measure["reference_seed"]),
+    )
     committed = store_entry(scene.name, scene.content_hash(), store=DEFAULT_STORE, **args)
     if (committed / "manifest.json").is_file():
         return load_reference(committed)
@@ -52,7 +57,10 @@ def reference_for(scene: Scene, run: dict, measure: dict, out: Path, progress=pr
 
 def exact_bundles(scene: Scene, run: dict, out: Path) -> BundleSet:
     """Embree's exact bundles on the run's lines (frame 0 of its seed), cached in the study folder."""
-    path = out / "cache" / f"exact-{scene.name}-{scene.content_hash()[:12]}-K{run['directions']}-R{run['resolution']}-seed{run['seed']}.npz"
+    path = (
+        out / "cache" / f"exact-{scene.name}-{scene.content_hash()[:12]}"
+        f"-K{run['directions']}-R{run['resolution']}-seed{run['seed']}.npz"
+    )
     directions = DirectionSet.make(int(run["directions"]), seed=int(run["seed"]))
     if path.is_file():
         cached = BundleSet.load(path)

@@ -26,16 +26,25 @@ from evalkit.study.run import execute_run, versions
 from evalkit.study.spec import Study, run_id
 
 
-def run_study(study: Study, out: str | os.PathLike, workers: int = 1, executor: str = "local", scheduler: str | None = None,
-              progress=print, command: str | None = None) -> list[dict]:
+def run_study(
+    study: Study,
+    out: str | os.PathLike,
+    workers: int = 1,
+    executor: str = "local",
+    scheduler: str | None = None,
+    progress=print,
+    command: str | None = None,
+) -> list[dict]:
     """Run every run not finished yet, append its row, then write results.csv and the report.
     Returns every row (finished earlier or now), in the study's order."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     done = {r["run_id"]: r for r in read_rows(out) if r.get("status") == "ok"}
     todo = [r for r in study.runs if run_id(r) not in done]
-    progress(f"{study.name}: {len(study.runs)} runs, {len(done)} finished before, {len(todo)} to run "
-             f"({executor}, {workers} worker(s)) into {out}")
+    progress(
+        f"{study.name}: {len(study.runs)} runs, {len(done)} finished before, {len(todo)} to run "
+        f"({executor}, {workers} worker(s)) into {out}"
+    )
     prepare_artefacts(study.runs, study.measure, out, progress)
     with open(out / "results.jsonl", "a") as log:
         for row in _execute(todo, study.measure, out, workers, executor, scheduler):
@@ -43,12 +52,21 @@ def run_study(study: Study, out: str | os.PathLike, workers: int = 1, executor: 
             log.flush()
             done[row["run_id"]] = row
             if row["status"] != "ok":
-                progress(f"run {row['run_id']} failed: {row['status']} (see {out / 'runs' / row['run_id'] / 'error.txt'})")
+                progress(
+                    f"run {row['run_id']} failed: {row['status']} (see {out / 'runs' / row['run_id'] / 'error.txt'})"
+                )
     rows = [done[run_id(r)] for r in study.runs]
     failed = [r for r in rows if r["status"] != "ok"]
     write_csv(rows, out / "results.csv")
-    meta = {"study": study.name, "file": str(study.path) if study.path else None, "command": command or " ".join(sys.argv),
-            "versions": versions(), "executor": executor, "workers": workers, "finished": time.strftime("%Y-%m-%d %H:%M:%S")}
+    meta = {
+        "study": study.name,
+        "file": str(study.path) if study.path else None,
+        "command": command or " ".join(sys.argv),
+        "versions": versions(),
+        "executor": executor,
+        "workers": workers,
+        "finished": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
     (out / "study.json").write_text(json.dumps(meta, indent=2) + "\n")
     write_report(study, rows, out, meta, failed)
     return rows
@@ -64,7 +82,9 @@ def read_rows(out: Path) -> list[dict]:
             try:
                 rows.append(json.loads(line))
             except ValueError:
-                raise InputError(str(path), f"line {n} is not JSON (a run cut off mid-write?); delete that line to resume") from None
+                raise InputError(
+                    str(path), f"line {n} is not JSON (a run cut off mid-write?); delete that line to resume"
+                ) from None
     return rows
 
 
@@ -102,8 +122,11 @@ def _dask(todo, measure, out, workers, scheduler, bar):
     from dask.distributed import Client, LocalCluster
     from dask.distributed import as_completed as dask_completed
 
-    cluster = None if scheduler else LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                                  dashboard_address=None)
+    cluster = (
+        None
+        if scheduler
+        else LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+    )
     try:
         with Client(scheduler or cluster) as client:
             futures = [client.submit(execute_run, run, measure, str(out), pure=False) for run in todo]

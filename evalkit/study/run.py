@@ -27,7 +27,16 @@ from gpu_impl.renderer import Renderer
 from gpu_impl.scene_buffers import GpuScene
 from references.mitsuba import timed_render
 
-VERSIONED = ("raybundle-evalkit", "mitsuba", "drjit", "moderngl", "numpy", "embreex", "flip-evaluator", "colour-science")
+VERSIONED = (
+    "raybundle-evalkit",
+    "mitsuba",
+    "drjit",
+    "moderngl",
+    "numpy",
+    "embreex",
+    "flip-evaluator",
+    "colour-science",
+)
 
 
 def versions() -> dict:
@@ -67,7 +76,9 @@ def _measure(run: dict, measure: dict, out: Path, folder: Path) -> dict:
     if not measure["render"]:
         return row
     if run["method"] == "mitsuba":
-        images, seconds, info = timed_render(scene, int(run["bounces"]), int(run["spp"]), *film_size(scene, run), int(run["seed"]))
+        images, seconds, info = timed_render(
+            scene, int(run["bounces"]), int(run["spp"]), *film_size(scene, run), int(run["seed"])
+        )
         row.update({"wall_s": seconds, "paths_per_pixel": int(run["spp"]), "gl_renderer": None})
         provenance = {**run, **info}
     else:
@@ -79,7 +90,9 @@ def _measure(run: dict, measure: dict, out: Path, folder: Path) -> dict:
     row["reference"] = str(ref.path)
     for name in measure["images"]:
         write_exr(folder / f"{name}.exr", images[name].astype(np.float32), {**provenance, "image": name})
-        metrics = compare_images(images[name], ref.images[name], measure["metrics"], f"{run['method']} {name}", f"reference {name}")
+        metrics = compare_images(
+            images[name], ref.images[name], measure["metrics"], f"{run['method']} {name}", f"reference {name}"
+        )
         # The relative error of the image's mean: bias that noise cannot hide (light lost to holes,
         # or gained from splats overhanging an emitter).
         row[f"{name}_mean_error"] = float(images[name].mean() / max(float(ref.images[name].mean()), 1e-30) - 1.0)
@@ -98,9 +111,14 @@ def _render(scene: Scene, run: dict) -> tuple[dict, dict, dict]:
     finally:
         renderer.release()
     t = result.timings
-    timings = {"wall_s": t["wall_s"], "frames_rendered": result.params["frames_rendered"], "paths_per_pixel": result.params["paths_per_pixel"],
-               "nodes_per_frame": result.stats["nodes_median"], "gl_renderer": gl.info["renderer"],
-               **{f"ms_{k}": v for k, v in t["median_ms"].items() if "." not in k}}
+    timings = {
+        "wall_s": t["wall_s"],
+        "frames_rendered": result.params["frames_rendered"],
+        "paths_per_pixel": result.params["paths_per_pixel"],
+        "nodes_per_frame": result.stats["nodes_median"],
+        "gl_renderer": gl.info["renderer"],
+        **{f"ms_{k}": v for k, v in t["median_ms"].items() if "." not in k},
+    }
     return result.images, timings, {**result.params, "warnings": result.warnings}
 
 
@@ -108,10 +126,22 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
     exact = exact_bundles(scene, run, out)
     gl = gl_context()
     st = render_settings(run)
-    with GpuScene(gl, scene) as gpu_scene, BundleTracer(
-            gl, gpu_scene, st.method, directions=st.directions, resolution=st.resolution, points=st.points,
-            splat_scale=st.splat_scale, sampler=st.sampler, splatter=st.splatter, node_budget=st.node_budget,
-            count_covered=True) as tracer:
+    with (
+        GpuScene(gl, scene) as gpu_scene,
+        BundleTracer(
+            gl,
+            gpu_scene,
+            st.method,
+            directions=st.directions,
+            resolution=st.resolution,
+            points=st.points,
+            splat_scale=st.splat_scale,
+            sampler=st.sampler,
+            splatter=st.splatter,
+            node_budget=st.node_budget,
+            count_covered=True,
+        ) as tracer,
+    ):
         directions = DirectionSet.make(int(run["directions"]), seed=int(run["seed"]))
         tracer.build(directions)  # warm-up: the first build compiles and sizes the buffers
         stats = tracer.build(directions)
@@ -122,8 +152,19 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
     vertices = eye_vertices(scene, embree, int(measure["eye_vertices"]), seed=int(run["seed"]))
     hit = next_hit_errors(bundles, embree, vertices, seed=int(run["seed"]))
     floor = next_hit_errors(exact, embree, vertices, seed=int(run["seed"]))
-    row = {k: r[k] for k in ("exact_nodes", "test_nodes", "agreement", "hole_rate", "spurious_rate", "spurious_per_crossing",
-                             "redundant_rate", "same_prim_rate")}
+    row = {
+        k: r[k]
+        for k in (
+            "exact_nodes",
+            "test_nodes",
+            "agreement",
+            "hole_rate",
+            "spurious_rate",
+            "spurious_per_crossing",
+            "redundant_rate",
+            "same_prim_rate",
+        )
+    }
     # Per exact crossing: the lines splats cover (the nodes without merging: what the splat size
     # costs), and the nodes written before and kept after merging.
     row["raw_nodes"] = stats["raw_nodes"]
@@ -134,8 +175,16 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
     row["worst_direction_hole_rate"] = max(r["per_direction"]["hole_rate"])
     for i, rate in enumerate(r["per_slope"]["hole_rate"]):
         row[f"hole_rate_slope{i}"] = rate
-    row.update({"next_hit_error_rate": hit["error_rate"], "next_hit_exact_floor": floor["error_rate"],
-                "next_hit_false_miss_rate": hit["false_miss_rate"], "next_hit_wrong_surface_rate": hit["wrong_surface_rate"],
-                "next_hit_lookups": hit["lookups"], "build_ms": sum(v for v in stats["gpu_ms"].values() if v is not None),
-                "build_wall_ms": stats["wall_ms"], "splat_radius": splat_radius})
+    row.update(
+        {
+            "next_hit_error_rate": hit["error_rate"],
+            "next_hit_exact_floor": floor["error_rate"],
+            "next_hit_false_miss_rate": hit["false_miss_rate"],
+            "next_hit_wrong_surface_rate": hit["wrong_surface_rate"],
+            "next_hit_lookups": hit["lookups"],
+            "build_ms": sum(v for v in stats["gpu_ms"].values() if v is not None),
+            "build_wall_ms": stats["wall_ms"],
+            "splat_radius": splat_radius,
+        }
+    )
     return row

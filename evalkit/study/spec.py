@@ -52,8 +52,16 @@ METHODS = ("perfect", "imperfect", "mitsuba")
 # The parameters a run may set: the scene and every RenderSettings field, with the renderer's
 # defaults (Mitsuba runs use scene, bounces, spp, width, height and seed of them).
 RUN_DEFAULTS = {"scene": "cornell-box", **{f.name: f.default for f in fields(RenderSettings)}}
-MEASURE_DEFAULTS = {"bundles": False, "render": True, "images": ["indirect"], "metrics": list(METRICS),
-                    "reference_spp": 4096, "reference_seed": 0, "eye_vertices": 4096, "reference_store": ""}
+MEASURE_DEFAULTS = {
+    "bundles": False,
+    "render": True,
+    "images": ["indirect"],
+    "metrics": list(METRICS),
+    "reference_spp": 4096,
+    "reference_seed": 0,
+    "eye_vertices": 4096,
+    "reference_store": "",
+}
 TOP_KEYS = {"name", "title", "description", "reduced", "defaults", "grid", "measure", "hole_model", "plot", "report"}
 
 
@@ -111,8 +119,18 @@ def study_from_dict(spec: dict, path: Path | None = None) -> Study:
         if "x" not in p or "y" not in p:
             raise InputError(where, f"a [[plot]] needs x and y, got {sorted(p)}")
     name = spec.get("name") or (path.stem if path else "study")
-    return Study(name, path, spec.get("title", name), spec.get("description", ""), spec.get("reduced", ""), runs, measure,
-                 spec.get("hole_model"), plots, spec.get("report", {}))
+    return Study(
+        name,
+        path,
+        spec.get("title", name),
+        spec.get("description", ""),
+        spec.get("reduced", ""),
+        runs,
+        measure,
+        spec.get("hole_model"),
+        plots,
+        spec.get("report", {}),
+    )
 
 
 def measure_settings(table: dict, where: str) -> dict:
@@ -141,7 +159,9 @@ def validate_run(run: dict, where: str) -> None:
     wrong type or out of the renderer's range (`RenderSettings.validate`)."""
     unknown = set(run) - set(RUN_DEFAULTS)
     if unknown:
-        raise InputError(where, f"unknown run parameter(s) {', '.join(sorted(unknown))}; known: {', '.join(RUN_DEFAULTS)}")
+        raise InputError(
+            where, f"unknown run parameter(s) {', '.join(sorted(unknown))}; known: {', '.join(RUN_DEFAULTS)}"
+        )
     if not isinstance(run["scene"], str):
         raise InputError(where, f"scene = {run['scene']!r} is not a scene name or path")
     if run["method"] not in METHODS:
@@ -157,7 +177,9 @@ def validate_run(run: dict, where: str) -> None:
         else:
             ok = isinstance(value, int) or kind == "float"
         if not ok:
-            raise InputError(where, f"{f.name} = {value!r} must be {'true or false' if kind == 'bool' else 'a whole number'}")
+            raise InputError(
+                where, f"{f.name} = {value!r} must be {'true or false' if kind == 'bool' else 'a whole number'}"
+            )
     try:  # a Mitsuba run checks the settings it shares with the renderer
         render_settings({**run, "method": "perfect"} if run["method"] == "mitsuba" else run).validate()
     except ValueError as e:

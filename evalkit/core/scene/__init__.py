@@ -30,7 +30,20 @@ def load_scene(spec: str | os.PathLike) -> Scene:
         return load_mesh_file(spec)
     if not os.path.exists(spec):
         raise InputError(spec, f"not a built-in scene ({', '.join(builtin_names())}) and no such file")
-    raise InputError(spec, f"unsupported file type '{ext}' (expected {', '.join(MITSUBA_EXTENSIONS + MESH_EXTENSIONS)})")
+    raise InputError(
+        spec, f"unsupported file type '{ext}' (expected {', '.join(MITSUBA_EXTENSIONS + MESH_EXTENSIONS)})"
+    )
 
 
-__all__ = ["Camera", "Light", "Material", "Mesh", "Motion", "Scene", "SceneFeatures", "assemble", "builtin_names", "load_scene"]
+__all__ = [
+    "Camera",
+    "Light",
+    "Material",
+    "Mesh",
+    "Motion",
+    "Scene",
+    "SceneFeatures",
+    "assemble",
+    "builtin_names",
+    "load_scene",
+]

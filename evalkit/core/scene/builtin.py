@@ -87,17 +87,34 @@ def atrium(animated: bool = False) -> Scene:
         top = base + _SPANDREL_TOP
         inner = _HALF_WIDTH - _COLUMN_RADIUS
         for s in (-1, 1):  # the gallery ceiling / floor slab above this storey, as a ring of boxes
-            flat.append(box(np.array([-_OUTER_X, top, min(s * inner, s * _OUTER_Z)]),
-                             np.array([_OUTER_X, top + 0.5, max(s * inner, s * _OUTER_Z)])))
+            flat.append(
+                box(
+                    np.array([-_OUTER_X, top, min(s * inner, s * _OUTER_Z)]),
+                    np.array([_OUTER_X, top + 0.5, max(s * inner, s * _OUTER_Z)]),
+                )
+            )
             xi = _HALF_LENGTH - _COLUMN_RADIUS
-            flat.append(box(np.array([min(s * xi, s * _OUTER_X), top, -inner]),
-                             np.array([max(s * xi, s * _OUTER_X), top + 0.5, inner])))
+            flat.append(
+                box(
+                    np.array([min(s * xi, s * _OUTER_X), top, -inner]),
+                    np.array([max(s * xi, s * _OUTER_X), top + 0.5, inner]),
+                )
+            )
     height = 2 * _STOREY_HEIGHT
     for s in (-1, 1):  # outer walls
-        flat.append(box(np.array([-_OUTER_X - 0.3, 0.0, s * _OUTER_Z - 0.15]), np.array([_OUTER_X + 0.3, height, s * _OUTER_Z + 0.15])))
-        flat.append(box(np.array([s * _OUTER_X - 0.15, 0.0, -_OUTER_Z]), np.array([s * _OUTER_X + 0.15, height, _OUTER_Z])))
+        flat.append(
+            box(
+                np.array([-_OUTER_X - 0.3, 0.0, s * _OUTER_Z - 0.15]),
+                np.array([_OUTER_X + 0.3, height, s * _OUTER_Z + 0.15]),
+            )
+        )
+        flat.append(
+            box(np.array([s * _OUTER_X - 0.15, 0.0, -_OUTER_Z]), np.array([s * _OUTER_X + 0.15, height, _OUTER_Z]))
+        )
     # Ground: one textured quad under courtyard and galleries; uv repeats the tile texture.
-    g = np.array([[-_OUTER_X, 0, -_OUTER_Z], [_OUTER_X, 0, -_OUTER_Z], [_OUTER_X, 0, _OUTER_Z], [-_OUTER_X, 0, _OUTER_Z]], float)
+    g = np.array(
+        [[-_OUTER_X, 0, -_OUTER_Z], [_OUTER_X, 0, -_OUTER_Z], [_OUTER_X, 0, _OUTER_Z], [-_OUTER_X, 0, _OUTER_Z]], float
+    )
     parts["floor"].append((g, np.array([[0, 2, 1], [0, 3, 2]]), np.tile([0.0, 1.0, 0.0], (4, 1)), g[:, [0, 2]] / 2.0))
     # Curtains hang in the upper gallery behind the arches of one long side.
     for a, b in zip(_LONG_COLUMNS[:-1], _LONG_COLUMNS[1:]):
@@ -118,15 +135,31 @@ def atrium(animated: bool = False) -> Scene:
         materials.append(Material("ball", albedo=(0.15, 0.3, 0.65), twosided=False))
         p, f, n, uv = unit_sphere((64, 32))
         centre = np.array([_BALL_ORBIT, _BALL_RADIUS + 0.05, 0.0])
-        meshes.append(Mesh("ball", p * _BALL_RADIUS + centre, f, material=len(materials) - 1, normals=n, uvs=uv,
-                           motion=Motion(pivot=(0.0, 0.0, 0.0), axis=(0.0, 1.0, 0.0), degrees_per_second=_BALL_DEGREES_PER_SECOND)))
+        meshes.append(
+            Mesh(
+                "ball",
+                p * _BALL_RADIUS + centre,
+                f,
+                material=len(materials) - 1,
+                normals=n,
+                uvs=uv,
+                motion=Motion(pivot=(0.0, 0.0, 0.0), axis=(0.0, 1.0, 0.0), degrees_per_second=_BALL_DEGREES_PER_SECOND),
+            )
+        )
     sun = np.array([0.35, -1.0, 0.25])
     lights = [
         Light("directional", (6.0, 5.6, 5.0), direction=sun / np.linalg.norm(sun)),
         Light("point", (60.0, 45.0, 30.0), position=np.array([-12.0, 3.0, -8.0])),
     ]
-    camera = Camera(look_at([-8.5, 1.7, -1.5], [6.0, 4.6, 1.5], [0, 1, 0]), fov=75.0, fov_axis="x", width=960, height=512,
-                    near_clip=0.01, far_clip=100.0)
+    camera = Camera(
+        look_at([-8.5, 1.7, -1.5], [6.0, 4.6, 1.5], [0, 1, 0]),
+        fov=75.0,
+        fov_axis="x",
+        width=960,
+        height=512,
+        near_clip=0.01,
+        far_clip=100.0,
+    )
     name = "atrium-animated" if animated else "atrium"
     return assemble(name, name, meshes, materials, lights, camera)
 
@@ -158,7 +191,14 @@ def _column(out: list, flat: list, x: float, z: float, base: float) -> None:
 
     def shaft(u, v):  # u: around, v: up; a slight entasis (swelling) like classical columns
         radius = r * (1.0 + 0.06 * np.sin(math.pi * v))
-        return np.stack([x + radius * np.cos(2 * math.pi * u), base + 0.3 + v * (_SPRING - 0.6), z - radius * np.sin(2 * math.pi * u)], -1)
+        return np.stack(
+            [
+                x + radius * np.cos(2 * math.pi * u),
+                base + 0.3 + v * (_SPRING - 0.6),
+                z - radius * np.sin(2 * math.pi * u),
+            ],
+            -1,
+        )
 
     out.append(surface(shaft, *_COLUMN_SEGMENTS))
     for y0 in (base, base + _SPRING - 0.3):  # plinth and capital
@@ -181,6 +221,7 @@ def _arch(out: list, a: float, b: float, across: float, base: float, along_x: bo
 
     out.append(surface(intrados, _ARCH_SEGMENTS, 4))
     for w in (-half_depth, half_depth):
+
         def spandrel(u, v, w=w):
             theta = math.pi * (1.0 - u)
             t = centre + radius * np.cos(theta)
@@ -215,7 +256,7 @@ def _tile_texture(rng: np.random.Generator, size: int = 512, tiles: int = 8) -> 
     i = np.arange(size)
     img = np.repeat(np.repeat(tone, cell, 0), cell, 1)[..., None] * np.array([0.72, 0.64, 0.52])
     img = img * (1 + 0.06 * rng.standard_normal((size, size, 1)))
-    joint = (i % cell < 3)
+    joint = i % cell < 3
     img[joint, :] = [0.35, 0.33, 0.30]
     img[:, joint] = [0.35, 0.33, 0.30]
     return srgb_to_linear(np.clip(img, 0, 1)).astype(np.float32)
@@ -230,5 +271,10 @@ def _stripe_texture(size: int = 256) -> np.ndarray:
     return srgb_to_linear(img).astype(np.float32)
 
 
-BUILTIN_SCENES = {"cornell-box": cornell_box, "furnace": furnace, "atrium": atrium, "atrium-animated": atrium_animated,
-                  "atrium-dense": atrium_dense}
+BUILTIN_SCENES = {
+    "cornell-box": cornell_box,
+    "furnace": furnace,
+    "atrium": atrium,
+    "atrium-animated": atrium_animated,
+    "atrium-dense": atrium_dense,
+}

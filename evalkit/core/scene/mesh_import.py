@@ -35,7 +35,9 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
     except IndexError as e:
         raise InputError(path, f"a face refers to a vertex that does not exist ({e})") from None
     except Exception as e:  # trimesh raises many types for unreadable input; all mean the same here
-        raise InputError(path, f"cannot be read as {os.path.splitext(path)[1].lstrip('.').upper()}: {type(e).__name__}: {e}") from None
+        raise InputError(
+            path, f"cannot be read as {os.path.splitext(path)[1].lstrip('.').upper()}: {type(e).__name__}: {e}"
+        ) from None
 
     warnings: list[str] = []
     materials: list[Material] = []
@@ -64,8 +66,11 @@ def _mesh(path, node, geometry, transform, materials, material_index, warnings) 
     vertices = np.asarray(geometry.vertices, dtype=np.float64)
     faces = np.asarray(geometry.faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # e.g. an OBJ 'v' line with two coordinates
-        raise InputError(path, f"mesh '{node}': vertex positions came back with shape {vertices.shape}, not (n, 3); "
-                               f"is a vertex line missing a coordinate?")
+        raise InputError(
+            path,
+            f"mesh '{node}': vertex positions came back with shape {vertices.shape}, not (n, 3); "
+            f"is a vertex line missing a coordinate?",
+        )
     if len(faces) == 0:
         warnings.append(f"'{node}' has no faces; it is left out")
         return None
@@ -99,7 +104,10 @@ def _material(node, visual, has_uvs: bool, warnings: list[str]) -> Material:
         kind = getattr(visual, "kind", None)
         if kind is None:
             return Material(f"{node}.default", albedo=(0.5, 0.5, 0.5), twosided=True, source_bsdf="none")
-        colors = np.asarray(visual.vertex_colors if kind == "vertex" else visual.face_colors, dtype=np.float64)[:, :3] / 255.0
+        colors = (
+            np.asarray(visual.vertex_colors if kind == "vertex" else visual.face_colors, dtype=np.float64)[:, :3]
+            / 255.0
+        )
         mean = rgb(srgb_to_linear(colors).mean(axis=0))
         warnings.append(f"'{node}': {kind} colours are approximated by their mean {tuple(round(c, 4) for c in mean)}")
         return Material(f"{node}.colors", albedo=mean, twosided=True, source_bsdf=f"{kind} colors", approximated=True)

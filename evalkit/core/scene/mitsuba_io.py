@@ -140,7 +140,10 @@ def _canonical_order(positions, faces, normals, uvs):
     vertices = used[np.argsort(first)]
     remap = np.empty(len(positions), np.int64)
     remap[vertices] = np.arange(len(vertices))
-    pick = (lambda a: None if a is None else a[vertices])
+
+    def pick(a):
+        return None if a is None else a[vertices]
+
     return positions[vertices], remap[faces], pick(normals), pick(uvs)
 
 
@@ -161,10 +164,12 @@ def _area_emission(mi, shape, shape_name: str, warnings: list[str]):
     params = mi.traverse(emitter)
     if "radiance.value" in params:
         return rgb(_np(params["radiance.value"]))
-    data = [k for k in params.keys() if k.endswith(".data")]
+    data = [k for k in params.keys() if k.endswith(".data")]  # noqa: SIM118 (SceneParameters iterate as items)
     if data:
         mean = _np(params[data[0]]).reshape(-1, _np(params[data[0]]).shape[-1])[:, :3].mean(axis=0)
-        warnings.append(f"shape '{shape_name}': textured area emission is approximated by its mean {tuple(np.round(mean, 4))}")
+        warnings.append(
+            f"shape '{shape_name}': textured area emission is approximated by its mean {tuple(np.round(mean, 4))}"
+        )
         return rgb(mean)
     warnings.append(f"shape '{shape_name}': area emitter radiance could not be read; it is left dark")
     return (0.0, 0.0, 0.0)
@@ -179,8 +184,10 @@ def _material(mi, bsdf, shape_name: str, emission, warnings: list[str]) -> Mater
     inner = {k.split(".", 1)[1] for k in keys if k.startswith("brdf_")} if twosided else keys
     exact = (kind == "SmoothDiffuse" or twosided) and inner <= _DIFFUSE_KEYS
     texture, albedo = _bake_albedo(mi, bsdf, params)
-    message = (f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo "
-               f"{tuple(round(a, 4) for a in albedo)} (its diffuse reflectance)")
+    message = (
+        f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo "
+        f"{tuple(round(a, 4) for a in albedo)} (its diffuse reflectance)"
+    )
     if not exact and message not in warnings:  # once per BSDF, also when shared by an emitter
         warnings.append(message)
     return Material(name, albedo, texture, emission, twosided, source_bsdf=kind, approximated=not exact)
@@ -188,8 +195,8 @@ def _material(mi, bsdf, shape_name: str, emission, warnings: list[str]) -> Mater
 
 def _bake_albedo(mi, bsdf, params):
     """The BSDF's diffuse reflectance: (texture or None, mean rgb)."""
-    data_keys = sorted(k for k in params.keys() if k.endswith(".data"))
-    to_uv_keys = sorted(k for k in params.keys() if k.endswith(".to_uv"))
+    data_keys = sorted(k for k in params.keys() if k.endswith(".data"))  # noqa: SIM118 (iterates as items)
+    to_uv_keys = sorted(k for k in params.keys() if k.endswith(".to_uv"))  # noqa: SIM118 (iterates as items)
     probe = np.random.default_rng(0).random((16, 2))
     values = _eval_reflectance(mi, bsdf, probe)
     if np.ptp(values, axis=0).max() <= 1e-7:
@@ -235,10 +242,20 @@ def _light(mi, emitter, warnings: list[str]) -> Light | None:
         return Light("point", rgb(_np(p["intensity.value"])), position=_np(p["position"]).reshape(3))
     if kind == "SpotLight":
         m = _matrix(p["to_world"])
-        if "texture.value" not in p or np.ptp(_np(p["texture.value"])) > 0 or float(_np(p["texture.value"]).ravel()[0]) != 1.0:
+        if (
+            "texture.value" not in p
+            or np.ptp(_np(p["texture.value"])) > 0
+            or float(_np(p["texture.value"]).ravel()[0]) != 1.0
+        ):
             warnings.append("spot light: a projected texture is not supported; it is ignored")
-        return Light("spot", rgb(_np(p["intensity.value"])), position=m[:3, 3].copy(), direction=_unit(m[:3, 2]),
-                     cutoff_angle=float(_np(p["cutoff_angle"]).ravel()[0]), beam_width=float(_np(p["beam_width"]).ravel()[0]))
+        return Light(
+            "spot",
+            rgb(_np(p["intensity.value"])),
+            position=m[:3, 3].copy(),
+            direction=_unit(m[:3, 2]),
+            cutoff_angle=float(_np(p["cutoff_angle"]).ravel()[0]),
+            beam_width=float(_np(p["beam_width"]).ravel()[0]),
+        )
     if kind == "DirectionalEmitter":
         m = _matrix(p["to_world"])
         return Light("directional", rgb(_np(p["irradiance.value"])), direction=_unit(m[:3, 2]))
@@ -261,7 +278,9 @@ def _unit(v) -> np.ndarray:
 def _camera(mi, sensor, warnings: list[str]) -> Camera | None:
     kind = sensor.class_name()
     if kind != "PerspectiveCamera":
-        warnings.append(f"sensor plugin {kind} is not supported (only a pinhole perspective camera); a default camera is used")
+        warnings.append(
+            f"sensor plugin {kind} is not supported (only a pinhole perspective camera); a default camera is used"
+        )
         return None
     p = mi.traverse(sensor)
     width, height = (int(x) for x in sensor.film().size())
@@ -314,8 +333,14 @@ def to_mitsuba_dict(scene: Scene, mi, spp: int = 64, width: int | None = None, h
         props["bsdf"] = bsdfs[mesh.material]
         if mat.emissive:
             props["emitter"] = mi.load_dict({"type": "area", "radiance": {"type": "rgb", "value": list(mat.emission)}})
-        m = mi.Mesh(mesh.name, len(mesh.positions), len(mesh.faces), props,
-                    has_vertex_normals=mesh.normals is not None, has_vertex_texcoords=mesh.uvs is not None)
+        m = mi.Mesh(
+            mesh.name,
+            len(mesh.positions),
+            len(mesh.faces),
+            props,
+            has_vertex_normals=mesh.normals is not None,
+            has_vertex_texcoords=mesh.uvs is not None,
+        )
         params = mi.traverse(m)
         params["vertex_positions"] = mi.Float(mesh.positions.astype(np.float32).ravel())
         params["faces"] = mi.UInt(mesh.faces.astype(np.uint32).ravel())
@@ -334,8 +359,13 @@ def _bsdf_dict(mi, mat: Material) -> dict:
     if mat.texture is None:
         reflectance = {"type": "rgb", "value": list(mat.albedo)}
     else:
-        reflectance = {"type": "bitmap", "bitmap": mi.Bitmap(mat.texture), "raw": True,
-                       "filter_type": "bilinear", "wrap_mode": "repeat"}
+        reflectance = {
+            "type": "bitmap",
+            "bitmap": mi.Bitmap(mat.texture),
+            "raw": True,
+            "filter_type": "bilinear",
+            "wrap_mode": "repeat",
+        }
     diffuse = {"type": "diffuse", "reflectance": reflectance}
     return {"type": "twosided", "bsdf": diffuse} if mat.twosided else diffuse
 
@@ -345,17 +375,28 @@ def _emitter_dict(mi, light: Light) -> dict:
     if light.kind == "point":
         return {"type": "point", "position": light.position.tolist(), "intensity": value}
     if light.kind == "spot":
-        frame = mi.ScalarTransform4f().look_at(origin=light.position.tolist(),
-                                               target=(light.position + light.direction).tolist(),
-                                               up=_any_perpendicular(light.direction).tolist())
-        return {"type": "spot", "to_world": frame, "intensity": value,
-                "cutoff_angle": light.cutoff_angle, "beam_width": light.beam_width}
+        frame = mi.ScalarTransform4f().look_at(
+            origin=light.position.tolist(),
+            target=(light.position + light.direction).tolist(),
+            up=_any_perpendicular(light.direction).tolist(),
+        )
+        return {
+            "type": "spot",
+            "to_world": frame,
+            "intensity": value,
+            "cutoff_angle": light.cutoff_angle,
+            "beam_width": light.beam_width,
+        }
     if light.kind == "directional":
         return {"type": "directional", "direction": light.direction.tolist(), "irradiance": value}
     if light.kind == "constant":
         return {"type": "constant", "radiance": value}
-    return {"type": "envmap", "bitmap": mi.Bitmap(light.envmap), "scale": light.intensity[0],
-            "to_world": mi.ScalarTransform4f(light.to_world.tolist())}
+    return {
+        "type": "envmap",
+        "bitmap": mi.Bitmap(light.envmap),
+        "scale": light.intensity[0],
+        "to_world": mi.ScalarTransform4f(light.to_world.tolist()),
+    }
 
 
 def _any_perpendicular(d: np.ndarray) -> np.ndarray:

@@ -67,8 +67,9 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     def at(yy, xx):
         return t[np.mod(yy, h), np.mod(xx, w)]
 
-    return ((1 - fy) * ((1 - fx) * at(y0, x0) + fx * at(y0, x0 + 1))
-            + fy * ((1 - fx) * at(y0 + 1, x0) + fx * at(y0 + 1, x0 + 1)))
+    return (1 - fy) * ((1 - fx) * at(y0, x0) + fx * at(y0, x0 + 1)) + fy * (
+        (1 - fx) * at(y0 + 1, x0) + fx * at(y0 + 1, x0 + 1)
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,7 +111,7 @@ class Motion:
         k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
         return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)  # Rodrigues
 
-    def apply(self, mesh: "Mesh", time: float) -> "Mesh":
+    def apply(self, mesh: Mesh, time: float) -> Mesh:
         """The mesh posed at ``time``, without a motion (a static snapshot)."""
         r = self.rotation(time)
         pivot = np.asarray(self.pivot, dtype=np.float64)
@@ -189,8 +190,13 @@ class Camera:
         aspect = width / height
         t = math.tan(math.radians(self.fov) / 2.0)
         tan_half = (t, t / aspect) if self.fov_axis == "x" else (t * aspect, t)
-        return {"origin": self.to_world[:3, 3] - centre, "to_world": self.to_world[:3, :3], "tan_half": tan_half,
-                "near": self.near_clip, "far": self.far_clip}
+        return {
+            "origin": self.to_world[:3, 3] - centre,
+            "to_world": self.to_world[:3, :3],
+            "tan_half": tan_half,
+            "near": self.near_clip,
+            "far": self.far_clip,
+        }
 
 
 @dataclass(frozen=True)
@@ -282,14 +288,22 @@ class Scene:
         tri = positions[faces]
         cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         twice_area = np.linalg.norm(cross, axis=1)
-        return SceneArrays(positions, np.concatenate(normals), np.concatenate(uvs), faces, np.concatenate(material),
-                           cross / twice_area[:, None], np.concatenate(smooth), 0.5 * twice_area)
+        return SceneArrays(
+            positions,
+            np.concatenate(normals),
+            np.concatenate(uvs),
+            faces,
+            np.concatenate(material),
+            cross / twice_area[:, None],
+            np.concatenate(smooth),
+            0.5 * twice_area,
+        )
 
     @property
     def animated(self) -> bool:
         return any(m.motion is not None for m in self.meshes)
 
-    def at(self, time: float) -> "Scene":
+    def at(self, time: float) -> Scene:
         """The scene posed at ``time`` (seconds) as a static scene; itself when nothing moves."""
         if not self.animated:
             return self
@@ -343,8 +357,16 @@ class Scene:
         for mat in self.materials:
             put(mat.albedo, mat.texture, mat.emission, mat.twosided)
         for light in self.lights:
-            put(light.kind, light.intensity, light.position, light.direction, light.cutoff_angle,
-                light.beam_width, light.envmap, light.to_world)
+            put(
+                light.kind,
+                light.intensity,
+                light.position,
+                light.direction,
+                light.cutoff_angle,
+                light.beam_width,
+                light.envmap,
+                light.to_world,
+            )
         c = self.camera
         put(c.to_world, c.fov, c.fov_axis, c.width, c.height, c.near_clip, c.far_clip)
         return h.hexdigest()
@@ -494,10 +516,17 @@ def assemble(
         warnings.append("no camera in the input; a default camera framing the scene is used")
     _validate_camera(source, camera)
 
-    recentred = [replace(m, positions=m.positions - origin,
-                         motion=None if m.motion is None else replace(m.motion, pivot=tuple(np.asarray(m.motion.pivot) - origin)))
-                 for m in clean]
-    moved_lights = [replace(light, position=None if light.position is None else light.position - origin) for light in lights]
+    recentred = [
+        replace(
+            m,
+            positions=m.positions - origin,
+            motion=None if m.motion is None else replace(m.motion, pivot=tuple(np.asarray(m.motion.pivot) - origin)),
+        )
+        for m in clean
+    ]
+    moved_lights = [
+        replace(light, position=None if light.position is None else light.position - origin) for light in lights
+    ]
     cam_to_world = camera.to_world.copy()
     cam_to_world[:3, 3] -= origin
     return Scene(
@@ -531,9 +560,14 @@ def _validate_mesh(source: str, mesh: Mesh, n_materials: int) -> Mesh:
         raise InputError(source, f"{where}: faces have shape {f.shape} and type {f.dtype}, expected (F, 3) integers")
     bad = ~np.isfinite(p).all(axis=1)
     if bad.any():
-        raise InputError(source, f"{where}: {int(bad.sum())} vertices have NaN or Inf coordinates (first: vertex {int(np.argmax(bad))})")
+        raise InputError(
+            source,
+            f"{where}: {int(bad.sum())} vertices have NaN or Inf coordinates (first: vertex {int(np.argmax(bad))})",
+        )
     if np.abs(p).max() > MAX_COORDINATE:
-        raise InputError(source, f"{where}: coordinates reach {np.abs(p).max():.3g}, beyond the supported {MAX_COORDINATE:.0e}")
+        raise InputError(
+            source, f"{where}: coordinates reach {np.abs(p).max():.3g}, beyond the supported {MAX_COORDINATE:.0e}"
+        )
     if f.min() < 0 or f.max() >= p.shape[0]:
         worst = int(f.min()) if f.min() < 0 else int(f.max())
         raise InputError(source, f"{where}: face index {worst} is out of range for {p.shape[0]} vertices")
@@ -574,8 +608,19 @@ def _nondegenerate(mesh: Mesh) -> np.ndarray:
 def _subset_faces(mesh: Mesh, keep: np.ndarray) -> Mesh:
     faces = mesh.faces[keep]
     used, inverse = np.unique(faces, return_inverse=True)
-    pick = (lambda a: None if a is None else a[used])
-    return Mesh(mesh.name, mesh.positions[used], inverse.reshape(-1, 3), mesh.material, pick(mesh.normals), pick(mesh.uvs), mesh.motion)
+
+    def pick(a):
+        return None if a is None else a[used]
+
+    return Mesh(
+        mesh.name,
+        mesh.positions[used],
+        inverse.reshape(-1, 3),
+        mesh.material,
+        pick(mesh.normals),
+        pick(mesh.uvs),
+        mesh.motion,
+    )
 
 
 def _validate_light(source: str, light: Light) -> None:
@@ -589,9 +634,9 @@ def _validate_light(source: str, light: Light) -> None:
         if light.position is None:
             raise InputError(source, f"{what} has no position")
         _check_finite(source, f"{what} position", light.position)
-    if light.kind in ("spot", "directional"):
-        if light.direction is None or not np.isfinite(light.direction).all() or np.linalg.norm(light.direction) == 0:
-            raise InputError(source, f"{what} has no valid direction")
+    no_direction = light.direction is None or not np.isfinite(light.direction).all() or not np.any(light.direction)
+    if light.kind in ("spot", "directional") and no_direction:
+        raise InputError(source, f"{what} has no valid direction")
     if light.kind == "spot" and not (0 < (light.cutoff_angle or 0) <= 180):
         raise InputError(source, f"spot light cutoff angle {light.cutoff_angle} is outside (0, 180] degrees")
     if light.kind == "envmap":
