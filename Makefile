@@ -1,5 +1,5 @@
 # The two commands of the README. Both install what is missing first (scripts/setup.sh).
-.PHONY: setup demo test test-slow references studies fuzz check
+.PHONY: setup demo test lint test-slow references studies fuzz check
 
 setup:
 	@scripts/setup.sh
@@ -7,8 +7,13 @@ setup:
 demo: setup
 	.venv/bin/evalkit demo --out out/demo
 
-test: setup
+# The linter and formatter first (a second's work), then the suite.
+test: setup lint
 	.venv/bin/python -m pytest -m "not slow" -q
+
+lint: setup
+	.venv/bin/ruff check .
+	.venv/bin/ruff format --check .
 
 test-slow: setup
 	.venv/bin/python -m pytest -m slow -q

@@ -19,13 +19,20 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+from dataclasses import replace
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
-from gpu_impl.bundles import DEFAULT_SAMPLER, DEFAULT_SPLAT_SCALE, BundleTracer, format_bytes
+from evalkit.core.settings import RenderSettings
+from gpu_impl.api import bundle_tracer
+from gpu_impl.bundles import format_bytes
 from gpu_impl.context import GLContext
 from gpu_impl.layout import SAMPLERS
+from gpu_impl.methods import imperfect, perfect
 from gpu_impl.scene_buffers import GpuScene
+
+PERFECT, IMPERFECT = perfect.METHOD.name, imperfect.METHOD.name
+DEFAULTS = imperfect.ImperfectSettings()
 
 # The targets: imperfect builds at least 6x faster than perfect ones on atrium (the poster: 161 ms
 # against 27 ms) and 10x on the 2.4 M-triangle atrium-dense; perfect builds at most 1.5x the raw
@@ -53,31 +60,26 @@ def measure_scene(
 ) -> dict:
     scene = GpuScene(gl, load_scene(name))
     ds = DirectionSet.make(directions, seed=seed)
-    common = dict(
-        directions=directions,
-        resolution=resolution,
-        points=points,
-        splat_scale=splat_scale,
-        sampler=sampler,
-        node_budget=16 << 30,
-    )
+    lists = RenderSettings(directions=directions, resolution=resolution, node_budget=16 << 30)
+    splats = dict(points=points, splat_scale=splat_scale, sampler=sampler)
     tracers = {
-        "perfect": BundleTracer(gl, scene, "perfect", **common),
-        "imperfect": BundleTracer(gl, scene, "imperfect", **common),
+        PERFECT: bundle_tracer(gl, scene, replace(lists, method=PERFECT)),
+        IMPERFECT: bundle_tracer(gl, scene, replace(lists, method=IMPERFECT, **splats)),
     }
     if raster_splatter:
-        tracers["imperfect_raster"] = BundleTracer(gl, scene, "imperfect", splatter="raster", **common)
+        settings = replace(lists, method=IMPERFECT, splatter="raster", **splats)
+        tracers["imperfect_raster"] = bundle_tracer(gl, scene, settings)
     stats = {method: tracer.build(ds) for method, tracer in tracers.items()}  # warm-up
     times: dict[str, list[float]] = {**{m: [] for m in tracers}, "raw": []}
     passes: dict[str, list[dict]] = {m: [] for m in tracers}
-    tracers["perfect"].raw_raster(ds)  # warm-up
+    tracers[PERFECT].raw_raster(ds)  # warm-up
     for _ in range(repeats):
         for method, tracer in tracers.items():
             stats[method] = tracer.build(ds)
             times[method].append(build_ms(stats[method]))
             passes[method].append(stats[method]["gpu_ms"])
-        times["raw"].append(tracers["perfect"].raw_raster(ds))
-    splat_radius = tracers["imperfect"].splat_radius
+        times["raw"].append(tracers[PERFECT].raw_raster(ds))
+    splat_radius = tracers[IMPERFECT].splat_radius
     for tracer in tracers.values():
         tracer.release()
     scene.release()
@@ -86,15 +88,15 @@ def measure_scene(
         "triangles": scene.triangle_count,
         "median_ms": median,
         "passes_median_ms": {m: {p: statistics.median(r[p] for r in passes[m]) for p in passes[m][0]} for m in passes},
-        "perfect_over_imperfect": median["perfect"] / median["imperfect"],
-        "perfect_over_raw": median["perfect"] / median["raw"],
+        "perfect_over_imperfect": median[PERFECT] / median[IMPERFECT],
+        "perfect_over_raw": median[PERFECT] / median["raw"],
         "nodes": {m: stats[m]["nodes"] for m in stats},
         "raw_nodes": {m: stats[m]["raw_nodes"] for m in stats},
         "memory_bytes": {m: stats[m]["memory_bytes"] for m in stats},
         "splat_radius": splat_radius,
     }
     if raster_splatter:
-        result["raster_over_compute_splatter"] = median["imperfect_raster"] / median["imperfect"]
+        result["raster_over_compute_splatter"] = median["imperfect_raster"] / median[IMPERFECT]
     return result
 
 
@@ -168,16 +170,16 @@ def print_table(report: dict) -> None:
     for name, r in report["scenes"].items():
         m, mem = r["median_ms"], r["memory_bytes"]
         print(
-            f"{name:<13} {r['triangles']:>10,} {m['perfect']:>11.1f} {m['imperfect']:>13.1f} {m['raw']:>9.1f} "
-            f"{r['perfect_over_imperfect']:>11.2f} {r['perfect_over_raw']:>9.2f} {r['nodes']['perfect']:>11,} "
-            f"{r['nodes']['imperfect']:>13,} {format_bytes(mem['perfect']):>10} {format_bytes(mem['imperfect']):>11}"
+            f"{name:<13} {r['triangles']:>10,} {m[PERFECT]:>11.1f} {m[IMPERFECT]:>13.1f} {m['raw']:>9.1f} "
+            f"{r['perfect_over_imperfect']:>11.2f} {r['perfect_over_raw']:>9.2f} {r['nodes'][PERFECT]:>11,} "
+            f"{r['nodes'][IMPERFECT]:>13,} {format_bytes(mem[PERFECT]):>10} {format_bytes(mem[IMPERFECT]):>11}"
         )
     for name, r in report["scenes"].items():
         for method, p in r["passes_median_ms"].items():
             print(f"  {name} {method} passes: " + ", ".join(f"{k} {v:.1f} ms" for k, v in p.items()))
         print(
-            f"  {name} imperfect nodes: {r['raw_nodes']['imperfect']:,} written (one per splat and line, the nearest "
-            f"of a triangle's splats), {r['nodes']['imperfect']:,} kept after merging"
+            f"  {name} imperfect nodes: {r['raw_nodes'][IMPERFECT]:,} written (one per splat and line, the nearest "
+            f"of a triangle's splats), {r['nodes'][IMPERFECT]:,} kept after merging"
         )
         if "raster_over_compute_splatter" in r:
             print(
@@ -194,8 +196,8 @@ def main() -> None:
     parser.add_argument("--directions", type=int, default=256)
     parser.add_argument("--resolution", type=int, default=128)
     parser.add_argument("--points", type=int, default=16384)
-    parser.add_argument("--splat-scale", type=float, default=DEFAULT_SPLAT_SCALE)
-    parser.add_argument("--sampler", choices=tuple(SAMPLERS), default=DEFAULT_SAMPLER)
+    parser.add_argument("--splat-scale", type=float, default=DEFAULTS.splat_scale)
+    parser.add_argument("--sampler", choices=tuple(SAMPLERS), default=DEFAULTS.sampler)
     parser.add_argument("--raster-splatter", action="store_true", help="also time the rasterizer's splats")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)

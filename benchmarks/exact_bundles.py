@@ -21,8 +21,9 @@ import time
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
+from evalkit.core.settings import RenderSettings
 from evalkit.metrics.bundles import compare_bundles
-from gpu_impl.bundles import BundleTracer
+from gpu_impl.api import bundle_tracer
 from gpu_impl.context import GLContext
 from gpu_impl.scene_buffers import GpuScene
 from references.embree import ExactTracer
@@ -39,9 +40,9 @@ def measure_scene(
     exact_tracer = ExactTracer(scene, threads=threads)
     prepare_s = time.perf_counter() - start
     gpu_scene = GpuScene(gl, scene)
-    gl_tracer = BundleTracer(
-        gl, gpu_scene, "perfect", directions=directions, resolution=resolution, node_budget=16 << 30
-    )
+    # The default method: perfect bundles, which exact bundles are the ground truth of.
+    settings = RenderSettings(directions=directions, resolution=resolution, node_budget=16 << 30)
+    gl_tracer = bundle_tracer(gl, gpu_scene, settings)
     exact_s, gl_s = [], []
     for _ in range(repeats):
         start = time.perf_counter()

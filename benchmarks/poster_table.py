@@ -18,21 +18,22 @@ import argparse
 import json
 
 from evalkit.core.scene import load_scene
+from evalkit.core.settings import PRESETS, RenderSettings
+from gpu_impl.api import render
 from gpu_impl.context import GLContext
-from gpu_impl.renderer import PRESETS, Renderer, RenderSettings, apply_preset
+from gpu_impl.methods import imperfect, perfect
+from gpu_impl.registry import resolve
 
 # The poster (Radeon HD 6990, 1920x1024, 2x2 supersampling): perfect bundles 161 ms, imperfect
 # 27 ms, the other passes 30 ms (1 bounce) and 52 ms (3 bounces).
 POSTER_MS = {"perfect bundles": 161.0, "imperfect bundles": 27.0, "others, 1 bounce": 30.0, "others, 3 bounces": 52.0}
-CONFIGS = [(method, bounces) for method in ("perfect", "imperfect") for bounces in (1, 3)]
+PERFECT, IMPERFECT = perfect.METHOD.name, imperfect.METHOD.name
+CONFIGS = [(method, bounces) for method in (PERFECT, IMPERFECT) for bounces in (1, 3)]
 
 
 def measure(gl: GLContext, scene, settings: RenderSettings) -> dict:
-    renderer = Renderer(gl, scene, settings)
-    try:
-        result = renderer.render()
-    finally:
-        renderer.release()
+    # The preset's settings of the other method (the points of imperfect bundles) are left out.
+    result = render(scene, resolve(settings, inapplicable="drop").settings, gl=gl)
     median = result.timings["median_ms"]
     others = median["frame"] - median["bundles"]
     return {
@@ -50,14 +51,10 @@ def run(
     with GLContext() as gl:
         device = gl.info
         full = (not gl.is_llvmpipe) if full is None else full
-        base = apply_preset(RenderSettings(frames=frames, seed=seed), "paper")
-        if not full:
-            base = apply_preset(base, None, width=width, height=height, supersampling=supersampling)
-        results = {f"{m} B={b}": measure(gl, scene, apply_preset(base, None, method=m, bounces=b)) for m, b in CONFIGS}
-    perfect, imperfect = (
-        results["perfect B=1"]["median_ms"]["bundles"],
-        results["imperfect B=1"]["median_ms"]["bundles"],
-    )
+        small = {} if full else dict(width=width, height=height, supersampling=supersampling)
+        base = {**PRESETS["paper"], "frames": frames, "seed": seed, **small}
+        results = {f"{m} B={b}": measure(gl, scene, RenderSettings(**base, method=m, bounces=b)) for m, b in CONFIGS}
+    perfect_ms, imperfect_ms = (results[f"{m} B=1"]["median_ms"]["bundles"] for m in (PERFECT, IMPERFECT))
     return {
         "benchmark": "poster_table",
         "scene": scene_name,
@@ -65,16 +62,16 @@ def run(
         "gl_version": device["version"],
         "timing": "host time around glFinish (llvmpipe)" if "llvmpipe" in device["renderer"] else "GL timer queries",
         "full_preset": full,
-        "width": base.width,
-        "height": base.height,
-        "supersampling": base.supersampling,
-        "directions": base.directions,
-        "resolution": base.resolution,
-        "points": base.points,
+        "width": base["width"],
+        "height": base["height"],
+        "supersampling": base["supersampling"],
+        "directions": base["directions"],
+        "resolution": base["resolution"],
+        "points": base["points"],
         "frames": frames,
         "seed": seed,
         "results": results,
-        "perfect_over_imperfect_bundles": perfect / imperfect,
+        "perfect_over_imperfect_bundles": perfect_ms / imperfect_ms,
         "poster_ms": POSTER_MS,
     }
 

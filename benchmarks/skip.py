@@ -30,10 +30,11 @@ import numpy as np
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
+from evalkit.core.settings import RenderSettings
 from evalkit.metrics.images import relmse
-from gpu_impl.bundles import NODE_BYTES, BundleTracer
+from gpu_impl.api import bundle_tracer, render
 from gpu_impl.context import GLContext
-from gpu_impl.renderer import Renderer, RenderSettings
+from gpu_impl.layout import NODE
 from gpu_impl.scene_buffers import GpuScene
 from references.mitsuba import DEFAULT_STORE, load_reference, store_entry
 
@@ -41,9 +42,8 @@ from references.mitsuba import DEFAULT_STORE, load_reference, store_entry
 def texture_variant(gl, repeats: int) -> dict:
     ds = DirectionSet.make(64, seed=0)
     with GpuScene(gl, load_scene("cornell-box")) as scene:  # no textures
-        tracers = {
-            t: BundleTracer(gl, scene, "perfect", directions=64, resolution=128, textures=t) for t in (False, True)
-        }
+        lists = RenderSettings(directions=64, resolution=128)  # perfect bundles, the default method
+        tracers = {t: bundle_tracer(gl, scene, lists, textures=t) for t in (False, True)}
         for tracer in tracers.values():
             tracer.build(ds)
         times, lists = {t: [] for t in tracers}, {}
@@ -77,16 +77,13 @@ def black_scene():
 def early_stop(gl, repeats: int, frames: int) -> dict:
     scene = black_scene()
     base = RenderSettings(bounces=8, directions=32, resolution=128, width=128, height=128, frames=frames, spp=4)
-    renderers = {stop: Renderer(gl, scene, replace(base, stop_early=stop)) for stop in (True, False)}
-    times, images, skipped = {s: [] for s in renderers}, {}, 0
+    times, images, skipped = {s: [] for s in (True, False)}, {}, 0
     for _ in range(repeats):
-        for stop, renderer in renderers.items():
-            result = renderer.render()
+        for stop in times:
+            result = render(scene, replace(base, stop_early=stop), gl=gl)
             times[stop].append(sum(v for k, v in result.timings["median_ms"].items() if k.startswith("bounce_")) or 0.0)
             images[stop] = result.images["total"]
             skipped = max(skipped, result.stats["bounce_passes_skipped"])
-    for renderer in renderers.values():
-        renderer.release()
     on, off = statistics.median(times[True]), statistics.median(times[False])
     return {
         "what": "bounce passes per frame, black cornell-box, B=8",
@@ -105,9 +102,7 @@ def bundle_reuse(gl, repeats: int, frames: int) -> dict:
     times, errors = {r: [] for r in (False, True)}, {r: [] for r in (False, True)}
     for seed in range(repeats):
         for rotate in times:
-            renderer = Renderer(gl, scene, replace(base, rotate_directions=rotate, seed=seed))
-            result = renderer.render()
-            renderer.release()
+            result = render(scene, replace(base, rotate_directions=rotate, seed=seed), gl=gl)
             times[rotate].append(result.timings["wall_s"] * 1e3 / frames)
             errors[rotate].append(relmse(result.images["indirect"], ref.images["indirect"]).value)
     reuse, rotate = statistics.median(times[False]), statistics.median(times[True])
@@ -124,10 +119,10 @@ def bundle_reuse(gl, repeats: int, frames: int) -> dict:
 def node_capacity(gl) -> dict:
     """Node buffers made for a fixed 1 GiB (as if sized without a measurement), then sized from
     the first frame's count; the first guess from the depth complexity is printed beside them."""
-    fixed = (1 << 30) // NODE_BYTES
+    fixed = (1 << 30) // NODE.itemsize
     with (
         GpuScene(gl, load_scene("atrium")) as scene,
-        BundleTracer(gl, scene, "perfect", directions=32, resolution=128, initial_capacity=fixed) as tracer,
+        bundle_tracer(gl, scene, RenderSettings(directions=32, resolution=128), initial_capacity=fixed) as tracer,
     ):
         guess = tracer.predicted_nodes()
         for f in range(2):

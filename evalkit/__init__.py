@@ -1,8 +1,31 @@
 """evalkit: the toolkit users call for ray-bundle global illumination.
 
-Scene model and importers (`evalkit.core.scene`), Mitsuba set-up (`evalkit.core.mitsuba_env`), diagnostics
+In Python, one call per job::
+
+    import evalkit
+    result = evalkit.render("cornell-box", evalkit.RenderSettings(method="imperfect", frames=8))
+    bundles = evalkit.trace_bundles("cornell-box", evalkit.DirectionSet.make(32, seed=0))
+
+Scene model and importers (`evalkit.core.scene`), settings (`evalkit.core.settings`), diagnostics
 (`evalkit.doctor`) and the command line (`evalkit.cli`). Importing this package is cheap: Mitsuba,
 trimesh and OpenGL are loaded only by the functions that need them.
 """
 
 __version__ = "0.1.0"
+
+# What `import evalkit` offers, and the module each comes from (loaded at first use).
+_EXPORTS = {
+    "render": "gpu_impl.api",
+    "trace_bundles": "gpu_impl.api",
+    "RenderSettings": "evalkit.core.settings",
+    "load_scene": "evalkit.core.scene",
+    "DirectionSet": "evalkit.core.bundleset",
+}
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'evalkit' has no attribute {name!r}")
+    import importlib  # deferred: the GL and Mitsuba stacks load only when asked for
+
+    return getattr(importlib.import_module(_EXPORTS[name]), name)

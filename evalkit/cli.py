@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import traceback
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -21,26 +21,21 @@ from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.errors import InputError
 from evalkit.core.exr import read_exr, write_exr
 from evalkit.core.scene import load_scene
+from evalkit.core.scene.summary import scene_summary
+from evalkit.core.settings import DEPTH_TOLERANCE, IMAGES, PRESETS, RenderSettings, declared
 from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
 from evalkit.figures import error_map_png
-from evalkit.metrics.bundles import DEFAULT_DEPTH_TOLERANCE, compare_bundles
+from evalkit.metrics.bundles import compare_bundles
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 from evalkit.tune import CALIBRATION_SHARE, settings_text, tune
-from gpu_impl.bundles import (
-    DEFAULT_NODE_BUDGET,
-    DEFAULT_SAMPLER,
-    DEFAULT_SPLAT_SCALE,
-    SPLATTERS,
-    format_bytes,
-    trace_bundles,
-)
-from gpu_impl.context import GLContext
-from gpu_impl.layout import SAMPLERS
-from gpu_impl.renderer import IMAGES, LIGHTING, PRESETS, Renderer, RenderSettings, apply_preset, write_render
+from gpu_impl.api import render, trace_bundles
+from gpu_impl.bundles import format_bytes
+from gpu_impl.registry import KINDS, METHODS, all_units, owners, resolve
+from gpu_impl.renderer import write_render
 from references.embree import ExactTracer
 from references.mitsuba import DEFAULT_STORE, export_reference, reference
 
@@ -57,14 +52,15 @@ def _doctor(args) -> int:
 
 def _scene_info(args) -> int:
     scene = load_scene(args.scene)
-    info = scene.summary()
+    info = scene_summary(scene)
     f = info["features"]
     print(f"scene       {info['name']}  ({info['source']})")
     print(
         f"triangles   {info['triangles']:,} in {info['meshes']} meshes, {info['degenerate_removed']} degenerate removed"
     )
     print(
-        f"bounds      {_vec(info['bounds']['min'])} .. {_vec(info['bounds']['max'])}, bounding radius {info['bounding_radius']:.4g}"
+        f"bounds      {_vec(info['bounds']['min'])} .. {_vec(info['bounds']['max'])}, "
+        f"bounding radius {info['bounding_radius']:.4g}"
     )
     print(f"area        {info['surface_area']:.6g}, depth complexity {f['depth_complexity']:.3f} surfaces per line")
     for m in info["materials"]:
@@ -72,13 +68,15 @@ def _scene_info(args) -> int:
         emit = f", emission {_vec(m['emission'])}" if max(m["emission"]) > 0 else ""
         note = f" [{m['source_bsdf']}, approximated]" if m["approximated"] else ""
         print(
-            f"material    {m['name']}: albedo {_vec(m['albedo'])}{tex}{emit}{', two-sided' if m['twosided'] else ''}{note}"
+            f"material    {m['name']}: albedo {_vec(m['albedo'])}{tex}{emit}"
+            f"{', two-sided' if m['twosided'] else ''}{note}"
         )
     for light in info["lights"]:
         print(f"light       {light['kind']}: {_vec(light['intensity'])}")
     c = info["camera"]
     print(
-        f"camera      at {_vec(c['position'])}, fov {c['fov']:.4g} deg along {c['fov_axis']}, {c['width']}x{c['height']}"
+        f"camera      at {_vec(c['position'])}, fov {c['fov']:.4g} deg along {c['fov_axis']}, "
+        f"{c['width']}x{c['height']}"
     )
     print(
         f"features    textures={f['textures']} emitters={f['emitters']} environment={f['environment']} "
@@ -93,27 +91,30 @@ def _scene_info(args) -> int:
 
 def _bundles(args) -> int:
     scene = load_scene(args.scene)
-    directions = DirectionSet.make(args.directions, seed=args.seed, frame=args.frame, jitter=not args.no_jitter)
+    defaults = RenderSettings()
+    K, R = args.directions or defaults.directions, args.resolution or defaults.resolution
+    directions = DirectionSet.make(K, seed=args.seed, frame=args.frame, jitter=not args.no_jitter)
     if args.method == "exact":
-        bundles = ExactTracer(scene, threads=args.threads).bundles(directions, args.resolution)
+        bundles = ExactTracer(scene, threads=args.threads).bundles(directions, R)
         stats = bundles.stats
         detail = (
             f"{stats['casts']:,} Embree casts on {stats['threads']} thread(s), re-cast offset "
             f"{bundles.params['recast_epsilon']:.3g}, {bundles.params['coincidence_layers']} coincidence layer(s)"
         )
-        timing = f"wall {1e3 * stats['wall_s']:.1f} ms, {stats['nodes'] / max(stats['wall_s'], 1e-9) / stats['threads'] / 1e6:.2f} M hits/s per thread"
+        per_thread = stats["nodes"] / max(stats["wall_s"], 1e-9) / stats["threads"] / 1e6
+        timing = f"wall {1e3 * stats['wall_s']:.1f} ms, {per_thread:.2f} M hits/s per thread"
+        described = "exact"
     else:
-        bundles, detail, timing = _gl_bundles(args, scene, directions)
+        settings = settings_from_args(args, BUNDLE_FLAGS + METHOD_FLAGS)
+        bundles, detail, timing = _gl_bundles(scene, directions, settings)
+        described = resolve(settings).describe()
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     bundles.save(args.out)
     summary = bundles.summary()
+    radius = bundles.params.get("splat_radius")
     print(
-        f"bundles     {args.method} on {scene.name}: K={args.directions} R={args.resolution}"
-        + (
-            f" N={args.points} splat radius {bundles.params['splat_radius']:.4g} (scale {bundles.params['splat_scale']:.3g})"
-            if args.method == "imperfect"
-            else ""
-        )
+        f"bundles     {described} on {scene.name}: K={K} R={R}"
+        + ("" if radius is None else f" splat radius {radius:.4g} (scale {bundles.params['splat_scale']:.3g})")
     )
     print(
         f"nodes       {bundles.node_count:,}, longest list {summary['max_list_length']}, "
@@ -127,25 +128,11 @@ def _bundles(args) -> int:
     return 0
 
 
-def _gl_bundles(args, scene, directions):
-    with GLContext() as gl:
-        try:
-            bundles = trace_bundles(
-                gl,
-                scene,
-                directions,
-                args.method,
-                resolution=args.resolution,
-                points=args.points,
-                splat_scale=args.splat_scale,
-                splat_radius=args.splat_radius,
-                sampler=args.sampler,
-                splatter=args.splatter,
-                merge=not args.no_merge,
-                node_budget=args.node_budget,
-            )
-        except ValueError as e:
-            raise InputError("evalkit bundles", str(e)) from None
+def _gl_bundles(scene, directions, settings):
+    try:
+        bundles = trace_bundles(scene, directions, settings)
+    except ValueError as e:
+        raise InputError("evalkit bundles", str(e)) from None
     stats = bundles.stats
     detail = (
         f"{stats['redundant_nodes']:,} redundant nodes, {format_bytes(stats['node_bytes'])} of nodes, "
@@ -159,7 +146,8 @@ def _compare_bundles(args) -> int:
     test, exact = BundleSet.load(args.test), BundleSet.load(args.exact)
     if exact.method != "exact":
         print(
-            f"evalkit: warning: {args.exact}: method is '{exact.method}', not 'exact'; it is used as the reference anyway",
+            f"evalkit: warning: {args.exact}: method is '{exact.method}', not 'exact'; "
+            "it is used as the reference anyway",
             file=sys.stderr,
         )
     try:
@@ -168,7 +156,8 @@ def _compare_bundles(args) -> int:
         raise InputError(args.test, f"cannot be compared with {args.exact}: {e}") from None
     per = r["per_direction"]
     print(
-        f"compare     {test.method} ({args.test}) against {exact.method} ({args.exact}): K={r['directions']} R={r['resolution']}"
+        f"compare     {test.method} ({args.test}) against {exact.method} ({args.exact}): "
+        f"K={r['directions']} R={r['resolution']}"
     )
     print(f"tolerance   depth {r['depth_tolerance']:g} x radius = {r['depth_tolerance_absolute']:.4g} scene units")
     print(f"nodes       exact {r['exact_nodes']:,}, test {r['test_nodes']:,}, matched {r['matched']:,}")
@@ -182,7 +171,8 @@ def _compare_bundles(args) -> int:
         f"same primitive {r['same_prim_rate']:.4%}"
     )
     print(
-        f"agreement   {r['agreement']:.4%} of exact nodes matched; {r['spurious_per_crossing']:.4f} spurious nodes per exact crossing"
+        f"agreement   {r['agreement']:.4%} of exact nodes matched; "
+        f"{r['spurious_per_crossing']:.4f} spurious nodes per exact crossing"
     )
     if args.json:
         print(json.dumps(r))
@@ -209,7 +199,8 @@ def _reference(args) -> int:
     written = export_reference(ref, args.out)
     m = ref.manifest
     print(
-        f"reference   {scene.name}: {m['bounces']} bounce(s), {m['width']}x{m['height']}, {m['spp']} spp in {m['chunks']} chunks, "
+        f"reference   {scene.name}: {m['bounces']} bounce(s), {m['width']}x{m['height']}, "
+        f"{m['spp']} spp in {m['chunks']} chunks, "
         f"seed {m['seed']}, Mitsuba {m['mitsuba']} {m['variant']}"
     )
     how = "reused" if ref.reused else f"rendered in {m['render_s']:.1f} s"
@@ -227,29 +218,20 @@ def _reference(args) -> int:
 
 def _render(args) -> int:
     scene = load_scene(args.scene)
-    # Every RenderSettings field the command line has an option for (None: not given).
-    given = {f.name: getattr(args, f.name) for f in fields(RenderSettings) if hasattr(args, f.name)}
-    settings = apply_preset(
-        RenderSettings(), args.preset, **given, rotate_directions=False if args.fixed_directions else None
-    )
-    with GLContext() as gl:
-        try:
-            renderer = Renderer(gl, scene, settings)
-        except ValueError as e:
-            raise InputError("evalkit render", str(e)) from None
-        with renderer:
-            result = renderer.render(progress=lambda line: print(f"progress    {line}", flush=True))
+    settings = settings_from_args(args, RENDER_FLAGS + UNIT_FLAGS)
+    try:
+        result = render(scene, settings, progress=lambda line: print(f"progress    {line}", flush=True))
+    except ValueError as e:
+        raise InputError("evalkit render", str(e)) from None
     written = write_render(result, args.out)
     p, t = result.params, result.timings
     print(
-        f"render      {settings.method} bundles on {scene.name}: {p['width']}x{p['height']} (supersampling {settings.supersampling}), "
-        f"{settings.bounces} bounce(s), K={settings.directions} R={settings.resolution}"
-        + (f" N={settings.points}" if settings.method == "imperfect" else "")
-        + f", {p['frames_rendered']} frame(s), {p['paths_per_pixel']} paths per pixel, seed {settings.seed}"
+        f"render      {resolve(settings).describe()} bundles on {scene.name}: {p['width']}x{p['height']} "
+        f"(supersampling {p['supersampling']}), {p['bounces']} bounce(s), K={p['directions']} R={p['resolution']}, "
+        f"{p['frames_rendered']} frame(s), {p['paths_per_pixel']} paths per pixel, seed {p['seed']}"
     )
-    print(
-        f"memory      {result.stats['nodes_median']:,} nodes per frame (median), {format_bytes(result.stats['gpu_bytes'])} on the GPU"
-    )
+    gpu = format_bytes(result.stats["gpu_bytes"])
+    print(f"memory      {result.stats['nodes_median']:,} nodes per frame (median), {gpu} on the GPU")
     print(f"time        per frame, median ms ({t['method']}):")
     for name, ms in t["median_ms"].items():
         print(f"  {name:22}{'n/a' if ms is None else f'{ms:10.2f}'}")
@@ -354,7 +336,8 @@ def _tune(args) -> int:
         measured = result["measured"]
         print(
             f"measured    {measured['time_s']:.3g} s, {result['metric']} {measured['error']:.4g} "
-            f"(time {measured['time_s'] / result['budget_s']:.2f}x the budget, error {measured['error'] / predicted['error']:.2f}x the predicted)"
+            f"(time {measured['time_s'] / result['budget_s']:.2f}x the budget, "
+            f"error {measured['error'] / predicted['error']:.2f}x the predicted)"
         )
     for c in result["candidates"]:
         if c["method"] != rec["method"]:
@@ -376,7 +359,8 @@ def _tune(args) -> int:
     calibration = result["calibration"]
     print(
         f"calibration {calibration['runs']} runs, {calibration['render_s']:.1f} s of render time "
-        f"({calibration['render_s'] / result['budget_s']:.2f}x the budget), {calibration['run_s']:.1f} s in all (cached in {' and '.join(calibration['folders'])})"
+        f"({calibration['render_s'] / result['budget_s']:.2f}x the budget), {calibration['run_s']:.1f} s in all "
+        f"(cached in {' and '.join(calibration['folders'])})"
     )
     for w in result["warnings"]:
         print(f"warning     {w}")
@@ -424,7 +408,8 @@ def _check(args) -> int:
     junit_xml(outcomes, args.junit or Path(args.out) / "junit.xml")
     failed = sum(not o.passed for o in outcomes)
     print(
-        f"check       {len(outcomes) - failed} of {len(outcomes)} cases pass; JUnit XML in {args.junit or Path(args.out) / 'junit.xml'}"
+        f"check       {len(outcomes) - failed} of {len(outcomes)} cases pass; "
+        f"JUnit XML in {args.junit or Path(args.out) / 'junit.xml'}"
     )
     return 1 if failed else 0
 
@@ -448,32 +433,98 @@ def parse_bytes(text: str) -> int:
     return int(value)
 
 
-def _int_at_least(minimum: int):
-    """An argparse type: an integer of at least ``minimum``."""
+# Settings whose flag is not named after them (the setting says what it keeps, the flag what it changes).
+FLAG_NAMES = {"rotate_directions": "--fixed-directions", "light_visibility": "--shadow-maps"}
+FLAG_HELP = {
+    "rotate_directions": "every frame along frame 0's directions: a static scene builds its bundles once "
+    "(faster, correlated)"
+}
+FLAG_TYPES = {"node_budget": parse_bytes}
+# `evalkit render`'s flags: every RenderSettings field (the units' names aside: --method, --strategy
+# and --shadow-maps offer the registered ones) and every registered unit's settings.
+RENDER_FLAGS = [(None, f) for f in declared(RenderSettings) if f.name not in KINDS]
+UNIT_FLAGS = [(unit, f) for unit in all_units() for f in declared(unit.settings)]
+# `evalkit bundles`' flags: the list layout and the node budget, and the bundle methods' settings.
+BUNDLE_FLAGS = [(None, f) for f in declared(RenderSettings) if f.name in ("directions", "resolution", "node_budget")]
+METHOD_FLAGS = [(unit, f) for unit in METHODS for f in declared(unit.settings)]
 
-    def parse(text: str) -> int:
+
+def add_setting_flags(parser: argparse.ArgumentParser, flags: list) -> None:
+    """A flag per declared setting ((unit or None, field) pairs), its help and default from the
+    declaration; a flag not given leaves the setting to its default (None)."""
+    for unit, f in flags:
+        name = FLAG_NAMES.get(f.name, "--" + f.name.replace("_", "-"))
+        default = format_bytes(f.default) if f.name in FLAG_TYPES else f.default
+        text = (f"{unit.name}: " if unit else "") + FLAG_HELP.get(f.name, f.metadata["help"])
+        text += "" if f.default is None or f.name in FLAG_HELP else f" (default {default})"
+        if f.type == "bool":
+            if f.default and f.name not in FLAG_NAMES:  # a flag that turns off what is on by default
+                name = "--no-" + f.name.replace("_", "-")
+                text = (f"{unit.name}: " if unit else "") + f"turn off: {f.metadata['help']} (on by default)"
+            parser.add_argument(name, dest=f.name, action="store_const", const=not f.default, default=None, help=text)
+        else:
+            kind = FLAG_TYPES.get(f.name) or _setting_type(f)
+            metavar = "BYTES" if f.name in FLAG_TYPES else f.metadata["symbol"]
+            choices = f.metadata["choices"]
+            parser.add_argument(name, dest=f.name, type=kind, choices=choices, default=None, metavar=metavar, help=text)
+
+
+def settings_from_args(args, flags: list) -> RenderSettings:
+    """The `RenderSettings` of the flags given, over ``--preset``'s values where they apply. A unit's
+    setting given for a unit the command does not use is a warning, and left out."""
+    names = [f.name for _, f in flags] + list(KINDS)
+    explicit = {n: getattr(args, n) for n in names if getattr(args, n, None) is not None}
+    preset = PRESETS[args.preset] if getattr(args, "preset", None) else {}
+    try:
+        resolved = resolve(RenderSettings(**{**preset, **explicit}), inapplicable="drop")
+    except ValueError as e:
+        raise InputError(f"evalkit {args.command}", str(e)) from None
+    kept = {n for n, _ in resolved.settings.options}
+    chosen = {unit.kind: unit.name for unit in resolved.units.values()}
+    for name in explicit:
+        whose = owners(name)
+        if whose and name not in kept:
+            flag, kind = "--" + name.replace("_", "-"), whose[0].kind
+            print(
+                f"evalkit: warning: {flag} is a setting of the {' and '.join(u.name for u in whose)} {kind}, "
+                f"not of this {args.command}'s {chosen[kind]} {kind}: it is ignored",
+                file=sys.stderr,
+            )
+    return resolved.settings
+
+
+def _number(kind: str, minimum: float | None = None, positive: bool = False, finite: bool = True):
+    """An argparse type: an int or a float (``kind``) in a range, checked as the command line is read."""
+
+    def parse(text: str):
         try:
-            value = int(text)
+            value = int(text) if kind == "int" else float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-        if value < minimum:
+            raise argparse.ArgumentTypeError(
+                f"'{text}' is not {'an integer' if kind == 'int' else 'a number'}"
+            ) from None
+        if positive and not (value > 0 and math.isfinite(value)):
+            raise argparse.ArgumentTypeError(f"{value} must be positive and finite")
+        if minimum is not None and not value >= minimum:
             raise argparse.ArgumentTypeError(f"{value} must be at least {minimum}")
+        if finite and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{value} must be finite")
         return value
 
     return parse
 
 
-_positive_int, _non_negative_int = _int_at_least(1), _int_at_least(0)
+def _setting_type(f):
+    """The argparse type of a declared setting: its number type and its declared range."""
+    kind, m = f.type.split(" ")[0], f.metadata
+    return _number(kind, m["minimum"], m["positive"], m["finite"]) if kind in ("int", "float") else str
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"{value} must be positive and finite")
-    return value
+_positive_int, _non_negative_int, _positive_float = (
+    _number("int", 1),
+    _number("int", 0),
+    _number("float", positive=True),
+)
 
 
 def _vec(v) -> str:
@@ -509,62 +560,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "bundles",
-        help="build perfect or imperfect ray bundles on the GPU, or exact ones with Embree, and save a BundleSet .npz",
+        help="build ray bundles on the GPU (a registered bundle method), or exact ones with Embree, and save a "
+        "BundleSet .npz",
     )
     p.add_argument("scene", help="a built-in name or a scene file")
-    p.add_argument("--method", choices=("perfect", "imperfect", "exact"), required=True)
-    p.add_argument("--directions", type=_positive_int, default=256, metavar="K", help="bundle directions (default 256)")
-    p.add_argument(
-        "--resolution", type=_positive_int, default=128, metavar="R", help="R x R lines per bundle (default 128)"
-    )
-    p.add_argument(
-        "--points",
-        type=_positive_int,
-        default=16384,
-        metavar="N",
-        help="imperfect: points per direction (default 16384)",
-    )
-    p.add_argument(
-        "--splat-scale",
-        type=_positive_float,
-        default=DEFAULT_SPLAT_SCALE,
-        metavar="S",
-        help=f"imperfect: splat radius in units of sqrt(A / (pi N)) (default {DEFAULT_SPLAT_SCALE})",
-    )
-    p.add_argument(
-        "--splat-radius",
-        type=_positive_float,
-        default=None,
-        metavar="R",
-        help="imperfect: absolute splat radius (overrides --splat-scale)",
-    )
-    p.add_argument(
-        "--sampler",
-        choices=tuple(SAMPLERS),
-        default=DEFAULT_SAMPLER,
-        help=f"imperfect: the points, stratified along a space-filling curve or independent (default {DEFAULT_SAMPLER})",
-    )
-    p.add_argument(
-        "--splatter",
-        choices=SPLATTERS,
-        default="compute",
-        help="imperfect: splats found by a compute pass (exact-size lists) or drawn by the rasterizer (default compute)",
-    )
-    p.add_argument(
-        "--no-merge",
-        action="store_true",
-        help="imperfect: keep every splat's node (by default one per surface crossing)",
-    )
+    p.add_argument("--method", choices=(*METHODS.names, "exact"), required=True)
+    add_setting_flags(p, BUNDLE_FLAGS + METHOD_FLAGS)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frame", type=int, default=0, help="frame index: a new rotation (and jitter) of the direction set")
     p.add_argument("--no-jitter", action="store_true", help="no sub-pixel jitter of the bundle grids")
-    p.add_argument(
-        "--node-budget",
-        type=parse_bytes,
-        default=DEFAULT_NODE_BUDGET,
-        metavar="BYTES",
-        help="the most memory for nodes and what they are built from, e.g. 1GiB (default: 2 GiB)",
-    )
     p.add_argument("--threads", type=_positive_int, default=None, help="exact: Embree threads (default: every core)")
     p.add_argument("--out", required=True, metavar="FILE.npz")
     p.add_argument("--json", action="store_true")
@@ -579,154 +583,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--depth-tolerance",
         type=_positive_float,
-        default=DEFAULT_DEPTH_TOLERANCE,
+        default=DEPTH_TOLERANCE,
         metavar="T",
-        help=f"nodes within T x the frame radius are the same surface (default {DEFAULT_DEPTH_TOLERANCE:g})",
+        help=f"nodes within T x the frame radius are the same surface (default {DEPTH_TOLERANCE:g})",
     )
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_compare_bundles)
 
-    d = RenderSettings()
     p = sub.add_parser(
-        "render", help="render direct, indirect and total images with eye paths over perfect or imperfect bundles"
+        "render", help="render direct, indirect and total images with paths over ray bundles (the registered units)"
     )
     p.add_argument("scene", help="a built-in name or a scene file")
-    p.add_argument("--method", choices=("perfect", "imperfect"), required=True)
-    p.add_argument(
-        "--bounces",
-        type=int,
-        default=None,
-        metavar="B",
-        help=f"indirect bounces on top of direct (default {d.bounces})",
-    )
-    p.add_argument(
-        "--directions",
-        type=_positive_int,
-        default=None,
-        metavar="K",
-        help=f"bundle directions per frame (default {d.directions})",
-    )
-    p.add_argument(
-        "--resolution",
-        type=_positive_int,
-        default=None,
-        metavar="R",
-        help=f"R x R lines per bundle (default {d.resolution})",
-    )
-    p.add_argument(
-        "--points",
-        type=_positive_int,
-        default=None,
-        metavar="N",
-        help=f"imperfect: points per direction (default {d.points})",
-    )
-    p.add_argument(
-        "--splat-scale",
-        type=_positive_float,
-        default=None,
-        metavar="S",
-        help=f"imperfect: splat radius in units of sqrt(A / (pi N)) (default {d.splat_scale})",
-    )
-    p.add_argument("--width", type=_positive_int, default=None, help="default: the scene camera's")
-    p.add_argument("--height", type=_positive_int, default=None, help="default: the scene camera's")
-    p.add_argument(
-        "--supersampling",
-        type=_positive_int,
-        default=None,
-        metavar="S",
-        help=f"S x S G-buffer samples per pixel (default {d.supersampling})",
-    )
-    p.add_argument(
-        "--spp", type=_positive_int, default=None, help=f"eye paths per G-buffer sample per frame (default {d.spp})"
-    )
-    p.add_argument(
-        "--frames",
-        type=_positive_int,
-        default=None,
-        metavar="F",
-        help=f"frames to accumulate, each with new directions (default {d.frames})",
-    )
-    p.add_argument(
-        "--time-budget",
-        type=_positive_float,
-        default=None,
-        metavar="SECONDS",
-        help="stop before --frames once the next frame would not fit in SECONDS of render time",
-    )
-    p.add_argument("--seed", type=int, default=None, help=f"(default {d.seed})")
-    p.add_argument(
-        "--time",
-        type=float,
-        default=None,
-        metavar="T",
-        help="animated scenes: the time (s) of the first frame (default 0)",
-    )
-    p.add_argument(
-        "--time-step",
-        type=float,
-        default=None,
-        metavar="DT",
-        help="animated scenes: seconds between frames (default 0: every frame at --time, accumulating)",
-    )
-    p.add_argument(
-        "--self-hit-bias",
-        type=float,
-        default=None,
-        metavar="E",
-        help=f"nodes within E bundle pixels beyond a vertex are skipped (default {d.self_hit_bias})",
-    )
-    p.add_argument(
-        "--shadow-map-size",
-        type=_positive_int,
-        default=None,
-        metavar="S",
-        help=f"texels per shadow map side (default {d.shadow_map_size})",
-    )
-    p.add_argument(
-        "--shadow-filter",
-        type=_positive_int,
-        default=None,
-        metavar="F",
-        help=f"PCF kernel of F x F bilinear taps (default {d.shadow_filter})",
-    )
-    p.add_argument(
-        "--light-samples",
-        type=_non_negative_int,
-        default=None,
-        metavar="M",
-        help=f"points drawn on the emitters per frame for next-event estimation, 0 for none (default {d.light_samples})",
-    )
-    p.add_argument(
-        "--light-sample-map-size",
-        type=_positive_int,
-        default=None,
-        metavar="S",
-        help=f"texels per side of each emitter sample's shadow cube faces (default {d.light_sample_map_size})",
-    )
-    p.add_argument(
-        "--node-budget",
-        type=parse_bytes,
-        default=None,
-        metavar="BYTES",
-        help="the most memory for nodes, what they are built from and their precomputed light (default 2 GiB)",
-    )
-    p.add_argument(
-        "--sampler", choices=tuple(SAMPLERS), default=None, help=f"imperfect: the points (default {d.sampler})"
-    )
-    p.add_argument(
-        "--splatter", choices=SPLATTERS, default=None, help=f"imperfect: compute or raster (default {d.splatter})"
-    )
-    p.add_argument(
-        "--lighting",
-        choices=LIGHTING,
-        default=None,
-        help=f"node light: precomputed per node or splat point, lazy at path hits, or auto per frame (default {d.lighting})",
-    )
-    p.add_argument(
-        "--fixed-directions",
-        action="store_true",
-        help="every frame along frame 0's directions: a static scene builds its bundles once (faster, correlated)",
-    )
+    for field, registry in KINDS.items():
+        name = FLAG_NAMES.get(field, "--" + field.replace("_", "-"))
+        what = f"the {registry.kind}" + (f" (default {registry.default.name})" if field != "method" else "")
+        p.add_argument(name, dest=field, choices=registry.names, required=field == "method", default=None, help=what)
+    add_setting_flags(p, RENDER_FLAGS + UNIT_FLAGS)
     p.add_argument(
         "--preset",
         choices=sorted(PRESETS),
@@ -807,7 +679,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "tune",
-        help="the settings with the least predicted error within a time budget, from fitted time and error models, checked by a render",
+        help="the settings with the least predicted error within a time budget, from fitted time and error models, "
+        "checked by a render",
     )
     p.add_argument("scene", help="a built-in name or a scene file")
     p.add_argument(
@@ -817,7 +690,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SECONDS",
         help="render time (every frame, after shader compilation)",
     )
-    p.add_argument("--method", default="both", metavar="perfect|imperfect|both", help="default both")
+    p.add_argument("--method", default="both", metavar="|".join((*METHODS.names, "both")), help="default both")
     p.add_argument(
         "--metric",
         default="indirect_relmse",
@@ -835,7 +708,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_float,
         default=CALIBRATION_SHARE,
         metavar="X",
-        help=f"the calibration's render time in budgets (default {CALIBRATION_SHARE:g}; each run renders at least one frame)",
+        help=f"the calibration's render time in budgets (default {CALIBRATION_SHARE:g}; "
+        "each run renders at least one frame)",
     )
     p.add_argument("--no-check", action="store_true", help="recommend without rendering the recommendation")
     p.add_argument(
@@ -851,7 +725,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "demo",
-        help="the main job: perfect and imperfect bundles on cornell-box against Mitsuba and Embree, every metric, a report",
+        help="the main job: the bundle methods on cornell-box against Mitsuba and Embree, every metric, a report",
     )
     p.add_argument("--out", default="out/demo", metavar="DIR", help="default: out/demo")
     p.set_defaults(run=_demo)

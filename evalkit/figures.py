@@ -10,6 +10,17 @@ import numpy as np
 REPORT_EXPOSURE = 0.0
 
 
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (files, no display), imported at first use: it is slow
+    to import, and most commands draw nothing."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def tonemap(image: np.ndarray, exposure: float = REPORT_EXPOSURE) -> np.ndarray:
     """Linear RGB -> 8-bit sRGB: scale by 2^exposure, clip to [0, 1], the sRGB curve."""
     x = np.clip(image * 2.0**exposure, 0.0, 1.0)

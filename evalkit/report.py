@@ -13,45 +13,30 @@ from pathlib import Path
 import numpy as np
 
 from evalkit.core.exr import read_exr
-from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png, tonemap
+from evalkit.figures import REPORT_EXPOSURE, error_map_png, pyplot, save_png, tonemap
 from evalkit.metrics.hole_model import DEFAULT_NODE_COST, analyse, hole_rate_model
 from evalkit.metrics.images import bias_variance
-from evalkit.study.spec import RUN_DEFAULTS, Study, run_id
+from evalkit.pages import format_value, is_number, page, table_html
+from evalkit.study.spec import PARAMETERS, Study, parameters, run_id
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 from references.mitsuba import load_reference
 
 IMAGE_CAP = 12
-IMPERFECT_ONLY = {"points", "splat_scale", "sampler", "splatter"}  # run parameters only imperfect bundles have
 
 
 def varying(study: Study) -> list[str]:
-    """The run parameters that take more than one value in the study."""
-    return [k for k in RUN_DEFAULTS if len({json.dumps(r[k]) for r in study.runs}) > 1]
+    """The run parameters that take more than one value in the study (a setting a run's units do
+    not have counts as a value of its own)."""
+    return [k for k in PARAMETERS if len({json.dumps(r.get(k)) for r in study.runs}) > 1]
 
 
 def metric_columns(rows: list[dict]) -> list[str]:
-    params = set(RUN_DEFAULTS) | {"run_id", "status", "scene_hash", "warnings", "reference", "gl_renderer"}
+    params = set(PARAMETERS) | {"run_id", "status", "scene_hash", "warnings", "reference", "gl_renderer"}
     return [
         k
         for k in dict.fromkeys(k for r in rows for k in r)
         if k not in params and not k.startswith(("version_", "hole_rate_slope"))
     ]
-
-
-def _fmt(value) -> str:
-    if value is None:
-        return "-"
-    if isinstance(value, float):
-        if value == 0 or math.isnan(value):
-            return f"{value:g}"
-        return f"{value:.4g}" if 1e-3 <= abs(value) < 1e5 else f"{value:.3e}"
-    return str(value)
-
-
-def table_html(rows: list[dict], columns: list[str]) -> str:
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(r.get(c)))}</td>" for c in columns) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
 def pareto_front(rows: list[dict], x: str, y: str) -> list[dict]:
@@ -67,7 +52,7 @@ def pareto_front(rows: list[dict], x: str, y: str) -> list[dict]:
 
 def setting_id(row: dict) -> str:
     """The run's id without its seed: runs that differ only in the seed share it."""
-    return run_id({k: row[k] for k in RUN_DEFAULTS if k != "seed"})
+    return run_id({k: v for k, v in parameters(row).items() if k != "seed"})
 
 
 def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
@@ -102,19 +87,11 @@ def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
     return sorted(result, key=lambda r: (r["scene"], r["method"], r[x]))
 
 
-def is_number(v) -> bool:
-    """A finite int or float (not a bool): a value a table or plot can use."""
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def plot(rows: list[dict], spec: dict, path: Path) -> str:
     """One figure per [[plot]]: y against x, a line per ``group`` value (``group`` names one run
     parameter or a list of them), a panel per ``facet`` (default: scene); ``log`` = "x", "y" or
     "xy"; ``pareto`` draws the front of x and the first y."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     ys = spec["y"] if isinstance(spec["y"], list) else [spec["y"]]
     facet = spec.get("facet", "scene")
@@ -138,14 +115,11 @@ def plot(rows: list[dict], spec: dict, path: Path) -> str:
                 ]
                 parts = [y] if len(ys) > 1 else []
                 parts += [method] if len(methods) > 1 else []
-                parts += [
-                    f"{k}={v}"
-                    for k, v in zip(group, g)
-                    if k != "method" and (method == "imperfect" or k not in IMPERFECT_ONLY)
-                ]
+                # A setting the series' method does not have is None in its rows: not in the label.
+                parts += [f"{k}={v}" for k, v in zip(group, g) if k != "method" and v is not None]
                 label = ", ".join(parts) or y
-                if method != "imperfect" and spec["x"] in IMPERFECT_ONLY:
-                    # A method without splats is a baseline across the splat parameters.
+                if spec["x"] in PARAMETERS and members and all(spec["x"] not in r for r in members):
+                    # A method without the swept setting (a splat parameter, say) is a baseline across it.
                     for r in members:
                         ax.axhline(r[y], color="k", ls="--", lw=1, label=f"{label} (baseline)")
                     continue
@@ -194,7 +168,7 @@ def bias_variance_rows(study: Study, rows: list[dict], out: Path) -> list[dict]:
         for image in study.measure["images"]:
             stack = [read_exr(out / "runs" / m["run_id"] / f"{image}.exr")[0] for m in members]
             bv = bias_variance(stack, ref.images[image], ref.variances[image])
-            entry = {k: members[0][k] for k in varying(study) if k != "seed"}
+            entry = {k: members[0].get(k) for k in varying(study) if k != "seed"}
             entry.update({"image": image, **{k: v for k, v in bv.items() if k != "per_seed_relmse"}})
             result.append(entry)
     return result
@@ -287,9 +261,9 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
                         vmax = error_map_png(np.load(path), out / "images" / f"{key}_{metric}.png")
                         cells.append(
                             f"<figure><img src='images/{key}_{metric}.png'><figcaption>{metric} "
-                            f"{_fmt(r.get(f'{image}_{metric}'))} (0..{vmax:.3g})</figcaption></figure>"
+                            f"{format_value(r.get(f'{image}_{metric}'))} (0..{vmax:.3g})</figcaption></figure>"
                         )
-                label = ", ".join(f"{k}={r[k]}" for k in varying(study))
+                label = ", ".join(f"{k}={r[k]}" for k in varying(study) if k in r)
                 parts.append(f"<div class='row'><p>{html.escape(label)}</p>{''.join(cells)}</div>")
         if len(ok) > len(shown):
             parts.append(
@@ -308,31 +282,21 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
             else "<p>None: no scene needed an approximation.</p>"
         )
     )
-    style = (
-        "body{font-family:sans-serif;max-width:1400px;margin:2em auto}table{border-collapse:collapse;font-size:12px}"
-        "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}figure{display:inline-block;margin:4px}"
-        "figure img{width:192px;image-rendering:pixelated}figcaption{font-size:11px}"
-    )
     path = out / "report.html"
-    path.write_text(
-        f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(study.title)}</title>"
-        f"<style>{style}</style></head><body>{''.join(parts)}</body></html>\n"
-    )
+    path.write_text(page(study.title, parts))
     return path
 
 
 def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     node_cost = float(study.hole_model.get("node_cost", DEFAULT_NODE_COST))
-    imperfect = [r for r in rows if r["method"] == "imperfect" and is_number(r.get("hole_rate"))]
-    fits = analyse(imperfect, node_cost)
+    # The rows of a method with splats: those that have a splat scale.
+    splats = [r for r in rows if is_number(r.get("splat_scale")) and is_number(r.get("hole_rate"))]
+    fits = analyse(splats, node_cost)
     (out / "hole_model.json").write_text(json.dumps(fits, indent=2) + "\n")
     if not fits:
-        return "<h2>Hole model</h2><p>Not fitted: it needs imperfect runs at two splat scales or more.</p>"
+        return "<h2>Hole model</h2><p>Not fitted: it needs runs with splats at two splat scales or more.</p>"
     panels = sorted({(f["scene"], f["sampler"]) for f in fits})
     fig, axes = plt.subplots(2, len(panels), figsize=(5.2 * len(panels), 8), squeeze=False)
     for column, (scene, sampler) in enumerate(panels):
@@ -343,7 +307,7 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
             mine = sorted(
                 (
                     r
-                    for r in imperfect
+                    for r in splats
                     if r["scene"] == scene and r.get("sampler", "random") == sampler and int(r["points"]) == f["points"]
                 ),
                 key=lambda r: r["splat_scale"],

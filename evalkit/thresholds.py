@@ -1,7 +1,7 @@
 """Declared accuracy thresholds: the table (TOML) that `evalkit check`, the test suite and study
 reports read. evalkit/thresholds.toml is the toolkit's own.
 
-A case is one run of a study (its ``run`` parameters over `RUN_DEFAULTS`, its ``measure`` over the
+A case is one run of a study (its ``run`` parameters as a study's grid gives them, its ``measure`` over the
 study's) and one metric column of the run's row, with:
 
 - ``kind`` "max" (the value must not exceed ``threshold``), "min" (must not fall below it), or
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from evalkit.core.errors import InputError
-from evalkit.study.spec import RUN_DEFAULTS, measure_settings, read_toml, validate_run
+from evalkit.study.spec import make_run, measure_settings, read_toml
 
 DEFAULT_THRESHOLDS = Path(__file__).with_name("thresholds.toml")
 KINDS = ("max", "min", "falls")
@@ -61,11 +61,10 @@ def load_thresholds(path: str | os.PathLike = DEFAULT_THRESHOLDS) -> list[Case]:
                 )
         elif "threshold" not in c:
             raise InputError(where, "needs a threshold")
-        base = {**RUN_DEFAULTS, **c.get("run", {})}
+        base = c.get("run", {})
         sweep = next(iter(c["sweep"])) if c["kind"] == "falls" else None
-        runs = [{**base, sweep: v} for v in c["sweep"][sweep]] if sweep else [base]
-        for run in runs:
-            validate_run(run, where)
+        given = [{**base, sweep: v} for v in c["sweep"][sweep]] if sweep else [base]
+        runs = [make_run(run, {}, where) for run in given]
         measure = measure_settings(c.get("measure", {}), where)
         cases.append(
             Case(

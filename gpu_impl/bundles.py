@@ -1,67 +1,53 @@
-"""Perfect and imperfect ray bundles on the GPU, read back as a `BundleSet`.
+"""The shared core of every bundle method's builder: ray bundles on the GPU, read back as a `BundleSet`.
 
-A node is 8 bytes on the GPU: its depth along the bundle direction and a reference, the triangle
-(perfect bundles) or the splat point (imperfect bundles); shaders/bundle_hits.glsl computes the
-rest where it is needed. One build is a few passes and two GPU-CPU round-trips, whatever K is:
+A node is 8 bytes on the GPU: its depth along the bundle direction and a reference, a triangle or
+a splat point (``NODE_REFERENCE``, shaders/bundle.glsl); shaders/bundle_hits.glsl computes the rest
+where it is needed. A build is a few passes and two GPU-CPU round-trips, whatever K is:
 
-- **perfect**: ``lists``: one instanced draw per atlas of R x R tiles appends every node to its
-  pixel's linked list (shaders/perfect_bundles.glsl); round-trip 1 reads the node counter, and past
-  the buffer's capacity the pass runs again with a buffer that fits. ``resolve``: list lengths, a
-  prefix sum into exact-size slot ranges, and each list sorted into its range
-  (shaders/resolve_lists.glsl); round-trip 2 reads the statistics.
-- **imperfect**, compute splatter (the default): ``points``: N points per direction
-  (shaders/splat_points.glsl). ``lists``: every splat counts the lines it covers, a prefix sum makes
-  exact-size slot ranges, round-trip 1 reads their total, and every splat writes its nodes
-  (shaders/splat_lists.glsl): no linked list, no re-run. ``resolve``: each list sorted and its
-  redundant nodes merged in place, at the front of its range; round-trip 2 reads the statistics.
-- **imperfect**, raster splatter (``splatter="raster"``): the poster's splats drawn by the
-  rasterizer into linked lists (shaders/imperfect_bundles.glsl), then list lengths, a prefix sum
-  and the same merge.
+- ``lists``: the method's builder (`BundleTracer.build_lists`) puts every node of every line
+  somewhere: appended to per-pixel linked lists by the rasterizer (`LinkedListTracer`, with a
+  re-run past the buffer's capacity), or straight into exact-size slot ranges (the compute
+  splatter, gpu_impl/methods/imperfect.py); round-trip 1 reads how many there are.
+- ``resolve``: each list sorted (and, for splats, its redundant nodes merged) at the front of its
+  slot range (shaders/resolve_lists.glsl); round-trip 2 reads the statistics.
 
 The resolved lists (``LIST_OFFSETS``, ``LIST_COUNTS``, ``NODES``) stay on the GPU for the renderer.
+The builders live with their methods (gpu_impl/methods/); `gpu_impl.registry` finds them.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from typing import ClassVar
 
 import moderngl
 import numpy as np
 
 from evalkit.core.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, bundle_params
 from evalkit.core.errors import InputError
-from gpu_impl.context import LOCAL_SIZE, GLContext, PassTimer, set_uniforms
-from gpu_impl.layout import BINDINGS, BUNDLE_FRAME, COUNTERS, FACING_BIT, METHODS, SAMPLERS, SPLAT_BIT, SPLAT_POINT
+from evalkit.core.settings import RenderSettings
+from gpu_impl.context import GLContext, set_uniforms
+from gpu_impl.layout import (
+    BINDINGS,
+    BUNDLE_FRAME,
+    COUNTERS,
+    FACING_BIT,
+    LINKED_NODE_BYTES,
+    LOCAL_SIZE,
+    NODE,
+    NODE_TRIANGLE,
+    SCAN_PER_THREAD,
+    SORT_NETWORK,
+    SPLAT_BIT,
+)
 from gpu_impl.scene_buffers import GpuScene
+from gpu_impl.timing import PassTimer
 
-SPLATTERS = ("compute", "raster")
-# Bytes per node: one 64-bit key, depth and reference (shaders/bundle_build.glsl), a slot of a
-# list's range; while linked lists are built, depth, reference and link.
-NODE_BYTES = 8
-LINKED_NODE_BYTES = 12
-# The compute splatter's record of the lines a splat covers, from its count pass to its scatter.
-SPLAT_LINES_BYTES = 16
-# The poster used a 1 GB node buffer; the default leaves room for the largest settings it used.
-DEFAULT_NODE_BUDGET = 2 << 30
-# Splat radius in units of sqrt(A / (pi N)), the radius at which N disks cover area A once. With
-# independent uniform points a surface point is missed by all of them with probability
-# exp(-splat_scale^2); the stratified points leave far fewer holes, exp(-1.25 s^2.4) on cornell-box.
-# 1.8 is the hole model's recommendation for stratified points (studies/hole_vs_splat.toml: 1.81
-# on cornell-box, 1.94 on atrium whose curved-surface floor of holes no splat size removes), at
-# 3.2 nodes per crossing against 4 for the old default 2 (docs/MEASURED_FACTS.md).
-DEFAULT_SPLAT_SCALE = 1.8
-DEFAULT_SAMPLER = "stratified"
-# Nodes of one line closer than this (times the frame radius) are one surface: the depth tolerance
-# of the bundle metrics (evalkit/metrics/bundles.py), about a hundred float32 ulps of a depth.
-MERGE_TOLERANCE = 1e-4
 # How much a buffer grows past a measured count, so the next frame's rotated directions (a
 # slightly different count) rarely need it to grow again.
 CAPACITY_SLACK = 1.125
-SCAN_BLOCK = 16 * LOCAL_SIZE  # shaders/prefix_sum.glsl
-# shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size (32), past
-# the list's end: the node buffer keeps that many slots beyond the last list.
-SLACK_NODES = 32
+SCAN_BLOCK = SCAN_PER_THREAD * LOCAL_SIZE  # values one workgroup of shaders/prefix_sum.glsl scans
 
 
 class NodeBudgetExceeded(InputError):
@@ -69,162 +55,122 @@ class NodeBudgetExceeded(InputError):
 
 
 class BundleTracer:
-    """Builds perfect or imperfect bundles of one uploaded scene (`GpuScene`, which its maker owns)
-    with one GL context.
+    """Builds one bundle method's bundles of one uploaded scene (`GpuScene`, which its maker owns)
+    with one GL context: the list layout, the buffers and the node budget, the prefix sums, the
+    resolve and the read-back. A method's builder subclasses it (gpu_impl/methods/) and supplies
+    `build_lists` and the resolve's passes.
 
     Buffers are kept and grown across `build` calls (frames), so a frame costs only its passes;
     `release` (or leaving a ``with`` block) frees every GL object the tracer made.
 
-    Parameters: ``directions`` K and ``resolution`` R fix the list layout. Imperfect bundles use
-    ``points`` N per direction from ``sampler`` ('stratified' or 'random', shaders/splat_points.glsl),
-    of radius ``splat_radius`` (scene units) or, by default, ``splat_scale * sqrt(A / (pi N))``,
-    found by ``splatter`` ('compute' or 'raster'); ``merge`` (default on) merges the redundant nodes
-    of one surface (shaders/resolve_lists.glsl). ``node_budget`` (bytes) caps everything the
-    tracer holds for nodes: the CSR, the lists and points it is built from; a build that needs more
-    raises `NodeBudgetExceeded` with the amount needed. ``count_covered`` also counts the lines the
-    compute splatter's splats cover before merging (stats ``covered_nodes``; studies of the splat
-    size ask for it, at some cost). ``initial_capacity`` (nodes) overrides the
-    first guess of the linked lists' size (tests use it to force a re-run); ``max_atlas_size``
-    caps the atlas side in pixels (default: the GL viewport limit); past it, directions are drawn
-    in several draws.
+    ``settings`` gives K directions and R lines per side (the list layout), the node budget
+    (bytes: everything the tracer holds for nodes, the lists and what they are built from; a build
+    that needs more raises `NodeBudgetExceeded` with the amount needed) and the method's own
+    settings. The hooks, which a builder without a use for them ignores: ``textures`` (None: ask
+    the scene) picks the read-back's variant with or without texture fetches; ``count_covered``
+    also counts the lines splats cover before merging (stats ``covered_nodes``; studies of the
+    splat size ask for it, at some cost); ``initial_capacity`` (nodes) overrides the first guess
+    of linked lists' size (tests use it to force a re-run); ``max_atlas_size`` caps the raster
+    atlas's side in pixels (default: the GL viewport limit; past it, directions are drawn in
+    several draws).
     """
+
+    # How the shaders read a node's reference (bundle.glsl): NODE_TRIANGLE or NODE_SPLAT_POINT.
+    node_reference: ClassVar[int] = NODE_TRIANGLE
+    # What the nodes counted before the resolve are, for messages.
+    raw_nodes_are: ClassVar[str] = "nodes"
 
     def __init__(
         self,
         gl: GLContext,
         gpu_scene: GpuScene,
-        method: str = "perfect",
-        *,
-        directions: int = 256,
-        resolution: int = 128,
-        points: int = 16384,
-        splat_scale: float = DEFAULT_SPLAT_SCALE,
-        splat_radius: float | None = None,
-        sampler: str = DEFAULT_SAMPLER,
-        splatter: str = "compute",
-        merge: bool = True,
-        node_budget: int = DEFAULT_NODE_BUDGET,
-        initial_capacity: int | None = None,
-        max_atlas_size: int | None = None,
+        settings: RenderSettings,
         textures: bool | None = None,
         count_covered: bool = False,
+        initial_capacity: int | None = None,
+        max_atlas_size: int | None = None,
     ):
-        if method not in METHODS:
-            raise ValueError(f"method must be one of {tuple(METHODS)}, got {method!r}")
-        if sampler not in SAMPLERS or splatter not in SPLATTERS:
-            raise ValueError(
-                f"sampler must be one of {tuple(SAMPLERS)} and splatter one of {SPLATTERS}, got {sampler!r}, {splatter!r}"
-            )
-        for name, value in (("directions", directions), ("resolution", resolution), ("points", points)):
+        self.gl, self.gpu_scene, self.settings = gl, gpu_scene, settings
+        self.count_covered, self.initial_capacity, self.max_atlas_size = count_covered, initial_capacity, max_atlas_size
+        self.K, self.R = settings.directions, settings.resolution
+        for name, value in (("directions", self.K), ("resolution", self.R)):
             if value < 1:
                 raise ValueError(f"{name} must be at least 1, got {value}")
-        self.gl = gl
-        self.gpu_scene = gpu_scene
-        self.method = method
-        self.K, self.R, self.N = directions, resolution, points
-        self.sampler, self.splatter, self.merge = sampler, splatter, bool(merge) and method == "imperfect"
-        # The count pass's variant: counting the lines splats cover, too, or not.
-        self.count_variant = {"COUNT_SPLATS": True, **({"COUNT_COVERED": True} if count_covered else {})}
-        # The radius at which N disks cover the scene's area once: the unit of splat_scale.
-        unit = math.sqrt(gpu_scene.arrays.tri_area.sum() / (math.pi * points))
-        self.splat_radius = splat_radius if splat_radius is not None else splat_scale * unit
-        self.splat_scale = self.splat_radius / unit
-        if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
-            raise ValueError(f"the splat radius must be positive and finite, got {self.splat_radius}")
-        self.node_budget = int(node_budget)
+        self.node_budget = int(settings.node_budget)
         self.list_count = self.K * self.R * self.R
-        if self.list_count >= 2**32 - 1 or (method == "imperfect" and 3 * self.K * self.N >= 2**31):
-            raise ValueError(f"K={self.K}, R={self.R}, N={self.N} exceed the 32-bit list and point indices")
-        self.linked = method == "perfect" or splatter == "raster"
-        self.capacity = 0  # nodes the linked lists hold (their buffers are made below)
-        self._layout(max_atlas_size)
-        # 0: the shader variant without texture fetches, for scenes without textures (None: ask the scene).
+        if self.list_count >= 2**32 - 1:
+            raise ValueError(f"K={self.K}, R={self.R} exceed the 32-bit list indices")
+        # 0: the shader variant without texture fetches, for scenes without textures.
         self.textures = int(gpu_scene.features.textures if textures is None else textures)
-        self.defines = {"BUNDLE_METHOD": METHODS[method]}
+        self.defines = {"NODE_REFERENCE": self.node_reference}
         self.buffers: dict = {}
         self._scan_sums: list = []
-        self.framebuffer = gl.empty_framebuffer(self.atlas_size) if self.linked else None
-        self.vertex_arrays: dict = {}  # by NULL_FRAGMENT: the node pass's and the raw-raster baseline's
         lists = 4 * (self.list_count + 1)
         self._ensure("FRAMES", BUNDLE_FRAME.itemsize * self.K)
         self._ensure("COUNTERS", 4 * len(COUNTERS))
         self._ensure("LIST_OFFSETS", lists)
         self._ensure("LIST_COUNTS", lists)
-        if method == "imperfect":
-            self._check_budget(
-                self.fixed_bytes,
-                what=f"{self.K * self.N:,} splat points{'' if self.linked else ', their lines'} and the list offsets",
-            )
-            self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N).clear()  # triangle 0 for a warm-up draw
-        if method == "imperfect" and not self.linked:
-            self._ensure("SPLAT_LINES", SPLAT_LINES_BYTES * self.K * self.N)
-        if self.linked:
-            self._ensure("HEADS", 4 * self.list_count)
-            self._grow_linked(initial_capacity if initial_capacity is not None else self.predicted_nodes())
-            self._raster(null_fragment=False)
-        # Compile every compute pass now, not inside the first timed build: a dispatch over no
-        # items makes the driver build its code (llvmpipe does that at the first dispatch).
-        self.bind()
-        for program in self._compute_programs():
-            self._uniforms(program)
-            gl.dispatch(program, 0)
         self.directions: DirectionSet | None = None
         self.stats: dict = {}
 
-    def _compute_programs(self) -> list:
-        """The compute passes a build of this tracer runs (the prefix sum aside)."""
-        gl = self.gl
-        if self.method == "perfect":
-            return [gl.program("resolve_lists", COUNT_LISTS=True), gl.program("resolve_lists", SORT_LISTS=True)]
-        passes = [gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler])]
-        if self.linked:
-            return passes + [
-                gl.program("resolve_lists", COUNT_LISTS=True),
-                gl.program("resolve_lists", MERGE_LISTS=True, FROM_LINKED_LISTS=True),
-            ]
-        return passes + [
-            gl.program("splat_lists", **self.count_variant),
-            gl.program("splat_lists", SCATTER_SPLATS=True),
-            gl.program("resolve_lists", MERGE_LISTS=True),
-        ]
+    def _compile(self) -> None:
+        """Compile every compute pass now, not inside the first timed build: a dispatch over no
+        items makes the driver build its code (llvmpipe does that at the first dispatch). The
+        builders call it last in their constructors."""
+        self.bind()
+        for program in self.compute_programs():
+            self._uniforms(program)
+            self.gl.dispatch(program, 0)
 
-    # -- layout and memory ---------------------------------------------------------------
+    # -- what a method supplies ----------------------------------------------------------
 
-    def _layout(self, max_atlas_size: int | None) -> None:
-        """The atlas: as square as possible, split into several draws only past the GL limit."""
-        max_dim = min(self.gl.limit("GL_MAX_VIEWPORT_DIMS"))
-        max_dim = min(max_dim, max_atlas_size or max_dim)
-        tiles = max_dim // self.R
-        if tiles < 1:
-            raise ValueError(f"bundle resolution {self.R} exceeds the GL viewport limit {max_dim}")
-        self.tiles_per_row = min(math.ceil(math.sqrt(self.K)), tiles)
-        rows = min(math.ceil(self.K / self.tiles_per_row), tiles)
-        self.directions_per_draw = self.tiles_per_row * rows
-        self.atlas_size = (self.tiles_per_row * self.R, rows * self.R)
+    def compute_programs(self) -> list:
+        """The compute passes a build runs (the prefix sum aside)."""
+        raise NotImplementedError
 
-    def predicted_nodes(self) -> int:
-        """A first guess of the linked lists' size, from the scene's depth complexity (the mean
-        number of surfaces a line through the bounding sphere crosses) and, for splats, the mean
-        number of splats covering a surface point."""
-        lines = self.list_count * math.pi / 4  # the lines that meet the sphere
-        overlap = max(1.0, self.splat_scale**2) if self.method == "imperfect" else 1.0
-        return int(lines * self.gpu_scene.features.depth_complexity * overlap * 1.25) + 1024
+    def build_lists(self, directions: DirectionSet, timer: PassTimer) -> tuple[int, int]:
+        """Every node of every line into the lists; returns (re-runs, nodes written)."""
+        raise NotImplementedError
+
+    def resolve_lists(self) -> None:
+        """Each list sorted (and merged) into its slot range."""
+        raise NotImplementedError
+
+    def build_stats(self, counters: np.ndarray, raw: int) -> dict:
+        """The method's statistics of a build from the counters: nodes, redundant_nodes, ..."""
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        """The method and its settings in a few symbols, for messages: 'perfect bundles (K=8, R=64)'."""
+        return f"bundles (K={self.K}, R={self.R})"
+
+    @property
+    def irradiance_items(self) -> int:
+        """What precomputed node light is stored per (shaders/irradiance.glsl): every node."""
+        return self.stats["nodes"]
+
+    @property
+    def irradiance_invocations(self) -> int:
+        """The irradiance pass's invocations: one per list, lighting its nodes in turn."""
+        return self.list_count
 
     @property
     def fixed_bytes(self) -> int:
-        """What the tracer holds whatever the node count: frames, the per-list arrays, the points
-        and (compute splatter) their lines."""
-        per_list = 4 * (self.list_count + 1) * 2 + (4 * self.list_count if self.linked else 0)
-        per_point = SPLAT_POINT.itemsize + (0 if self.linked else SPLAT_LINES_BYTES)
-        points = per_point * self.K * self.N if self.method == "imperfect" else 0
-        return BUNDLE_FRAME.itemsize * self.K + per_list + points
+        """What the tracer holds whatever the node count: frames and the per-list arrays."""
+        return BUNDLE_FRAME.itemsize * self.K + 4 * (self.list_count + 1) * 2
+
+    # -- memory --------------------------------------------------------------------------
 
     @property
     def memory_bytes(self) -> int:
         """Everything the tracer holds for nodes now, which the node budget caps."""
-        return sum(b.size for name, b in self.buffers.items() if name != "COUNTERS") + sum(
-            b.size for b in self._scan_sums
-        )
+        held = sum(b.size for name, b in self.buffers.items() if name != "COUNTERS")
+        return held + sum(b.size for b in self._scan_sums)
+
+    @property
+    def gpu_bytes(self) -> int:
+        """Every buffer this tracer holds plus the scene's."""
+        return sum(b.size for b in self.buffers.values()) + sum(b.size for b in self._scan_sums) + self.gpu_scene.nbytes
 
     def _ensure(self, name: str, nbytes: int):
         """Buffer ``name`` with room for at least ``nbytes`` (its contents are not kept when it grows)."""
@@ -239,9 +185,9 @@ class BundleTracer:
         if needed > self.node_budget:
             raise NodeBudgetExceeded(
                 self.gpu_scene.scene.name,
-                f"{self.method} bundles (K={self.K}, R={self.R}{f', N={self.N}' if self.method == 'imperfect' else ''}) "
-                f"need {format_bytes(needed)} for {what}, over the node budget of {format_bytes(self.node_budget)}; "
-                f"raise --node-budget to at least {format_bytes(needed)} or lower K, R, N or the splat size",
+                f"{self.describe()} need {format_bytes(needed)} for {what}, over the node budget of "
+                f"{format_bytes(self.node_budget)}; raise --node-budget to at least {format_bytes(needed)} "
+                "or lower K, R, N or the splat size",
             )
 
     def _grow(self, names: tuple[str, ...], node_bytes: int, nodes: int, what: str) -> None:
@@ -256,22 +202,19 @@ class BundleTracer:
         for name in names:
             self._ensure(name, node_bytes // len(names) * slack)
 
-    def _grow_linked(self, nodes: int) -> None:
-        """Linked-list buffers for ``nodes`` nodes (a guess, or a measured count)."""
-        nodes = max(1, nodes)
-        budget_nodes = max(1, (self.node_budget - self.fixed_bytes) // LINKED_NODE_BYTES)
-        self.capacity = min(nodes, budget_nodes, self.gl.max_storage_bytes // 4)
-        for name in ("NEXT", "LIST_DEPTH", "LIST_REF"):
-            if name in self.buffers and self.buffers[name].size != 4 * self.capacity:
-                self.buffers.pop(name).release()
-            self._ensure(name, 4 * self.capacity)
-
     # -- the passes ----------------------------------------------------------------------
 
     def bind(self) -> None:
         self.gpu_scene.bind()
         for name, buffer in self.buffers.items():
             buffer.bind_to_storage_buffer(BINDINGS[name])
+
+    def _uniforms(self, program, **overrides) -> None:
+        """Set the bundle programs' uniforms (those a variant compiled away are skipped)."""
+        set_uniforms(program, {**self.uniforms(), **overrides})
+
+    def uniforms(self) -> dict:
+        return {"radius": self.gpu_scene.radius, "resolution": self.R, "direction_base": 0}
 
     def build(self, directions: DirectionSet) -> dict:
         """Build the bundles of one frame's `DirectionSet` on the GPU; returns the statistics."""
@@ -281,175 +224,25 @@ class BundleTracer:
         timer = PassTimer(self.gl)
         self.buffers["FRAMES"].write(_frames(directions).tobytes())
         self.buffers["COUNTERS"].clear()
-        if self.method == "imperfect":
-            self.buffers["LIST_COUNTS"].clear()
-        self.bind()
-        if self.method == "imperfect":
-            with timer.measure("points"):
-                self._sample_points(directions)
-        if self.linked:
-            reruns, raw = self._linked_lists(timer)
-        else:
-            with timer.measure("lists"):
-                reruns, raw = 0, self._splat_lists()
+        reruns, raw = self.build_lists(directions, timer)
         with timer.measure("resolve"):
-            self._resolve()
+            self.resolve_lists()
         counters = np.frombuffer(self.buffers["COUNTERS"].read(4 * len(COUNTERS)), dtype=np.uint32)
-        nodes = int(counters[COUNTERS["KEPT"]]) if self.method == "imperfect" else raw
-        if counters[COUNTERS["MISMATCH"]]:
-            raise RuntimeError(
-                f"the splat count and scatter passes found {counters[COUNTERS['MISMATCH']]} lines differently: "
-                "a driver that rounds the same arithmetic two ways; use splatter='raster'"
-            )
         self.directions = directions
+        stats = self.build_stats(counters, raw)
         self.stats = {
-            "nodes": nodes,
+            **stats,
             "raw_nodes": raw,
-            # Every line a splat or a triangle covers: without merging, one node each (None: not counted).
-            "covered_nodes": raw
-            if self.linked or not self.merge
-            else int(counters[COUNTERS["COVERED"]])
-            if "COUNT_COVERED" in self.count_variant
-            else None,
-            "redundant_nodes": raw - nodes if self.method == "imperfect" else int(counters[COUNTERS["REDUNDANT"]]),
-            "redundant_tolerance": self.merge_tolerance if self.merge else 0.0,
-            "merged": self.merge,
             "max_list_length": int(counters[COUNTERS["MAX_LENGTH"]]),
-            "capacity": self.capacity if self.linked else raw,
             "overflow_reruns": reruns,
-            "node_bytes": nodes * NODE_BYTES,
+            "node_bytes": stats["nodes"] * NODE.itemsize,
             "memory_bytes": self.memory_bytes,
             "gpu_bytes": self.gpu_bytes,
             "gpu_ms": timer.milliseconds(),
             "gpu_timing": timer.method,
             "wall_ms": (time.perf_counter() - start) * 1e3,
         }
-        if self.method == "imperfect":
-            self.stats.update(sampler=self.sampler, splatter=self.splatter)
         return self.stats
-
-    @property
-    def merge_tolerance(self) -> float:
-        """How far apart in depth two nodes of one line may be and still be merged as one surface
-        (shaders/resolve_lists.glsl): the depth tolerance under which the bundle metrics call two
-        nodes one surface (`MERGE_TOLERANCE` of the frame radius), so merging removes what they
-        count redundant; negative (nothing merges) without merging. Splats of one plane cross a
-        line at one depth; a wider tolerance (a splat radius) also merged a corner's two walls
-        where one's splats overhang the other, trading holes for fewer nodes: measured on
-        cornell-box (K=32, N=16384, s=1.5), 4.6 % holes against 3.6 %."""
-        return MERGE_TOLERANCE * self.gpu_scene.radius if self.merge else -1.0
-
-    @property
-    def gpu_bytes(self) -> int:
-        """Every buffer this tracer holds plus the scene's."""
-        return sum(b.size for b in self.buffers.values()) + sum(b.size for b in self._scan_sums) + self.gpu_scene.nbytes
-
-    def _uniforms(self, program, **overrides) -> None:
-        """Set the bundle programs' uniforms (those a variant compiled away are skipped)."""
-        values = {
-            "radius": self.gpu_scene.radius,
-            "resolution": self.R,
-            "tiles_per_row": self.tiles_per_row,
-            "atlas_size": self.atlas_size,
-            "capacity": self.capacity,
-            "points_per_direction": self.N,
-            "splat_radius": self.splat_radius,
-            "direction_base": 0,
-            **overrides,
-        }
-        set_uniforms(program, values)
-
-    def _sample_points(self, directions: DirectionSet) -> None:
-        shader = self.gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler])
-        self._uniforms(
-            shader,
-            triangle_count=self.gpu_scene.triangle_count,
-            seed=directions.seed & 0xFFFFFFFF,
-            frame=directions.frame & 0xFFFFFFFF,
-        )
-        self.gl.dispatch(shader, self.K * self.N)
-
-    def _raster(self, null_fragment: bool) -> tuple:
-        """The raster program of the linked-list pass (or of the raw-raster baseline: an empty
-        fragment shader) and its vertex array, made on first use. The first use also draws one
-        triangle with nothing to write to, so the driver compiles the shader variant here and not
-        inside the first timed pass (llvmpipe's first timer query around a compiling draw reports an
-        invalid 2^32 - 1 ns)."""
-        variant = {"NULL_FRAGMENT": True} if null_fragment else {}
-        program = self.gl.program(f"{self.method}_bundles", **variant)
-        if null_fragment not in self.vertex_arrays:
-            vao = (
-                self.gpu_scene.vertex_array(program) if self.method == "perfect" else self.gl.vertex_array(program, [])
-            )
-            self.vertex_arrays[null_fragment] = vao
-            self.bind()
-            self._uniforms(program, capacity=0)
-            self.gl.draw(vao, moderngl.TRIANGLES, self._atlas_framebuffer(), depth_test=False, vertices=3, instances=1)
-            self.gl.finish()
-        return program, self.vertex_arrays[null_fragment]
-
-    def _atlas_framebuffer(self):
-        if self.framebuffer is None:  # the compute splatter's raw-raster baseline
-            self.framebuffer = self.gl.empty_framebuffer(self.atlas_size)
-        return self.framebuffer
-
-    def _draw_lists(self, null_fragment: bool) -> None:
-        """Every direction's nodes, appended to the pixel lists: one draw per atlas."""
-        program, vao = self._raster(null_fragment)
-        self.buffers["HEADS"].clear(chunk=b"\xff\xff\xff\xff")
-        for base in range(0, self.K, self.directions_per_draw):
-            count = min(self.directions_per_draw, self.K - base)
-            self._uniforms(program, direction_base=base)
-            if self.method == "perfect":
-                self.gl.draw(vao, moderngl.TRIANGLES, self._atlas_framebuffer(), depth_test=False, instances=count)
-            else:
-                self.gl.draw(
-                    vao,
-                    moderngl.TRIANGLES,
-                    self._atlas_framebuffer(),
-                    depth_test=False,
-                    vertices=3 * self.N * count,
-                    first=3 * self.N * base,
-                )
-
-    def _linked_lists(self, timer: PassTimer) -> tuple[int, int]:
-        """The raster pass into linked lists, run again with buffers that fit until every node has
-        a slot. Returns the re-runs and the node count."""
-        # Size the buffers from the last frame's count: a first guess far too large (a scene of
-        # thin walls has less depth complexity than its bounds suggest) is given back.
-        last = self.stats.get("raw_nodes")
-        if last is not None and self.capacity > 2 * CAPACITY_SLACK * last:
-            self._grow_linked(int(last * CAPACITY_SLACK) + 1)
-            self.bind()
-        reruns = 0
-        while True:
-            self.buffers["COUNTERS"].clear()
-            with timer.measure("lists"):
-                self._draw_lists(null_fragment=False)
-            nodes = int(np.frombuffer(self.buffers["COUNTERS"].read(4), dtype=np.uint32)[0])
-            if nodes <= self.capacity:
-                return reruns, nodes
-            self._check_budget(self.fixed_bytes + nodes * LINKED_NODE_BYTES, f"{nodes:,} nodes in linked lists")
-            self._grow_linked(max(nodes, int(nodes * CAPACITY_SLACK)))
-            self.bind()
-            reruns += 1
-
-    def _splat_lists(self) -> int:
-        """The compute splatter: count, exact allocation, scatter. Returns the raw node count."""
-        gl = self.gl
-        count = gl.program("splat_lists", **self.count_variant)
-        self._uniforms(count, nearest_only=self.merge)
-        gl.dispatch(count, self.K * self.N)
-        raw = self._scan_lists()
-        # Every list's end (its next list's offset) as the scatter's cursor, counting down.
-        self.gl.copy_buffer(
-            self.buffers["LIST_COUNTS"], self.buffers["LIST_OFFSETS"], 4 * self.list_count, read_offset=4
-        )
-        self.bind()
-        scatter = gl.program("splat_lists", SCATTER_SPLATS=True)
-        self._uniforms(scatter, nearest_only=self.merge)
-        gl.dispatch(scatter, self.K * self.N)
-        return raw
 
     def _scan_lists(self) -> int:
         """The lists' slot ranges: LIST_OFFSETS, the exclusive prefix sum of the per-list counts
@@ -459,23 +252,11 @@ class BundleTracer:
         self.gl.copy_buffer(offsets, self.buffers["LIST_COUNTS"], 4 * (self.list_count + 1))
         self._prefix_sum(offsets, self.list_count + 1, level=0)
         total = int(np.frombuffer(offsets.read(4, offset=4 * self.list_count), dtype=np.uint32)[0])
-        what = "nodes" if self.method == "perfect" else "splat nodes before merging"
-        self._grow(("NODES",), NODE_BYTES, total + SLACK_NODES, what)
+        # shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size,
+        # past the list's end: the node buffer keeps that many slots beyond the last list.
+        self._grow(("NODES",), NODE.itemsize, total + SORT_NETWORK, self.raw_nodes_are)
         self.bind()
         return total
-
-    def _resolve(self) -> None:
-        """The build's lists sorted (and merged) into their slot ranges (shaders/resolve_lists.glsl)."""
-        gl = self.gl
-        if self.linked:  # list lengths, into the slot ranges the lists sort (perfect) or merge (raster splats) into
-            gl.dispatch(gl.program("resolve_lists", COUNT_LISTS=True), self.list_count)
-            self._scan_lists()
-        if self.method == "perfect":
-            gl.dispatch(gl.program("resolve_lists", SORT_LISTS=True), self.list_count)
-            return
-        merge = gl.program("resolve_lists", MERGE_LISTS=True, **({"FROM_LINKED_LISTS": True} if self.linked else {}))
-        merge["merge_tolerance"] = self.merge_tolerance
-        gl.dispatch(merge, self.list_count)
 
     def _prefix_sum(self, values, count: int, level: int) -> None:
         """Exclusive prefix sum of ``count`` uints of ``values`` in place (shaders/prefix_sum.glsl)."""
@@ -500,18 +281,6 @@ class BundleTracer:
             add["count"] = count
             gl.dispatch(add, count)
 
-    def raw_raster(self, directions: DirectionSet) -> float:
-        """The raw-raster baseline: this build's raster geometry (triangles, or the last build's
-        splats) drawn with an empty fragment shader. Returns its GPU time in ms
-        (benchmarks/bundles.py)."""
-        self.buffers["FRAMES"].write(_frames(directions).tobytes())
-        self._ensure("HEADS", 4 * self.list_count)
-        self.bind()
-        timer = PassTimer(self.gl)
-        with timer.measure("raw"):
-            self._draw_lists(null_fragment=True)
-        return timer.milliseconds()["raw"]
-
     # -- readback ------------------------------------------------------------------------
 
     def node_refs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -525,16 +294,13 @@ class BundleTracer:
         counts = np.frombuffer(b["LIST_COUNTS"].read(4 * L), dtype=np.uint32).astype(np.int64)
         offsets = np.concatenate([[0], np.cumsum(counts)])
         slots = np.repeat(first - offsets[:-1], counts) + np.arange(offsets[-1])
-        keys = np.frombuffer(b["NODES"].read(8 * (int(first[-1] + counts[-1]) if L else 0)), dtype=np.uint32).reshape(
-            -1, 2
-        )[slots]
+        used = int(first[-1] + counts[-1]) if L else 0
+        keys = np.frombuffer(b["NODES"].read(NODE.itemsize * used), dtype=np.uint32).reshape(-1, 2)[slots]
         return offsets, order_bits_depth(keys[:, 1]), keys[:, 0] & ~FACING_BIT, slots
 
-    def read_points(self) -> np.ndarray:
-        """The last build's splat points (K N,) as `SPLAT_POINT` records."""
-        return np.frombuffer(
-            self.buffers["POINTS"].read(SPLAT_POINT.itemsize * self.K * self.N), dtype=SPLAT_POINT
-        ).copy()
+    def params(self) -> dict:
+        """The method's own settings, as the read-back's provenance records them."""
+        return {}
 
     def read(self) -> BundleSet:
         """The last build as a `BundleSet` (host memory): the nodes with the attributes an eye path
@@ -558,22 +324,15 @@ class BundleTracer:
         emission = np.array([m.emission for m in materials], dtype=np.float32).reshape(-1, 3)[material]
         albedo = np.ascontiguousarray(words[:, 1:3]).view(np.float16)[:, :3].astype(np.float32)
         ds = self.directions
+        method = self.settings.method
         params = {
-            **bundle_params(self.gpu_scene.scene, self.method, ds, self.R),
+            **bundle_params(self.gpu_scene.scene, method, ds, self.R),
             "node_budget": self.node_budget,
             "gl": self.gl.info,
+            **self.params(),
         }
-        if self.method == "imperfect":
-            params.update(
-                points=self.N,
-                splat_scale=self.splat_scale,
-                splat_radius=self.splat_radius,
-                sampler=self.sampler,
-                splatter=self.splatter,
-                merged=self.merge,
-            )
         return BundleSet(
-            method=self.method,
+            method=method,
             directions=ds,
             centre=self.gpu_scene.centre.copy(),
             radius=self.gpu_scene.radius,
@@ -591,31 +350,155 @@ class BundleTracer:
 
     def release(self) -> None:
         """Free every GL object this tracer made (not the scene upload: its maker owns that)."""
-        objects = [*self.buffers.values(), *self._scan_sums, *self.vertex_arrays.values()]
-        for obj in objects + ([self.framebuffer] if self.framebuffer is not None else []):
+        for obj in [*self.buffers.values(), *self._scan_sums]:
             obj.release()
         self.buffers.clear()
         self._scan_sums.clear()
-        self.vertex_arrays.clear()
-        self.framebuffer = None
 
-    def __enter__(self) -> "BundleTracer":
+    def __enter__(self) -> BundleTracer:
         return self
 
     def __exit__(self, *exc) -> None:
         self.release()
 
 
-def trace_bundles(gl: GLContext, scene, directions: DirectionSet, method: str = "perfect", **tracer_args) -> BundleSet:
-    """The bundles of one `DirectionSet`, made once: ``scene`` (a `Scene`) uploaded, its bundles
-    built and read back, and every GL object released. ``tracer_args`` go to `BundleTracer`; the
-    build's statistics are in the result's ``stats``."""
-    with (
-        GpuScene(gl, scene) as gpu_scene,
-        BundleTracer(gl, gpu_scene, method, directions=directions.count, **tracer_args) as tracer,
-    ):
-        tracer.build(directions)
-        return tracer.read()
+class LinkedListTracer(BundleTracer):
+    """A builder whose raster pass appends every node to its pixel's linked list (perfect bundles,
+    the poster's raster splats): one draw per atlas of R x R tiles, and past the buffer's capacity
+    the pass runs again with a buffer that fits. Then list lengths, a prefix sum into exact-size
+    slot ranges, and the method's sort or merge of each list into its range.
+    """
+
+    raster_program: ClassVar[str]  # shaders/<raster_program>.glsl draws the nodes
+
+    def __init__(self, gl: GLContext, gpu_scene: GpuScene, settings: RenderSettings, **hooks):
+        super().__init__(gl, gpu_scene, settings, **hooks)
+        self.capacity = 0  # nodes the linked lists hold (their buffers are made below)
+        self._layout(self.max_atlas_size)
+        self.framebuffer = gl.empty_framebuffer(self.atlas_size)
+        self.vertex_arrays: dict = {}  # by NULL_FRAGMENT: the node pass's and the raw-raster baseline's
+
+    def _make_lists(self) -> None:
+        """The linked-list buffers at their first size and the raster pass compiled; the builders
+        call it once their own buffers exist (the first guess leaves room for them)."""
+        self._ensure("HEADS", 4 * self.list_count)
+        self._grow_linked(self.initial_capacity if self.initial_capacity is not None else self.predicted_nodes())
+        self._raster(null_fragment=False)
+
+    def _layout(self, max_atlas_size: int | None) -> None:
+        """The atlas: as square as possible, split into several draws only past the GL limit."""
+        max_dim = min(self.gl.limit("GL_MAX_VIEWPORT_DIMS"))
+        max_dim = min(max_dim, max_atlas_size or max_dim)
+        tiles = max_dim // self.R
+        if tiles < 1:
+            raise ValueError(f"bundle resolution {self.R} exceeds the GL viewport limit {max_dim}")
+        self.tiles_per_row = min(math.ceil(math.sqrt(self.K)), tiles)
+        rows = min(math.ceil(self.K / self.tiles_per_row), tiles)
+        self.directions_per_draw = self.tiles_per_row * rows
+        self.atlas_size = (self.tiles_per_row * self.R, rows * self.R)
+
+    def predicted_nodes(self, overlap: float = 1.0) -> int:
+        """A first guess of the linked lists' size, from the scene's depth complexity (the mean
+        number of surfaces a line through the bounding sphere crosses) and ``overlap``, the mean
+        number of nodes one surface crossing makes."""
+        lines = self.list_count * math.pi / 4  # the lines that meet the sphere
+        return int(lines * self.gpu_scene.features.depth_complexity * overlap * 1.25) + 1024
+
+    @property
+    def fixed_bytes(self) -> int:
+        return super().fixed_bytes + 4 * self.list_count  # the list heads
+
+    def uniforms(self) -> dict:
+        values = {"tiles_per_row": self.tiles_per_row, "atlas_size": self.atlas_size, "capacity": self.capacity}
+        return {**super().uniforms(), **values}
+
+    def _grow_linked(self, nodes: int) -> None:
+        """Linked-list buffers for ``nodes`` nodes (a guess, or a measured count)."""
+        nodes = max(1, nodes)
+        budget_nodes = max(1, (self.node_budget - self.fixed_bytes) // LINKED_NODE_BYTES)
+        self.capacity = min(nodes, budget_nodes, self.gl.max_storage_bytes // 4)
+        for name in ("NEXT", "LIST_DEPTH", "LIST_REF"):
+            if name in self.buffers and self.buffers[name].size != 4 * self.capacity:
+                self.buffers.pop(name).release()
+            self._ensure(name, 4 * self.capacity)
+
+    def vertex_array(self, program):
+        """The raster pass's vertex array for ``program``."""
+        raise NotImplementedError
+
+    def draw(self, vao, base: int, count: int) -> None:
+        """Draw directions base .. base + count - 1 into the atlas."""
+        raise NotImplementedError
+
+    def _raster(self, null_fragment: bool) -> tuple:
+        """The raster program of the linked-list pass (or of the raw-raster baseline: an empty
+        fragment shader) and its vertex array, made on first use. The first use also draws one
+        triangle with nothing to write to, so the driver compiles the shader variant here and not
+        inside the first timed pass (llvmpipe's first timer query around a compiling draw reports an
+        invalid 2^32 - 1 ns)."""
+        variant = {"NULL_FRAGMENT": True} if null_fragment else {}
+        program = self.gl.program(self.raster_program, **variant)
+        if null_fragment not in self.vertex_arrays:
+            vao = self.vertex_arrays[null_fragment] = self.vertex_array(program)
+            self.bind()
+            self._uniforms(program, capacity=0)
+            self.gl.draw(vao, moderngl.TRIANGLES, self.framebuffer, depth_test=False, vertices=3, instances=1)
+            self.gl.finish()
+        return program, self.vertex_arrays[null_fragment]
+
+    def _draw_lists(self, null_fragment: bool) -> None:
+        """Every direction's nodes, appended to the pixel lists: one draw per atlas."""
+        program, vao = self._raster(null_fragment)
+        self.buffers["HEADS"].clear(chunk=b"\xff\xff\xff\xff")
+        for base in range(0, self.K, self.directions_per_draw):
+            self._uniforms(program, direction_base=base)
+            self.draw(vao, base, min(self.directions_per_draw, self.K - base))
+
+    def linked_lists(self, timer: PassTimer) -> tuple[int, int]:
+        """The raster pass into linked lists, run again with buffers that fit until every node has
+        a slot. Returns the re-runs and the node count."""
+        # Size the buffers from the last frame's count: a first guess far too large (a scene of
+        # thin walls has less depth complexity than its bounds suggest) is given back.
+        last = self.stats.get("raw_nodes")
+        if last is not None and self.capacity > 2 * CAPACITY_SLACK * last:
+            self._grow_linked(int(last * CAPACITY_SLACK) + 1)
+            self.bind()
+        reruns = 0
+        while True:
+            self.buffers["COUNTERS"].clear()
+            with timer.measure("lists"):
+                self._draw_lists(null_fragment=False)
+            nodes = int(np.frombuffer(self.buffers["COUNTERS"].read(4), dtype=np.uint32)[0])
+            if nodes <= self.capacity:
+                return reruns, nodes
+            self._check_budget(self.fixed_bytes + nodes * LINKED_NODE_BYTES, f"{nodes:,} nodes in linked lists")
+            self._grow_linked(max(nodes, int(nodes * CAPACITY_SLACK)))
+            self.bind()
+            reruns += 1
+
+    def count_lists(self) -> None:
+        """List lengths into LIST_COUNTS, and the slot ranges they sort or merge into."""
+        self.gl.dispatch(self.gl.program("resolve_lists", COUNT_LISTS=True), self.list_count)
+        self._scan_lists()
+
+    def raw_raster(self, directions: DirectionSet) -> float:
+        """The raw-raster baseline: this build's raster geometry drawn with an empty fragment
+        shader. Returns its GPU time in ms (benchmarks/bundles.py)."""
+        self.buffers["FRAMES"].write(_frames(directions).tobytes())
+        self.bind()
+        timer = PassTimer(self.gl)
+        with timer.measure("raw"):
+            self._draw_lists(null_fragment=True)
+        return timer.milliseconds()["raw"]
+
+    def release(self) -> None:
+        for vao in self.vertex_arrays.values():
+            vao.release()
+        self.vertex_arrays.clear()
+        if self.framebuffer is not None:
+            self.framebuffer.release()
+            self.framebuffer = None
+        super().release()
 
 
 def _frames(directions: DirectionSet) -> np.ndarray:

@@ -10,70 +10,16 @@ index, from the ``device_index`` argument or the ``EVALKIT_GL_DEVICE`` variable 
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import re
-import time
-from contextlib import contextmanager
-from pathlib import Path
 
 import moderngl
 
 from evalkit.core.errors import InputError
-from gpu_impl.layout import BINDINGS, METHODS, SAMPLERS, SHADER_CONSTANTS, glsl_literal
+from gpu_impl.layout import LOCAL_SIZE, MAX_GROUPS
+from gpu_impl.shader_source import COMPILED, program_sources, variant_key
 
 GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
-SHADER_DIR = Path(__file__).parent / "shaders"
-STAGES = {"VERTEX_SHADER": "vertex_shader", "FRAGMENT_SHADER": "fragment_shader", "COMPUTE_SHADER": "compute_shader"}
-
-# Every program in shaders/ with each set of defines the code compiles it with (tests compile them all).
-SHADER_VARIANTS = {
-    "perfect_bundles": [{}, {"NULL_FRAGMENT": True}],
-    "imperfect_bundles": [{}, {"NULL_FRAGMENT": True}],
-    "splat_points": [{"SAMPLER": sampler} for sampler in SAMPLERS.values()],
-    "splat_lists": [{"COUNT_SPLATS": True}, {"COUNT_SPLATS": True, "COUNT_COVERED": True}, {"SCATTER_SPLATS": True}],
-    "resolve_lists": [
-        {"COUNT_LISTS": True},
-        {"SORT_LISTS": True},
-        {"MERGE_LISTS": True},
-        {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True},
-    ],
-    "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],
-    "expand_nodes": [{"BUNDLE_METHOD": method, "TEXTURES": method} for method in METHODS.values()],
-    "gbuffer": [{}],
-    "shadow_maps": [{}],
-    "irradiance": [
-        {"SHADOW_LIGHTS": 1, "NODE_SIDES": sides, "TEXTURES": sides - 1, "BUNDLE_METHOD": method}
-        for sides in (1, 2)
-        for method in METHODS.values()
-    ],
-    "primary": [
-        {"SHADOW_LIGHTS": lights, "ENVIRONMENT": env, "TEXTURES": t}
-        for lights, env, t in ((0, 0, 0), (1, 1, 1), (0, 2, 1))
-    ],
-    "eye_paths": [
-        {
-            "SHADOW_LIGHTS": lights,
-            "LAZY_LIGHTING": lazy,
-            "ENVIRONMENT": env,
-            "NODE_SIDES": sides,
-            "TEXTURES": t,
-            "BUNDLE_METHOD": method,
-        }
-        for lights, lazy, env, sides, t, method in (
-            (0, 0, 0, 1, 0, 0),
-            (1, 0, 1, 2, 1, 1),
-            (1, 1, 2, 1, 1, 0),
-            (1, 1, 2, 2, 1, 1),
-        )
-    ],
-    "resolve_images": [{}],
-    "record_strides": [{"RECORD_GROUP": group} for group in (0, 1, 2)],
-}
-# The workgroup size of every 1-D compute pass, and the most workgroups along one dispatch axis.
-LOCAL_SIZE = 256
-MAX_GROUPS = 65535
 
 
 def _default_raster_threads() -> int:
@@ -106,10 +52,6 @@ class GLContext:
                 f"EGL device {device_index}", f"no OpenGL 4.5 context ({e}); `evalkit doctor` says what to install"
             ) from None
         self._programs: dict = {}
-        for path in SHADER_DIR.glob("*.glsl"):
-            text = path.read_text()
-            if not is_program(text):
-                self.ctx.includes[path.name] = text
 
     @property
     def is_llvmpipe(self) -> bool:
@@ -125,17 +67,14 @@ class GLContext:
     def program(self, name: str, **defines):
         """The program in ``shaders/<name>.glsl`` (its stages selected by ``#if defined
         VERTEX_SHADER`` guards), compiled once per set of ``defines`` and cached."""
-        key = (name, tuple(sorted(defines.items())))
+        key = variant_key(name, defines)
         if key not in self._programs:
-            text = (SHADER_DIR / f"{name}.glsl").read_text()
-            stages = shader_stages(text)
-            if not is_program(text) or not stages:
-                raise ValueError(f"shaders/{name}.glsl has no main() under a stage guard; it is an include")
-            sources = {STAGES[s]: _with_header(text, s, defines) for s in stages}
+            sources = program_sources(name, defines)
             if "compute_shader" in sources:
                 self._programs[key] = self.ctx.compute_shader(sources["compute_shader"])
             else:
                 self._programs[key] = self.ctx.program(**sources)
+            COMPILED.add(key)
         return self._programs[key]
 
     def dispatch(self, shader, invocations: int) -> None:
@@ -219,75 +158,20 @@ class GLContext:
         self.release()
 
 
+_DEFAULT: GLContext | None = None
+
+
+def default_context() -> GLContext:
+    """The process's context, made at its first use (making one is slow) and kept: what the
+    one-call API (`gpu_impl.api`) and studies render with when given none."""
+    global _DEFAULT
+    if _DEFAULT is None:
+        _DEFAULT = GLContext()
+    return _DEFAULT
+
+
 def set_uniforms(program, values: dict) -> None:
     """Set each uniform ``program`` has; those a shader variant compiled away are skipped."""
     for name, value in values.items():
         if name in program:
             program[name] = value
-
-
-def is_program(text: str) -> bool:
-    """Program files define main(); the others are includes (``#include "common.glsl"``)."""
-    return re.search(r"^\s*void\s+main\s*\(", text, re.M) is not None
-
-
-def shader_stages(text: str) -> list[str]:
-    """The stages a .glsl file defines, from its ``#if defined X_SHADER`` guards."""
-    return [s for s in STAGES if re.search(rf"^\s*#\s*(el)?if\s+defined\s*\(?\s*{s}\b", text, re.M)]
-
-
-def _with_header(text: str, stage: str, defines: dict) -> str:
-    lines = ["#version 450 core", f"#define {stage}", f"#define LOCAL_SIZE {LOCAL_SIZE}"]
-    lines += [f"#define BINDING_{name} {index}" for name, index in BINDINGS.items()]
-    lines += [f"#define {name} {glsl_literal(value)}" for name, value in SHADER_CONSTANTS.items()]
-    lines += [f"#define {k} {int(v) if isinstance(v, bool) else v}" for k, v in sorted(defines.items())]
-    return "\n".join(lines) + "\n#line 1\n" + text
-
-
-INVALID_QUERY = 2**32 - 1  # moderngl reads 32-bit results: a failed or saturated time query
-
-
-class PassTimer:
-    """GPU time per named pass, read once at the end so timing adds no round-trip between passes.
-
-    On a GPU it uses GL timer queries. llvmpipe's timer queries do not cover compute dispatches (a
-    13 s dispatch measured 1 ns), so there each pass ends in glFinish and is timed on the host:
-    on a CPU rasterizer that is the rasterizer's own time.
-    """
-
-    def __init__(self, gl: GLContext):
-        self.ctx = gl.ctx
-        self.host_timing = gl.is_llvmpipe
-        self.queries: list[tuple[str, object]] = []
-
-    @contextmanager
-    def measure(self, name: str):
-        if self.host_timing:
-            self.ctx.finish()
-            start = time.perf_counter()
-            yield
-            self.ctx.finish()
-            self.queries.append((name, (time.perf_counter() - start) * 1e9))
-            return
-        query = self.ctx.query(time=True)
-        with query:
-            yield
-        self.queries.append((name, query))
-
-    def milliseconds(self) -> dict[str, float | None]:
-        """Per pass name, the summed time; None where the driver gave no valid time."""
-        out: dict[str, float | None] = {}
-        for name, query in self.queries:
-            ns = query if isinstance(query, float) else query.elapsed
-            valid = ns != INVALID_QUERY and out.get(name, 0.0) is not None
-            out[name] = out.get(name, 0.0) + ns / 1e6 if valid else None
-        return out
-
-    @property
-    def method(self) -> str:
-        return "host time around glFinish (llvmpipe)" if self.host_timing else "GL timer queries"
-
-
-if __name__ == "__main__":  # the probe `evalkit doctor` runs in a child process
-    with GLContext() as gl:
-        print(json.dumps(gl.info))

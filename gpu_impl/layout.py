@@ -1,16 +1,26 @@
 """The one table of what the shaders and the Python side share: storage-buffer bindings, bit
-flags, enumerations, and the records they exchange.
+flags, enumerations, block sizes, and the records they exchange or size.
 
 `GLContext` writes every entry of `BINDINGS` (as ``BINDING_<name>``) and `SHADER_CONSTANTS` as a
 ``#define`` at the top of every shader, so a value is written down once, here. Records that Python
-builds are numpy structured dtypes laid out as std430 lays out the GLSL struct of the same name;
-tests/test_gl_context.py checks each stride against the shaders' own (``array.length()`` of a
-buffer of known size).
+builds or sizes buffers by are numpy dtypes laid out as std430 lays out the GLSL type of the same
+buffer; tests/test_gl_context.py checks each stride against the shaders' own (``array.length()``
+of a buffer of known size).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+# The workgroup size of every 1-D compute pass, and the most workgroups along one dispatch axis.
+LOCAL_SIZE = 256
+MAX_GROUPS = 65535
+# Values each invocation of the prefix sum scans (shaders/prefix_sum.glsl).
+SCAN_PER_THREAD = np.uint32(16)
+# Lists up to this long are sorted in registers by a sorting network written out for it
+# (shaders/resolve_lists.glsl); it reads that many slots of a short list, past the list's end, so
+# the node buffer keeps that many slots beyond the last list.
+SORT_NETWORK = 32
 
 # Storage-buffer binding points.
 BINDINGS = {
@@ -63,8 +73,12 @@ TRIANGLE_MATERIAL = np.uint32(0x7FFFFFFF)  # Triangle.material_flags: the materi
 # estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its normal.
 LIGHT_KINDS = {"point": 0.0, "spot": 1.0, "directional": 2.0, "emitter_sample": 3.0}
 ENVIRONMENT_KINDS = {None: 0, "constant": 1, "envmap": 2}  # the ENVIRONMENT define
-# How a node's reference is read (bundle.glsl): a triangle (perfect bundles) or a splat point.
-METHODS = {"perfect": 0, "imperfect": 1}
+# How a node's reference is read (bundle.glsl, NODE_REFERENCE): a triangle or a splat point. Each
+# bundle method's tracer says which of them its nodes hold.
+NODE_TRIANGLE, NODE_SPLAT_POINT = 0, 1
+# How light vertices' shadow maps are looked up (LIGHT_VISIBILITY, shaders/lights.glsl): each light
+# visibility unit's value.
+LIGHT_VISIBILITY_EXACT = 0
 # How imperfect bundles' points are drawn (splat_points.glsl).
 SAMPLERS = {"random": 0, "stratified": 1}
 # The build counters (bundle_build.glsl): nodes appended to linked lists (including any past the
@@ -92,7 +106,12 @@ SHADER_CONSTANTS = {
         f"ENVIRONMENT_{'NONE' if kind is None else ('MAP' if kind == 'envmap' else kind.upper())}": value
         for kind, value in ENVIRONMENT_KINDS.items()
     },
-    **{f"METHOD_{name.upper()}": value for name, value in METHODS.items()},
+    "NODE_TRIANGLE": NODE_TRIANGLE,
+    "NODE_SPLAT_POINT": NODE_SPLAT_POINT,
+    "LIGHT_VISIBILITY_EXACT": LIGHT_VISIBILITY_EXACT,
+    "LOCAL_SIZE": LOCAL_SIZE,
+    "SCAN_PER_THREAD": SCAN_PER_THREAD,
+    "SORT_NETWORK": SORT_NETWORK,
     **{f"SAMPLER_{name.upper()}": value for name, value in SAMPLERS.items()},
     **{f"COUNTER_{name}": value for name, value in COUNTERS.items()},
 }
@@ -120,6 +139,17 @@ PATH = np.dtype(
     ]
 )  # paths.glsl: Path
 PATH_SUMS = np.dtype([("direct", "<f4", 4), ("indirect", "<f4", 4)])  # paths.glsl: PathSums
+# A resolved node: one 64-bit key, depth and reference (bundle_build.glsl: nodes).
+NODE = np.dtype("<u8")
+# A node while linked lists are built: its link, depth and reference, one array each (bundle_build.glsl).
+LINKED_NODE = {
+    "NodeNext": (np.dtype("<u4"), "NEXT"),
+    "NodeDepth": (np.dtype("<f4"), "LIST_DEPTH"),
+    "NodeRef": (np.dtype("<u4"), "LIST_REF"),
+}
+LINKED_NODE_BYTES = sum(dtype.itemsize for dtype, _ in LINKED_NODE.values())
+# The compute splatter's record of the lines a splat covers (bundle_build.glsl: splat_lines).
+SPLAT_LINES = np.dtype(("<u4", 4))
 
 # Record name -> (dtype, the binding of its array): what tests/test_gl_context.py checks.
 RECORDS = {
@@ -132,6 +162,9 @@ RECORDS = {
     "ShadowView": (SHADOW_VIEW, "SHADOW_VIEWS"),
     "Path": (PATH, "PATHS"),
     "PathSums": (PATH_SUMS, "PATH_SUMS"),
+    "Node": (NODE, "NODES"),
+    **LINKED_NODE,
+    "SplatLines": (SPLAT_LINES, "SPLAT_LINES"),
 }
 
 

@@ -1,41 +1,56 @@
 """Shadow-mapped lights and the environment on the GPU (shaders/lights.glsl, shadow_maps.glsl).
 
-Point, spot and directional lights get shadow maps in one atlas: a directional light one
-orthographic view fitted to the bounding sphere, a spot light one perspective view over its cone
-(six when the cone is wider than a cube face), a point light six cube faces. Each cube face is
-widened by two texels so that filtering near a face's edge reads rendered texels.
+Point, spot and directional lights (the fixed lights) get shadow maps in one atlas: a directional
+light one orthographic view fitted to the bounding sphere, a spot light one perspective view over
+its cone (six when the cone is wider than a cube face), a point light six cube faces. Each cube
+face is widened by two texels so that filtering near a face's edge reads rendered texels.
 
-Emissive triangles are lit by next-event estimation: each frame draws ``light_samples`` points on
-them (`EmitterSamples`), each a point light whose intensity falls as the cosine to the emitter's
-normal, with cube shadow maps of its own size (faces wholly behind the emitter are not drawn). The
-environment needs no shadow maps: the eye paths reach it.
+Light vertices are points that light the scene for one frame, each a point light whose intensity
+falls as the cosine to its surface's normal: the path strategy says which (the eye paths' emitter
+samples, `EmitterSamples`: next-event estimation of emissive triangles), and the light visibility
+unit makes their shadow maps (gpu_impl/visibility/). The environment needs no shadow maps: the
+paths reach it.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import moderngl
 import numpy as np
 
 from evalkit.core.scene.model import Light
+from evalkit.core.settings import RenderSettings
 from gpu_impl.context import GLContext, set_uniforms
 from gpu_impl.layout import BINDINGS, ENVIRONMENT_KINDS, LIGHT, LIGHT_KINDS, SHADOW_VIEW
 from gpu_impl.scene_buffers import GpuScene
 
 # A spot light whose cone half-angle is within this of 90 degrees cannot use one perspective view.
 MAX_SPOT_VIEW_DEGREES = 60.0
-CUBE_FACES = ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1))  # lights.glsl: shadow_view_of
+CUBE_FACES = (
+    (1, 0, 0),
+    (-1, 0, 0),
+    (0, 1, 0),
+    (0, -1, 0),
+    (0, 0, 1),
+    (0, 0, -1),
+)  # lights.glsl: shadow_view_of
 GUARD_TEXELS = 2
-# Next-event estimation's defaults (RenderSettings.light_samples, light_sample_map_size). Measured on
-# cornell-box (B=3, K=32, R=128, 128x128, 32 frames x 16 paths): indirect relMSE 0.0017 for M = 4,
-# 8 and 16 alike, at 345, 430 and 680 ms a frame; direct relMSE 0.0003 at M=4, 0.0002 from 8 on.
-# Maps of 128 and 256 texels gave the same errors there; 256 keeps contact shadows of larger scenes.
-DEFAULT_LIGHT_SAMPLES = 8
-DEFAULT_LIGHT_SAMPLE_MAP_SIZE = 256
-# An emitter sample sits this far (times the bounding radius) in front of its triangle, so that its
-# own surface lies behind it and its shadow views leave that surface out (shaders/shadow_maps.glsl).
-EMITTER_OFFSET = 1e-5
+# A light vertex sits this far (times the bounding radius) in front of its surface, so that the
+# surface lies behind it and its shadow views leave that surface out (shaders/shadow_maps.glsl).
+LIGHT_VERTEX_OFFSET = 1e-5
+
+
+class LightVertices(NamedTuple):
+    """A frame's light vertices, in scene space: positions and unit surface normals (M, 3), the
+    intensity each sends along its normal (M, 3; it falls as the cosine away from it), and the
+    density of having drawn each, M p(y) (M,), which multiple importance sampling needs."""
+
+    positions: np.ndarray
+    normals: np.ndarray
+    intensities: np.ndarray
+    densities: np.ndarray
 
 
 class EmitterSamples:
@@ -45,8 +60,8 @@ class EmitterSamples:
     the mean of the emitted radiance's channels and W = sum(w A) over the emissive triangles (by
     emitted power), stratified over that power: sample i takes the power quantile (i + u_i) / M.
     Light from y reaches x as L_e cos_y cos_x / |x - y|^2 V(x, y), so the estimate over M samples is
-    a sum of point lights of intensity L_e cos_y / (M p(y)): `frame_lights` gives their positions,
-    normals and that intensity (per unit cos_y), all in scene space.
+    a sum of point lights of intensity L_e cos_y / (M p(y)): `frame_lights` gives them as the
+    frame's `LightVertices`.
     """
 
     def __init__(self, scene, count: int):
@@ -69,7 +84,10 @@ class EmitterSamples:
         )
         self.radiance = np.concatenate(
             [
-                np.broadcast_to(np.asarray(scene.materials[m.material].emission, dtype=np.float64), (len(m.faces), 3))
+                np.broadcast_to(
+                    np.asarray(scene.materials[m.material].emission, dtype=np.float64),
+                    (len(m.faces), 3),
+                )
                 for m in emitters
             ]
         )
@@ -83,7 +101,7 @@ class EmitterSamples:
         """M / W: M p(y) = density_scale w(y), what the eye paths' MIS weights need (eye_paths.glsl)."""
         return self.count / self.total
 
-    def frame_lights(self, seed: int, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def frame_lights(self, seed: int, frame: int) -> LightVertices:
         """This frame's samples: positions, unit normals and intensities per unit cos, (M, 3) each,
         and the densities M p(y), (M,)."""
         rng = np.random.default_rng([seed, frame, 2])
@@ -99,7 +117,7 @@ class EmitterSamples:
             normals = np.einsum("mk,mkj->mj", b, self.corner_normals[t])
             normals /= np.linalg.norm(normals, axis=1, keepdims=True)
         densities = self.density_scale * self.weights[t]
-        return positions, normals, self.radiance[t] / densities[:, None], densities
+        return LightVertices(positions, normals, self.radiance[t] / densities[:, None], densities)
 
 
 def _face_normals(triangles: np.ndarray) -> np.ndarray:
@@ -126,12 +144,24 @@ def pack_tiles(sizes: list[int], max_side: int) -> tuple[list[tuple[int, int]], 
     return corners, size
 
 
-def _faces_front(face: tuple, normal: np.ndarray) -> bool:
-    """Whether any direction of the cube face around axis ``face`` leaves the front of a surface with
-    this normal: the others are never looked up. A face spans tan 45 degrees widened by the guard
-    texels, at most 1 + 2 GUARD_TEXELS / 8 for the smallest map."""
-    a = np.asarray(face, dtype=np.float64)
-    return float(a @ normal) + float(np.abs(normal).sum() - abs(a @ normal)) * (1.0 + 2.0 * GUARD_TEXELS / 8) > 0.0
+def cube_views(position: np.ndarray, far: float, size: int, axis: np.ndarray | None = None) -> list:
+    """The six views of a cube map at ``position`` (relative to the bundle centre), in the order of
+    `CUBE_FACES`, each widened by `GUARD_TEXELS`; ``axis``: the surface normal of a light vertex
+    (shaders/shadow_maps.glsl keeps only what lies in front of it), else none."""
+    near = max(far * 1e-5, 1e-30)
+    tan_half = 1.0 + 2.0 * GUARD_TEXELS / size
+    axis = np.zeros(3) if axis is None else axis
+    return [
+        (
+            perspective(tan_half, near, far) @ look_at_view(position, np.array(face, dtype=np.float64)),
+            2.0 * tan_half / size,
+            position,
+            True,
+            axis,
+            far,
+        )
+        for face in CUBE_FACES
+    ]
 
 
 def look_at_view(eye: np.ndarray, forward: np.ndarray) -> np.ndarray:
@@ -165,63 +195,48 @@ def orthographic(half: float, near: float, far: float) -> np.ndarray:
 
 
 class ShadowLights:
-    """The scene's point, spot and directional lights and its emitter samples, with their shadow
-    atlas, and its environment.
+    """The scene's fixed lights (point, spot and directional) and the frame's light vertices, with
+    their shadow atlas, and the scene's environment.
 
-    Parameters: ``map_size`` texels per shadow view side; ``bias`` and ``slope_bias`` the depth
-    bias in texels (constant, and per unit tangent of the angle to the light); ``filter`` the PCF
-    kernel side in bilinear taps (1: one bilinear 2x2 lookup); ``light_samples`` the emitter
-    samples per frame (0: no next-event estimation, the paths find emitters by hitting them) and
-    ``sample_map_size`` their shadow views' side.
+    ``settings`` gives the fixed lights' maps (``shadow_map_size`` texels a side), the depth bias
+    in texels (``shadow_bias``, and ``shadow_slope_bias`` per unit tangent of the angle to the
+    light) and the PCF kernel (``shadow_filter`` bilinear taps a side; 1: one bilinear 2x2
+    lookup). ``visibility`` (a light visibility unit's maps, gpu_impl/visibility/) makes the light
+    vertices' shadow maps; ``light_vertices`` is how many there are each frame.
     """
 
     def __init__(
         self,
         gl: GLContext,
         gpu_scene: GpuScene,
-        map_size: int = 1024,
-        bias: float = 1.0,
-        slope_bias: float = 2.0,
-        filter: int = 1,
-        light_samples: int = 0,
-        sample_map_size: int = 256,
+        settings: RenderSettings,
+        visibility,
+        light_vertices: int,
     ):
-        if map_size < 8 or sample_map_size < 8 or filter < 1 or light_samples < 0:
-            raise ValueError(
-                f"need shadow map sizes >= 8, a filter >= 1 and light samples >= 0, got {map_size}, "
-                f"{sample_map_size}, {filter} and {light_samples}"
-            )
-        self.gl, self.gpu_scene = gl, gpu_scene
-        self.map_size, self.bias, self.slope_bias, self.filter = (
-            int(map_size),
-            float(bias),
-            float(slope_bias),
-            int(filter),
-        )
-        self.sample_map_size = int(sample_map_size)
+        self.gl, self.gpu_scene, self.visibility = gl, gpu_scene, visibility
+        self.map_size, self.filter = settings.shadow_map_size, settings.shadow_filter
+        self.bias, self.slope_bias = settings.shadow_bias, settings.shadow_slope_bias
         lights = [light for light in gpu_scene.scene.lights if light.kind in LIGHT_KINDS]
         environments = [light for light in gpu_scene.scene.lights if light.kind in ("constant", "envmap")]
         self.environment = environments[0] if environments else None
-        self.emitter_samples = (
-            EmitterSamples(gpu_scene.scene, light_samples) if gpu_scene.features.emitters and light_samples else None
-        )
-        samples = 0 if self.emitter_samples is None else self.emitter_samples.count
-        self.count = len(lights) + samples
+        self.light_vertices = light_vertices
+        self.count = len(lights) + light_vertices
         records, views = [], []
         for light in lights:
             first = len(views)
             views += self._views(light)
             records.append(self._record(light, first, len(views) - first))
-        # The emitter samples' lights and views (6 each, redrawn every frame) follow these.
+        # The light vertices' records and views (redrawn every frame) follow these.
         self.fixed_lights, self.fixed_views = len(records), len(views)
         self.buffers = {}
         self.atlas = self.framebuffer = None
         if self.count:
-            sizes = [self.map_size] * len(views) + [self.sample_map_size] * (6 * samples)
+            per_vertex = visibility.tiles_per_vertex
+            sizes = [self.map_size] * len(views) + [visibility.map_size] * (per_vertex * light_vertices)
             self.tiles, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"))
             self.view_records = np.zeros(len(sizes), dtype=SHADOW_VIEW)
             for i, view in enumerate(views):
-                self._set_view(i, view, self.map_size)
+                self.set_view(i, view, self.map_size)
             self.records = np.zeros(self.count, dtype=LIGHT)
             for i, record in enumerate(records):
                 self.records[i] = record
@@ -233,41 +248,42 @@ class ShadowLights:
             self.program = gl.program("shadow_maps")
             self.vao = gpu_scene.vertex_array(self.program)
 
-    def _set_view(self, i: int, view: tuple, size: int) -> None:
+    def set_view(self, i: int, view: tuple, size: int) -> None:
+        """Shadow view ``i`` of the atlas: (to_clip, texel size term, origin, perspective?, axis,
+        farthest distance), in a tile ``size`` texels a side."""
         to_clip, texel, origin, perspective_view, axis, far = view
         self.view_records["to_clip"][i] = to_clip.T  # GLSL matrices are column-major
         self.view_records["tile"][i] = (*self.tiles[i], size, texel)
         self.view_records["origin"][i] = (*origin, 1.0 if perspective_view else 0.0)
         self.view_records["axis"][i] = (*axis, 1.0 / far)
 
-    def sample_emitters(self, seed: int, frame: int) -> None:
-        """Draw this frame's emitter samples and render their shadow maps (nothing without them)."""
-        if self.emitter_samples is None:
-            return
-        if self.emitter_samples.scene is not self.gpu_scene.scene:  # posed since: the emitters may have moved
-            self.emitter_samples = EmitterSamples(self.gpu_scene.scene, self.emitter_samples.count)
-        positions, normals, intensities, densities = self.emitter_samples.frame_lights(seed, frame)
+    def set_light_vertices(self, vertices: LightVertices) -> None:
+        """This frame's light vertices: their records after the fixed lights', and their shadow
+        maps, which the light visibility makes."""
+        if len(vertices.positions) != self.light_vertices:
+            raise ValueError(f"{len(vertices.positions)} light vertices for {self.light_vertices} places")
         r = self.gpu_scene.radius
-        positions = positions - self.gpu_scene.centre + EMITTER_OFFSET * r * normals
-        drawn = []
-        for m, (position, normal, intensity, density) in enumerate(zip(positions, normals, intensities, densities)):
-            first = self.fixed_views + 6 * m
-            far = float(np.linalg.norm(position)) + r
-            # The emitter's normal as the views' axis: shaders/shadow_maps.glsl keeps only what is in front.
-            for f, view in enumerate(self._cube_views(position, far, self.sample_map_size, axis=normal)):
-                self._set_view(first + f, view, self.sample_map_size)
-                if _faces_front(CUBE_FACES[f], normal):
-                    drawn.append(first + f)
-            kind = LIGHT_KINDS["emitter_sample"]
-            self.records[self.fixed_lights + m] = (
+        positions = vertices.positions - self.gpu_scene.centre + LIGHT_VERTEX_OFFSET * r * vertices.normals
+        per_vertex, kind = (
+            self.visibility.tiles_per_vertex,
+            LIGHT_KINDS["emitter_sample"],
+        )
+        rows = zip(positions, vertices.normals, vertices.intensities, vertices.densities)
+        for m, (position, normal, intensity, density) in enumerate(rows):
+            first = self.fixed_views + per_vertex * m
+            record = (
                 (*position, kind),
                 (*normal, 0.0),
                 (*intensity, 0.0),
-                (density, 0.0, first, 6),
+                (density, 0.0, first, per_vertex),
             )
+            self.records[self.fixed_lights + m] = record
+        self.visibility.render(self, positions, vertices.normals)
+
+    def upload(self) -> None:
+        """The light records and the view table to the GPU."""
         self.buffers["LIGHTS"].write(self.records.tobytes())
         self.buffers["SHADOW_VIEWS"].write(self.view_records.tobytes())
-        self._draw(drawn, clear=True)
 
     # -- views ---------------------------------------------------------------------------
 
@@ -289,24 +305,7 @@ class ShadowLights:
                 position, np.asarray(light.direction, dtype=np.float64)
             )
             return [(to_clip, 2.0 * tan_half / s, position, True, np.zeros(3), far)]
-        return self._cube_views(position, far, s)
-
-    @staticmethod
-    def _cube_views(position: np.ndarray, far: float, size: int, axis: np.ndarray | None = None) -> list:
-        near = max(far * 1e-5, 1e-30)
-        tan_half = 1.0 + 2.0 * GUARD_TEXELS / size
-        axis = np.zeros(3) if axis is None else axis
-        return [
-            (
-                perspective(tan_half, near, far) @ look_at_view(position, np.array(face, dtype=np.float64)),
-                2.0 * tan_half / size,
-                position,
-                True,
-                axis,
-                far,
-            )
-            for face in CUBE_FACES
-        ]
+        return cube_views(position, far, s)
 
     def _record(self, light: Light, first_view: int, views: int) -> tuple:
         """The light's `LIGHT` record (shaders/lights.glsl: Light)."""
@@ -330,9 +329,9 @@ class ShadowLights:
         """Draw the scene into the tile of every shadow view of the point, spot and directional lights."""
         if self.framebuffer is None:
             return
-        self._draw(range(self.fixed_views), clear=False)
+        self.draw(range(self.fixed_views), clear=False)
 
-    def _draw(self, views, clear: bool) -> None:
+    def draw(self, views, clear: bool) -> None:
         """Draw the scene into the given views' tiles; ``clear``: clear only those tiles first,
         else the whole atlas (the first draw)."""
         if not views:
@@ -353,7 +352,7 @@ class ShadowLights:
     def defines(self) -> dict:
         return {
             "SHADOW_LIGHTS": int(self.count > 0),
-            "EMITTER_SAMPLES": int(self.emitter_samples is not None),
+            **self.visibility.defines(),
             "ENVIRONMENT": ENVIRONMENT_KINDS[None if self.environment is None else self.environment.kind],
         }
 
@@ -373,8 +372,6 @@ class ShadowLights:
             "shadow_filter": self.filter,
             "shadow_atlas": atlas_unit,
         }
-        if self.emitter_samples is not None:
-            values["emitter_sample_density"] = self.emitter_samples.density_scale
         env = self.environment
         if env is not None:
             values["environment_radiance"] = tuple(env.intensity)  # the radiance, or the map's scale

@@ -1,10 +1,12 @@
-"""The multi-bounce eye-path renderer over ray bundles (shaders/eye_paths.glsl).
+"""The multi-bounce renderer over ray bundles: one frame loop that the registered units plug into.
 
-One frame is: a new `DirectionSet` (a fresh random rotation and grid jitter), its perfect or
-imperfect bundles (`BundleTracer`), shadow maps (once for a static scene), new emitter samples and
-their shadow maps, the direct light the bundles' nodes or points reflect (or lazily at path hits),
-the G-buffer with direct light at its samples, one pass per bounce, and the resolve into images. Frames accumulate, so the images converge as frames grow; a seed fixes every
-random choice, and a render is bitwise repeatable.
+One frame is: a new `DirectionSet` (a fresh random rotation and grid jitter) and its bundles (the
+bundle method's tracer), shadow maps of the point, spot and directional lights (once for a static
+scene), the path strategy's light vertices with their shadow maps (the light visibility unit), the
+direct light the bundles' nodes or points reflect (or lazily at path hits), the G-buffer with
+direct light at its samples, the strategy's bounce passes, and the resolve into images. Frames
+accumulate, so the images converge as frames grow; a seed fixes every random choice, and a render
+is bitwise repeatable.
 
 Images are split by bounce count as Mitsuba's path integrator's ``max_depth`` splits them: direct
 (max_depth 2: emission seen directly, and light after one reflection, from shadow-mapped lights,
@@ -17,11 +19,10 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
-import math
 import os
 import statistics
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import moderngl
@@ -30,115 +31,16 @@ import numpy as np
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene
-from gpu_impl.bundles import (
-    CAPACITY_SLACK,
-    DEFAULT_NODE_BUDGET,
-    DEFAULT_SAMPLER,
-    DEFAULT_SPLAT_SCALE,
-    SPLATTERS,
-    BundleTracer,
-    NodeBudgetExceeded,
-    format_bytes,
-)
-from gpu_impl.context import GLContext, PassTimer, set_uniforms
-from gpu_impl.layout import BINDINGS, METHODS, PATH, PATH_SUMS, SAMPLERS
-from gpu_impl.lights import DEFAULT_LIGHT_SAMPLE_MAP_SIZE, DEFAULT_LIGHT_SAMPLES, ShadowLights
+from evalkit.core.settings import IMAGES, RenderSettings
+from gpu_impl.bundles import CAPACITY_SLACK, NodeBudgetExceeded, format_bytes
+from gpu_impl.context import GLContext, set_uniforms
+from gpu_impl.layout import BINDINGS, PATH, PATH_SUMS
+from gpu_impl.lights import ShadowLights
+from gpu_impl.registry import resolve
 from gpu_impl.scene_buffers import GpuScene
+from gpu_impl.timing import PassTimer
 
-IMAGES = ("direct", "indirect", "total")
-# Where the shadow-mapped light that bundle nodes reflect is computed: "precomputed" once per node
-# (perfect bundles) or per splat point (imperfect), "lazy" at each path's hits, "auto" whichever
-# costs fewer light evaluations in the frame (shaders/eye_paths.glsl, irradiance.glsl).
-LIGHTING = ("auto", "precomputed", "lazy")
 ATLAS_UNIT, GBUFFER_UNIT = 0, 1  # texture units
-
-# The poster's configuration (docs/ARCHITECTURE.md); --bounces picks 1 or 3.
-PRESETS = {
-    "paper": {"width": 1920, "height": 1024, "supersampling": 2, "resolution": 128, "directions": 256, "points": 16384},
-}
-
-
-@dataclass(frozen=True)
-class RenderSettings:
-    """Everything that changes a render.
-
-    ``spp`` is eye paths per G-buffer sample per frame, so a pixel averages
-    ``supersampling^2 * spp * frames`` paths. ``time_budget`` > 0 (seconds) ends the render before
-    ``frames`` once the next frame would not fit in it (at least one frame; the result's
-    ``frames_rendered`` says how many). ``width``/``height`` default to the scene camera's.
-    ``self_hit_bias`` is in bundle pixels (see shaders/eye_paths.glsl, BOUNCE); the shadow biases
-    are in shadow-map texels (shaders/lights.glsl). ``sampler`` and ``splatter`` pick how imperfect
-    bundles are made (`gpu_impl.bundles.BundleTracer`), ``lighting`` where node light is computed
-    (`LIGHTING`). ``light_samples`` points on the emissive triangles per frame light every path
-    vertex by next-event estimation, with cube shadow maps of ``light_sample_map_size``
-    (`gpu_impl.lights.EmitterSamples`); 0 turns it off, and then paths find emitters only by
-    hitting them.
-    """
-
-    method: str = "perfect"
-    bounces: int = 1
-    directions: int = 256
-    resolution: int = 128
-    points: int = 16384
-    splat_scale: float = DEFAULT_SPLAT_SCALE
-    sampler: str = DEFAULT_SAMPLER
-    splatter: str = "compute"
-    width: int | None = None
-    height: int | None = None
-    supersampling: int = 1
-    spp: int = 1
-    frames: int = 1
-    time_budget: float = 0.0
-    seed: int = 0
-    time: float = 0.0
-    time_step: float = 0.0
-    self_hit_bias: float = 0.25
-    rotate_directions: bool = True  # False: every frame uses frame 0's directions (static scenes reuse its bundles)
-    stop_early: bool = True  # skip the bounce passes left once every path has ended
-    shadow_map_size: int = 1024
-    shadow_filter: int = 1
-    shadow_bias: float = 1.0
-    shadow_slope_bias: float = 2.0
-    node_budget: int = DEFAULT_NODE_BUDGET
-    lighting: str = "auto"
-    light_samples: int = DEFAULT_LIGHT_SAMPLES
-    light_sample_map_size: int = DEFAULT_LIGHT_SAMPLE_MAP_SIZE
-
-    def validate(self) -> None:
-        """Raises ValueError naming the first setting out of range."""
-        for name, known in (
-            ("method", tuple(METHODS)),
-            ("sampler", tuple(SAMPLERS)),
-            ("splatter", SPLATTERS),
-            ("lighting", LIGHTING),
-        ):
-            if getattr(self, name) not in known:
-                raise ValueError(f"{name} must be one of {', '.join(known)}, got {getattr(self, name)!r}")
-        for name in ("directions", "resolution", "points", "supersampling", "spp", "frames", "shadow_filter"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        for name in ("shadow_map_size", "light_sample_map_size"):
-            if getattr(self, name) < 8:
-                raise ValueError(f"{name} must be at least 8 texels, got {getattr(self, name)}")
-        for name in ("bounces", "light_samples"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be at least 0, got {getattr(self, name)}")
-        for name in ("width", "height"):
-            if getattr(self, name) is not None and getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        for name in ("time", "time_step"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
-        if not (self.time_budget >= 0 and math.isfinite(self.time_budget)):
-            raise ValueError(f"time_budget must be non-negative and finite seconds, got {self.time_budget}")
-        if not (self.splat_scale > 0 and math.isfinite(self.splat_scale)):
-            raise ValueError(f"splat_scale must be positive and finite, got {self.splat_scale}")
-        if self.node_budget < 1:
-            raise ValueError(f"node_budget must be at least 1 byte, got {self.node_budget}")
-        for name in ("self_hit_bias", "shadow_bias", "shadow_slope_bias"):
-            value = getattr(self, name)
-            if not (value >= 0 and math.isfinite(value)):
-                raise ValueError(f"{name} must be non-negative and finite, got {value}")
 
 
 @dataclass
@@ -153,15 +55,19 @@ class RenderResult:
 
 
 class Renderer:
-    """Renders one scene with one set of `RenderSettings` on one GL context.
+    """Renders one scene with one set of `RenderSettings` on one GL context, frame after frame,
+    with the bundle method, path strategy and light visibility the settings name
+    (`gpu_impl.registry`). For one render, `gpu_impl.api.render` does all of it in one call; keep
+    a Renderer for calls that share its state.
 
     It uploads the scene and owns that upload, its bundle tracer, its lights and every buffer and
     texture of its passes; `release` (or leaving a ``with`` block) frees them all.
     """
 
     def __init__(self, gl: GLContext, scene: Scene, settings: RenderSettings):
-        settings.validate()
-        self.gl, self.scene, self.settings = gl, scene, settings
+        self.resolved = resolve(settings)
+        settings = self.settings = self.resolved.settings
+        self.gl, self.scene = gl, scene
         cam = scene.camera
         self.width, self.height = int(settings.width or cam.width), int(settings.height or cam.height)
         s = settings.supersampling
@@ -175,45 +81,23 @@ class Renderer:
         self.frames_rendered = 0  # set by render()
         self.moving = scene.animated and settings.time_step != 0.0
         first = scene.at(self.times[0])
-        self.gpu_scene = GpuScene(
-            gl, first, sphere=enclosing_sphere([scene.at(t) for t in self.times]) if self.moving else None
-        )
-        self.tracer = BundleTracer(
-            gl,
-            self.gpu_scene,
-            settings.method,
-            directions=settings.directions,
-            resolution=settings.resolution,
-            points=settings.points,
-            splat_scale=settings.splat_scale,
-            sampler=settings.sampler,
-            splatter=settings.splatter,
-            node_budget=settings.node_budget,
-        )
+        sphere = enclosing_sphere([scene.at(t) for t in self.times]) if self.moving else None
+        self.gpu_scene = GpuScene(gl, first, sphere=sphere)
+        units, own = self.resolved.units, self.resolved.unit_settings
+        self.tracer = units["method"].tracer(gl, self.gpu_scene, settings)
         # A static scene seen along the same directions every frame has the same bundles and the
         # same irradiance at their nodes or points: both are made once.
         self.reuse_bundles = not settings.rotate_directions and not self.moving
-        self.lights = ShadowLights(
-            gl,
-            self.gpu_scene,
-            settings.shadow_map_size,
-            settings.shadow_bias,
-            settings.shadow_slope_bias,
-            settings.shadow_filter,
-            settings.light_samples,
-            settings.light_sample_map_size,
-        )
-        self.warnings = list(scene.warnings)
-        if self.gpu_scene.features.emitters and not settings.light_samples:
-            self.warnings.append(
-                "next-event estimation is off (light_samples = 0): emissive triangles light only the "
-                "paths that hit them, so images of small emitters converge slowly"
-            )
+        self.strategy = units["strategy"].paths(self, own["strategy"])
+        visibility = units["light_visibility"].maps(gl, self.gpu_scene, own["light_visibility"])
+        self.lights = ShadowLights(gl, self.gpu_scene, settings, visibility, self.strategy.light_vertices_per_frame)
+        self.warnings = list(scene.warnings) + self.strategy.warnings
         features = self.gpu_scene.features
         # Shader variants from the scene's features: no shadow-map lookups without such lights, no
         # environment lookups without one, a node's back-side radiance only with two-sided materials.
         self.defines = {
             **self.lights.defines(),
+            **self.strategy.defines(),
             "NODE_SIDES": 2 if features.twosided else 1,
             "TEXTURES": int(features.textures),
             **self.tracer.defines,
@@ -226,18 +110,15 @@ class Renderer:
         self.gbuffer_program = gl.program("gbuffer")
         self.gbuffer_vao = self.gpu_scene.vertex_array(self.gbuffer_program)
         d = self.defines
+        primary = {k: d[k] for k in ("SHADOW_LIGHTS", "ENVIRONMENT", "TEXTURES", "LIGHT_VISIBILITY")}
         self.programs = {
-            "primary": gl.program(
-                "primary", SHADOW_LIGHTS=d["SHADOW_LIGHTS"], ENVIRONMENT=d["ENVIRONMENT"], TEXTURES=d["TEXTURES"]
-            ),
-            "eye_paths": gl.program("eye_paths", **d, LAZY_LIGHTING=0),
+            "primary": gl.program("primary", **primary),
+            **self.strategy.programs(d),
             "resolve_images": gl.program("resolve_images"),
         }
         if d["SHADOW_LIGHTS"]:
-            self.programs["eye_paths_lazy"] = gl.program("eye_paths", **d, LAZY_LIGHTING=1)
-            self.programs["irradiance"] = gl.program(
-                "irradiance", **{k: d[k] for k in ("SHADOW_LIGHTS", "NODE_SIDES", "TEXTURES", "BUNDLE_METHOD")}
-            )
+            irradiance = ("SHADOW_LIGHTS", "NODE_SIDES", "TEXTURES", "NODE_REFERENCE", "LIGHT_VISIBILITY")
+            self.programs["irradiance"] = gl.program("irradiance", **{k: d[k] for k in irradiance})
         self.buffers = {
             "PATHS": gl.buffer(reserve=PATH.itemsize * self.paths),
             "PATH_SUMS": gl.buffer(reserve=PATH_SUMS.itemsize * self.paths),
@@ -264,12 +145,13 @@ class Renderer:
             "camera_origin": tuple(self.camera["origin"]),
             "camera_to_world": tuple(self.camera["to_world"].T.ravel()),
             "tan_half_fov": tuple(self.camera["tan_half"]),
+            **self.strategy.uniforms(),
         }
         for program in self.programs.values():
             set_uniforms(program, fixed)
             self.lights.set_uniforms(program, ATLAS_UNIT)
 
-    # -- one frame -----------------------------------------------------------------------
+    # -- frames --------------------------------------------------------------------------
 
     def render(self, progress=None) -> RenderResult:
         """All frames; ``progress`` (optional) gets one line per frame."""
@@ -287,15 +169,13 @@ class Renderer:
             self._posed_at = self.times[f]
             reused = self.reuse_bundles and f > 0
             if reused:
-                stats = {
-                    **self.tracer.stats,
-                    "gpu_ms": dict.fromkeys(self.tracer.stats["gpu_ms"], 0.0),
-                    "overflow_reruns": 0,
-                }
+                gpu_ms = dict.fromkeys(self.tracer.stats["gpu_ms"], 0.0)
+                stats = {**self.tracer.stats, "gpu_ms": gpu_ms, "overflow_reruns": 0}
             else:
-                stats = self.tracer.build(
-                    DirectionSet.make(st.directions, seed=st.seed, frame=f if st.rotate_directions else 0, jitter=True)
+                directions = DirectionSet.make(
+                    st.directions, seed=st.seed, frame=f if st.rotate_directions else 0, jitter=True
                 )
+                stats = self.tracer.build(directions)
             bundle_stats.append(stats)
             self._frame(f, timer, shadow_maps=f == 0 or self.moving, build=0 if reused else f)
             passes = {
@@ -305,26 +185,21 @@ class Renderer:
             }
             frames.append(passes)
             if progress is not None:
-                progress(
-                    f"frame {f + 1}/{st.frames}: {stats['nodes']:,} nodes, "
-                    f"{_sum_ms(v for k, v in passes.items() if '.' not in k):.1f} ms"
-                )
+                frame_ms = _sum_ms(v for k, v in passes.items() if "." not in k)
+                progress(f"frame {f + 1}/{st.frames}: {stats['nodes']:,} nodes, {frame_ms:.1f} ms")
             # The pass timer's read waits for the frame's GPU work, so this is the frame's time.
             # The first frame (shadow maps) is left out of the estimate of the next once others exist.
             frame_s.append(time.perf_counter() - frame_start)
-            if (
-                st.time_budget
-                and time.perf_counter() - start + float(np.median(frame_s[1:] or frame_s)) > st.time_budget
-            ):
+            next_frame = float(np.median(frame_s[1:] or frame_s))
+            if st.time_budget and time.perf_counter() - start + next_frame > st.time_budget:
                 break
         self.frames_rendered = len(frames)
         images = self._read_images()
         wall = time.perf_counter() - start
+        names = dict.fromkeys(k for fr in frames for k in fr)
         timings = {
             "method": timer.method,
-            "median_ms": {
-                name: _median([fr.get(name) for fr in frames]) for name in dict.fromkeys(k for fr in frames for k in fr)
-            },
+            "median_ms": {name: _median([fr.get(name) for fr in frames]) for name in names},
             "frames_ms": frames,
             "wall_s": wall,
         }
@@ -334,6 +209,9 @@ class Renderer:
             [_sum_ms(v for k, v in fr.items() if "." not in k and k not in once) for fr in frames]
         )
         nodes = [s["nodes"] for s in bundle_stats]
+        lighting = {
+            mode: self.lighting_used.count(mode) for mode in ("precomputed", "lazy") if mode in self.lighting_used
+        }
         stats = {
             "nodes_median": int(np.median(nodes)),
             "nodes_max": int(max(nodes)),
@@ -343,9 +221,7 @@ class Renderer:
             "bounce_passes": self.steps,
             "bounce_passes_skipped": self.skipped_bounces,
             "bundles_reused": len(frames) - 1 if self.reuse_bundles else 0,
-            "lighting_frames": {
-                mode: self.lighting_used.count(mode) for mode in ("precomputed", "lazy") if mode in self.lighting_used
-            },
+            "lighting_frames": lighting,
             "gpu_bytes": self.gpu_bytes,
         }
         return RenderResult(images, timings, stats, self.params(), list(self.warnings))
@@ -353,31 +229,25 @@ class Renderer:
     def _frame(self, frame: int, timer: PassTimer, shadow_maps: bool, build: int) -> None:
         """One frame's passes on the bundles of frame ``build`` (this one, or 0 when reused)."""
         st = self.settings
-        gl = self.gl
         if shadow_maps:
             with timer.measure("shadow_maps"):
                 self.lights.render_shadow_maps()
-        if self.lights.emitter_samples is not None:
+        if self.strategy.light_vertices_per_frame:
             with timer.measure("emitter_samples"):
-                self.lights.sample_emitters(st.seed, frame)
-            self.irradiance_of = None  # lit by this frame's samples
+                self.lights.set_light_vertices(self.strategy.light_vertices(st.seed, frame))
+            self.irradiance_of = None  # lit by this frame's light vertices
         self._bind()
         with timer.measure("gbuffer"):
             self._gbuffer(frame)
         alive = self._alive_paths()
-        program = self.programs["eye_paths"]
+        lazy = False
         if self.defines["SHADOW_LIGHTS"]:
             lazy = self._lighting(alive, build)
             self.lighting_used.append("lazy" if lazy else "precomputed")
-            program = self.programs["eye_paths_lazy" if lazy else "eye_paths"]
             if not lazy and self.irradiance_of != build:
                 with timer.measure("irradiance"):
                     self.buffers["IRRADIANCE"].bind_to_storage_buffer(BINDINGS["IRRADIANCE"])
-                    # One invocation per splat point, or per list (its nodes in turn).
-                    imperfect = st.method == "imperfect"
-                    gl.dispatch(
-                        self.programs["irradiance"], self._irradiance_items() if imperfect else self.tracer.list_count
-                    )
+                    self.gl.dispatch(self.programs["irradiance"], self.tracer.irradiance_invocations)
                 self.irradiance_of = build
         for j in range(1, self.steps + 1):
             # Once every path has ended (throughput zero, or nothing hit), the passes left add nothing.
@@ -386,17 +256,11 @@ class Renderer:
                 break
             self.buffers["ALIVE_PATHS"].write(b"\0\0\0\0")
             with timer.measure(f"bounce_{j}"):
-                program["bounce"] = j
-                program["frame"] = frame & 0xFFFFFFFF
-                gl.dispatch(program, self.paths)
+                self.strategy.bounce(j, frame, lazy)
         with timer.measure("resolve"):
-            resolve = self.programs["resolve_images"]
-            resolve["sample_weight"] = 1.0 / (st.supersampling**2 * st.spp * (frame + 1))
-            gl.dispatch(resolve, self.width * self.height)
-
-    def _irradiance_items(self) -> int:
-        """What irradiance.glsl lights: every node (perfect bundles) or every splat point."""
-        return self.tracer.K * self.tracer.N if self.settings.method == "imperfect" else self.tracer.stats["nodes"]
+            resolve_images = self.programs["resolve_images"]
+            resolve_images["sample_weight"] = 1.0 / (st.supersampling**2 * st.spp * (frame + 1))
+            self.gl.dispatch(resolve_images, self.width * self.height)
 
     def _lighting(self, alive: int, build: int) -> bool:
         """True to light each path's hits where they land, False to precompute the irradiance of
@@ -407,7 +271,7 @@ class Renderer:
         mode = self.settings.lighting
         if mode == "lazy":
             return True
-        items = self._irradiance_items()
+        items = self.tracer.irradiance_items
         needed = 12 * self.defines["NODE_SIDES"] * items
         if self.tracer.memory_bytes + needed > self.settings.node_budget:
             if mode == "precomputed":
@@ -458,26 +322,24 @@ class Renderer:
     # -- provenance ----------------------------------------------------------------------
 
     def params(self) -> dict:
+        """Every setting of the render (the units' at their defaults where not given), what it
+        derived, the shader variant and the GL device."""
         st = self.settings
-        p = {
+        return {
             "evalkit": importlib.metadata.version("raybundle-evalkit"),
             "scene": self.scene.name,
             "scene_source": self.scene.source,
             "scene_hash": self.scene.content_hash(),
             "posed_scene_hash": self.scene.at(st.time).content_hash() if self.scene.animated else None,
-            **asdict(st),
+            **self.resolved.params(),
             "width": self.width,
             "height": self.height,
-            "splat_radius": self.tracer.splat_radius if st.method == "imperfect" else None,
+            **self.tracer.params(),
             "frames_rendered": self.frames_rendered,
             "paths_per_pixel": st.supersampling**2 * st.spp * self.frames_rendered,
             "shader_variant": self.defines,
             "gl": self.gl.info,
         }
-        if st.method != "imperfect":
-            for key in ("points", "splat_scale", "splat_radius", "sampler", "splatter"):
-                p.pop(key)
-        return p
 
     @property
     def gpu_bytes(self) -> int:
@@ -553,22 +415,10 @@ def write_render(result: RenderResult, out: str | os.PathLike) -> list[Path]:
         write_exr(path, result.images[name], {**provenance, "image": name})
         written.append(path)
     path = out / "timings.json"
-    path.write_text(
-        json.dumps(
-            {"timings": result.timings, "stats": result.stats, "params": result.params, "warnings": result.warnings},
-            indent=2,
-        )
-        + "\n"
-    )
+    record = {"timings": result.timings, "stats": result.stats, "params": result.params, "warnings": result.warnings}
+    path.write_text(json.dumps(record, indent=2) + "\n")
     written.append(path)
     return written
-
-
-def apply_preset(settings: RenderSettings, preset: str | None, **explicit) -> RenderSettings:
-    """``settings`` with the preset's values, then the ``explicit`` (non-None) ones on top."""
-    values = dict(PRESETS[preset]) if preset else {}
-    values.update({k: v for k, v in explicit.items() if v is not None})
-    return replace(settings, **values)
 
 
 def _median(values) -> float | None:

@@ -33,7 +33,7 @@ import numpy as np
 
 from evalkit.core.bundleset import FRAME_PADDING, BundleSet, DirectionSet, bundle_params, line_origins
 from evalkit.core.scene import Scene
-from evalkit.core.scene.model import sample_texture
+from evalkit.core.scene.colour import sample_texture
 
 RECAST_ULPS = 16
 LINES_PER_TASK = 1 << 18

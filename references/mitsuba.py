@@ -43,9 +43,9 @@ from evalkit.core.exr import read_exr, write_exr
 from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene import Scene
 from evalkit.core.scene.mitsuba_io import to_mitsuba_dict
+from evalkit.core.settings import IMAGES
 
 DEFAULT_STORE = Path(__file__).resolve().parent / "store"
-IMAGES = ("direct", "indirect", "total")
 STORE_FORMAT = 1
 DEFAULT_CHUNKS = 32
 TIMED_STREAM = 2**31  # the chunk index of `timed_render`'s samples: references use 0 .. chunks - 1

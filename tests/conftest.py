@@ -14,9 +14,13 @@ import pytest
 
 from evalkit.core.exr import write_exr
 from evalkit.core.mitsuba_env import mitsuba
+from evalkit.core.settings import RenderSettings
 from evalkit.figures import error_map_png
 from evalkit.metrics.images import relmse as metric
+from gpu_impl.api import bundle_tracer, render, trace_bundles
 from gpu_impl.context import GLContext
+from gpu_impl.registry import resolve
+from gpu_impl.shader_source import unlisted_variants
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # Where tests that compare images keep them when they fail (as Mitsuba's render tests do).
@@ -38,6 +42,35 @@ def gl():
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+# The tracers' hooks, which are not settings (gpu_impl/api.py: bundle_tracer).
+TRACER_HOOKS = ("count_covered", "initial_capacity", "max_atlas_size", "textures")
+
+
+def _tracer_args(method: str, kw: dict) -> tuple[RenderSettings, dict]:
+    """Settings and hooks from flat keywords; settings ``method`` does not have are left out, so a
+    test can give both methods the same keywords."""
+    hooks = {k: kw.pop(k) for k in TRACER_HOOKS if k in kw}
+    return resolve(RenderSettings(method=method, **kw), inapplicable="drop").settings, hooks
+
+
+def trace(gl, scene, directions, method: str = "perfect", **kw):
+    """The `BundleSet` of one direction set (`gpu_impl.api.trace_bundles`), settings and hooks flat."""
+    settings, hooks = _tracer_args(method, kw)
+    return trace_bundles(scene, directions, settings, gl=gl, **hooks)
+
+
+def make_tracer(gl, gpu_scene, method: str = "perfect", **kw):
+    """A tracer of an uploaded scene (`gpu_impl.api.bundle_tracer`), settings and hooks flat."""
+    settings, hooks = _tracer_args(method, kw)
+    return bundle_tracer(gl, gpu_scene, settings, **hooks)
+
+
+def render_with(gl, scene, **settings):
+    """`gpu_impl.api.render` on the tests' GL context, the settings flat; settings the chosen units
+    do not have are left out, so a test can give both methods the same keywords."""
+    return render(scene, resolve(RenderSettings(**settings), inapplicable="drop").settings, gl=gl)
 
 
 def run_evalkit(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
@@ -92,6 +125,17 @@ def images(request) -> ImageOutput:
 def relmse(test: np.ndarray, ref: np.ndarray, eps: float = 0.01) -> float:
     """Mean of (x - r)^2 / (r^2 + eps), the tev form, over pixels and channels (the toolkit's own metric)."""
     return metric(np.asarray(test, dtype=np.float64), np.asarray(ref, dtype=np.float64), eps).value
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Every shader variant the suite compiled must be one that SHADER_VARIANTS lists
+    (gpu_impl/shader_source.py), so the test that compiles them all compiles what runs."""
+    unlisted = unlisted_variants()
+    if unlisted:
+        reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+        lines = "\n".join(f"  {name} {dict(defines)}" for name, defines in unlisted)
+        reporter.write_line(f"FAILED: shader variants compiled but not in SHADER_VARIANTS:\n{lines}", red=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 # Hypothesis: derandomized in CI (the same examples every run); `make fuzz` (HYPOTHESIS_PROFILE=fuzz)

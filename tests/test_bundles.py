@@ -9,13 +9,13 @@ import math
 import numpy as np
 import pytest
 from bundle_oracle import agreement, exact_lists
-from conftest import run_evalkit
+from conftest import make_tracer, run_evalkit, trace
 
 from evalkit.core.bundleset import FRAME_PADDING, SPLAT_PRIM_ID, BundleSet, DirectionSet
 from evalkit.core.scene import Material, Mesh, assemble, load_scene
-from evalkit.core.scene.model import sample_texture
+from evalkit.core.scene.colour import sample_texture
 from evalkit.core.scene.tessellate import box
-from gpu_impl.bundles import BundleTracer, NodeBudgetExceeded, trace_bundles
+from gpu_impl.bundles import NodeBudgetExceeded
 from gpu_impl.scene_buffers import GpuScene
 
 # Matching tolerance for perfect bundles: float32 depth of a point within the bounding sphere.
@@ -61,7 +61,7 @@ SCENES = {
 
 
 def build(gl, scene, method="perfect", K=12, R=40, seed=3, **kw) -> BundleSet:
-    return trace_bundles(gl, scene, DirectionSet.make(K, seed=seed), method, resolution=R, **kw)
+    return trace(gl, scene, DirectionSet.make(K, seed=seed), method, resolution=R, **kw)
 
 
 @pytest.mark.parametrize("name", SCENES)
@@ -303,7 +303,7 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
     found = {}
     with GpuScene(gl, scene) as gpu_scene:
         for splatter in ("compute", "raster"):
-            with BundleTracer(
+            with make_tracer(
                 gl,
                 gpu_scene,
                 "imperfect",
@@ -313,12 +313,12 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
                 splat_scale=1.5,
                 splatter=splatter,
                 merge=False,
-            ) as tracer:
-                tracer.build(directions)
-                offsets, depth, ref, _ = tracer.node_refs()
+            ) as splats:
+                splats.build(directions)
+                offsets, depth, ref, _ = splats.node_refs()
                 lists = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
                 found[splatter] = {(int(i), int(p)): float(z) for i, p, z in zip(lists, ref, depth)}
-                points, radius = tracer.read_points(), tracer.splat_radius
+                points, radius = splats.read_points(), splats.splat_radius
         bundles = BundleSet(
             method="imperfect",
             directions=directions,
@@ -392,12 +392,12 @@ def test_prefix_sum_is_exact_across_block_and_level_boundaries(gl):
     recursively, so sizes around one block and past one block of blocks use every path."""
     scene = scene_of([Mesh("quad", QUAD, QUAD_FACES, 0)], [Material("grey")])
     rng = np.random.default_rng(5)
-    with GpuScene(gl, scene) as gpu_scene, BundleTracer(gl, gpu_scene, "perfect", directions=1, resolution=4) as tracer:
+    with GpuScene(gl, scene) as gpu_scene, make_tracer(gl, gpu_scene, "perfect", directions=1, resolution=4) as lists:
         for count in (1, 4095, 4096, 4097, 4096 * 4096 + 3):
             values = rng.integers(0, 200, count, dtype=np.uint32)
             buffer = gl.buffer(values.tobytes())
             try:
-                tracer._prefix_sum(buffer, count, level=0)
+                lists._prefix_sum(buffer, count, level=0)
                 scanned = np.frombuffer(buffer.read(), dtype=np.uint32)
             finally:
                 buffer.release()

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from evalkit.core.errors import InputError
-from gpu_impl.context import SHADER_DIR, SHADER_VARIANTS, GLContext, is_program
+from gpu_impl.context import GLContext
 from gpu_impl.layout import BINDINGS, RECORDS, SHADER_CONSTANTS, glsl_literal
+from gpu_impl.shader_source import SHADER_DIR, SHADER_VARIANTS, is_program
 
 
 def test_every_shader_compiles(gl):
@@ -23,6 +24,7 @@ RECORD_GROUPS = {
     0: ["Material", "Triangle", "Vertex", "BundleFrame", "SplatPoint"],
     1: ["Light", "ShadowView"],
     2: ["Path", "PathSums"],
+    3: ["Node", "NodeNext", "NodeDepth", "NodeRef", "SplatLines"],
 }
 
 

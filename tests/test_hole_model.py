@@ -8,12 +8,12 @@ import math
 
 import numpy as np
 import pytest
+from conftest import trace
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
 from evalkit.metrics.bundles import compare_bundles
 from evalkit.metrics.hole_model import analyse, fit, recommend, validate
-from gpu_impl.bundles import trace_bundles
 from references.embree import ExactTracer
 
 SCALES = np.array([0.5, 0.75, 1.0, 1.5, 2.0, 3.0])
@@ -56,7 +56,7 @@ def test_measured_holes_fall_and_redundant_nodes_rise_with_the_splat_scale(gl):
     exact = ExactTracer(scene).bundles(directions, 64)
     rows = []
     for scale in (0.5, 0.75, 1.0, 1.5, 2.0):
-        bundles = trace_bundles(
+        bundles = trace(
             gl,
             scene,
             directions,

@@ -12,8 +12,8 @@ from PIL import Image
 from evalkit.core.errors import InputError
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.builtin import FURNACE_ALBEDO, FURNACE_EMISSION, furnace_radiance
+from evalkit.core.scene.colour import srgb_to_linear
 from evalkit.core.scene.mitsuba_io import SPHERE_SEGMENTS, load_mitsuba_dict
-from evalkit.core.scene.model import srgb_to_linear
 
 
 def xml_scene(tmp_path, body: str, name: str = "scene.xml") -> str:

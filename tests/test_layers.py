@@ -142,3 +142,53 @@ def test_the_checks_see_what_they_check():
     assert cycles({"check": {"report"}, "report": {"study", "check"}, "study": {"report"}, "cli": {"check"}}) == [
         ["check", "report", "study"]
     ]
+
+
+# -- the registry (gpu_impl/registry.py): units are named by their own modules only ---------------
+
+
+def string_constants(path: Path) -> list[tuple[str, int]]:
+    """Every string constant of a file that is not a docstring, with its line."""
+    tree = ast.parse(path.read_text())
+    docstrings = {
+        id(node.body[0].value)
+        for node in ast.walk(tree)
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+        and node.body
+        and isinstance(node.body[0], ast.Expr)
+        and isinstance(node.body[0].value, ast.Constant)
+    }
+    return [
+        (node.value, node.lineno)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings
+    ]
+
+
+def python_files_outside(*excluded: str) -> list[Path]:
+    files = [p for d in (*PACKAGES, "benchmarks") for p in (REPO / d).rglob("*.py")]
+    return [p for p in files if not any(p.relative_to(REPO).as_posix().startswith(e) for e in excluded)]
+
+
+def test_no_module_but_its_own_names_a_bundle_method():
+    # Adding a method is its module and one registration: nothing else may branch on its name.
+    from gpu_impl.registry import METHODS
+
+    found = [
+        f"{path.relative_to(REPO)}:{line}: {value!r}"
+        for path in python_files_outside("gpu_impl/methods/")
+        for value, line in string_constants(path)
+        if value in METHODS.names
+    ]
+    assert not found, "\n".join(found)
+
+
+def test_the_renderer_is_made_in_one_place_outside_the_gpu_side():
+    # Everything else renders through the one-call API (gpu_impl/api.py).
+    made = [
+        f"{path.relative_to(REPO)}:{n}"
+        for path in python_files_outside("gpu_impl/")
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if "Renderer(" in line
+    ]
+    assert len(made) <= 1, made

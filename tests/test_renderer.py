@@ -11,24 +11,22 @@ import json
 
 import numpy as np
 import pytest
-from conftest import relmse, run_evalkit
+from conftest import relmse, render_with, run_evalkit
 
 from evalkit.core.exr import read_exr
 from evalkit.core.scene import Light, Material, Mesh, assemble, load_scene
+from evalkit.core.scene.assemble import look_at
 from evalkit.core.scene.builtin import furnace_radiance
-from evalkit.core.scene.model import Camera, look_at
+from evalkit.core.scene.model import Camera
 from evalkit.core.scene.tessellate import box
+from evalkit.core.settings import RenderSettings
 from gpu_impl.lights import EmitterSamples
-from gpu_impl.renderer import Renderer, RenderSettings
+from gpu_impl.registry import resolve
 from references.mitsuba import DEFAULT_STORE, load_reference, reference, store_entry
 
 
 def render(gl, scene, **settings):
-    renderer = Renderer(gl, scene, RenderSettings(**settings))
-    try:
-        return renderer.render()
-    finally:
-        renderer.release()
+    return render_with(gl, scene, **settings)
 
 
 def block_mean(image: np.ndarray, b: int) -> np.ndarray:
@@ -230,7 +228,7 @@ def test_emitter_samples_follow_emitted_power_and_sum_to_it():
 def test_bad_next_event_settings_are_one_line_errors():
     for field, value in (("light_samples", -1), ("light_sample_map_size", 4)):
         with pytest.raises(ValueError, match=field):
-            RenderSettings(**{field: value}).validate()
+            resolve(RenderSettings(**{field: value}))
     bad = run_evalkit("render", "cornell-box", "--method", "perfect", "--light-samples", "-2", "--out", "/tmp/unused")
     assert bad.returncode == 2 and "-2 must be at least 0" in bad.stderr and "Traceback" not in bad.stderr
 
@@ -372,7 +370,7 @@ def test_a_time_budget_ends_the_render_with_the_frames_rendered_so_far(gl):
     full = render(gl, scene, frames=3, time_budget=1e6, **kw)
     assert full.params["frames_rendered"] == 3 and full.params["paths_per_pixel"] == 3
     with pytest.raises(ValueError, match="time_budget must be non-negative and finite seconds, got -1"):
-        RenderSettings(time_budget=-1.0).validate()
+        resolve(RenderSettings(time_budget=-1.0))
 
 
 def test_imperfect_bundles_render_the_furnace_close_to_its_value(gl):

@@ -9,7 +9,8 @@ import pytest
 
 from evalkit.core.errors import InputError
 from evalkit.core.scene import Material, Mesh, assemble
-from evalkit.core.scene.model import Light, default_camera, look_at
+from evalkit.core.scene.assemble import default_camera, look_at
+from evalkit.core.scene.model import Light
 from evalkit.core.scene.tessellate import box, unit_sphere
 
 QUAD = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)

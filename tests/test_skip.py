@@ -6,12 +6,14 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from conftest import make_tracer, trace
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
+from evalkit.core.settings import RenderSettings
 from evalkit.metrics.images import relmse
-from gpu_impl.bundles import CAPACITY_SLACK, BundleTracer, trace_bundles
-from gpu_impl.renderer import Renderer, RenderSettings
+from gpu_impl.api import render as render_scene
+from gpu_impl.bundles import CAPACITY_SLACK
 from gpu_impl.scene_buffers import GpuScene
 from references.mitsuba import DEFAULT_STORE, load_reference, store_entry
 
@@ -19,11 +21,7 @@ SMALL = RenderSettings(bounces=4, directions=8, resolution=64, width=32, height=
 
 
 def render(gl, scene, settings):
-    renderer = Renderer(gl, scene, settings)
-    try:
-        return renderer.render()
-    finally:
-        renderer.release()
+    return render_scene(scene, settings, gl=gl)
 
 
 def test_scenes_without_textures_build_without_texture_fetches_and_the_same_lists(gl):
@@ -32,7 +30,7 @@ def test_scenes_without_textures_build_without_texture_fetches_and_the_same_list
     lists = []
     with GpuScene(gl, scene) as gpu_scene:
         for textures in (None, True):
-            with BundleTracer(gl, gpu_scene, "perfect", directions=8, resolution=64, textures=textures) as tracer:
+            with make_tracer(gl, gpu_scene, "perfect", directions=8, resolution=64, textures=textures) as tracer:
                 assert tracer.textures == (0 if textures is None else 1)
                 tracer.build(ds)
                 lists.append(tracer.read())
@@ -40,7 +38,7 @@ def test_scenes_without_textures_build_without_texture_fetches_and_the_same_list
         assert np.array_equal(getattr(lists[0], name), getattr(lists[1], name)), name
     with (
         GpuScene(gl, load_scene("atrium")) as gpu_scene,
-        BundleTracer(gl, gpu_scene, "perfect", directions=4, resolution=32) as textured,
+        make_tracer(gl, gpu_scene, "perfect", directions=4, resolution=32) as textured,
     ):
         assert textured.textures == 1
 
@@ -90,12 +88,12 @@ def test_the_node_buffer_is_sized_from_the_last_frames_count(gl):
     scene = load_scene("furnace")
     with (
         GpuScene(gl, scene) as gpu_scene,
-        BundleTracer(gl, gpu_scene, "perfect", directions=8, resolution=64, initial_capacity=10_000_000) as tracer,
+        make_tracer(gl, gpu_scene, "perfect", directions=8, resolution=64, initial_capacity=10_000_000) as tracer,
     ):
         first = tracer.build(DirectionSet.make(8, seed=0, frame=0))
         assert tracer.capacity == 10_000_000
         second = tracer.build(DirectionSet.make(8, seed=0, frame=1))
         bundles = tracer.read()
         assert tracer.capacity <= 2 * CAPACITY_SLACK * first["nodes"] and second["overflow_reruns"] == 0
-    reference = trace_bundles(gl, scene, DirectionSet.make(8, seed=0, frame=1), resolution=64)
+    reference = trace(gl, scene, DirectionSet.make(8, seed=0, frame=1), resolution=64)
     assert np.array_equal(reference.depth, bundles.depth)

@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import render_with, trace
 from test_bundles import QUAD, QUAD_FACES, build, coplanar_stack, scene_of
 from test_exact_bundles import thin_slabs
 
@@ -16,8 +17,6 @@ from evalkit.core.scene import Material, Mesh, assemble, load_scene
 from evalkit.core.scene.builtin import BUILTIN_SCENES
 from evalkit.core.scene.tessellate import box
 from evalkit.metrics.bundles import compare_bundles
-from gpu_impl.bundles import trace_bundles
-from gpu_impl.renderer import Renderer, RenderSettings
 from references.embree import ExactTracer
 
 TINY_RENDER = dict(bounces=1, directions=8, resolution=64, width=32, height=32, frames=2, spp=2, seed=5)
@@ -60,11 +59,7 @@ def transformed(scene, scale: float = 1.0, rotation: np.ndarray | None = None, s
 
 
 def render(gl, scene, method="perfect", **kw):
-    renderer = Renderer(gl, scene, RenderSettings(method=method, **{**TINY_RENDER, **kw}))
-    try:
-        return renderer.render().images
-    finally:
-        renderer.release()
+    return render_with(gl, scene, method=method, **{**TINY_RENDER, **kw}).images
 
 
 @pytest.mark.parametrize(
@@ -165,7 +160,7 @@ def test_grazing_directions_lose_no_more_than_the_surface_they_graze(gl, angle):
 
 
 def _build_with(gl, scene, directions, resolution):
-    return trace_bundles(gl, scene, directions, resolution=resolution)
+    return trace(gl, scene, directions, resolution=resolution)
 
 
 def test_depth_complexity_beyond_the_first_node_buffer_loses_nothing(gl):
@@ -174,7 +169,7 @@ def test_depth_complexity_beyond_the_first_node_buffer_loses_nothing(gl):
     meshes = [Mesh(f"q{i}", QUAD + [0.0, 0.0, 0.025 * i], QUAD_FACES, 0) for i in range(40)]
     scene = scene_of(meshes, [Material("grey")])
     directions = DirectionSet.make(4, seed=0)
-    bundles = trace_bundles(gl, scene, directions, resolution=32, initial_capacity=4 * 4 * 32 * 32)
+    bundles = trace(gl, scene, directions, resolution=32, initial_capacity=4 * 4 * 32 * 32)
     stats = bundles.stats
     # Expected: one re-run with a buffer that fits, and every exact node found.
     assert stats["overflow_reruns"] == 1

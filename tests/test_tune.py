@@ -11,7 +11,8 @@ import pytest
 from conftest import run_evalkit
 
 from evalkit.core.errors import InputError
-from evalkit.tune import CALIBRATION, GRID, Model, compare_with_grid, fit_model, optimise
+from evalkit.tune import Model, axes, compare_with_grid, fit_model, optimise
+from gpu_impl.registry import METHODS
 
 TIME = {
     "perfect": {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0},
@@ -21,6 +22,10 @@ ERROR = {
     "perfect": {"b": 0.004, "v": 0.05, "w": 0.5},
     "imperfect": {"b": 0.004, "v": 0.05, "w": 0.5, "h": 0.3, "g": 0.002},
 }
+
+
+def settings(K, R, N=16384, s=1.8, F=1) -> dict:
+    return {"directions": K, "resolution": R, "points": N, "splat_scale": s, "frames": F}
 
 
 def synthetic_rows(method: str) -> list[dict]:
@@ -37,8 +42,8 @@ def synthetic_rows(method: str) -> list[dict]:
                 "points": N,
                 "splat_scale": s,
                 "frames_rendered": F,
-                "wall_s": float(time_model.predict(K, R, N, s, F)),
-                "indirect_relmse": float(error_model.predict(K, R, N, s, F)),
+                "wall_s": float(time_model.predict(settings(K, R, N, s, F))),
+                "indirect_relmse": float(error_model.predict(settings(K, R, N, s, F))),
             }
         )
     return rows
@@ -63,7 +68,8 @@ def test_rows_of_one_frame_each_count_the_once_per_render_cost_per_frame():
     assert model.rms_residual() < 0.05  # the one-frame times are still followed
     K, R = 16, 96
     truth = Model("perfect", "time", TIME["perfect"], [])
-    assert float(model.predict(K, R, F=10)) > float(truth.predict(K, R, F=10))  # over-, never under-predicted
+    # over-, never under-predicted
+    assert float(model.predict(settings(K, R, F=10))) > float(truth.predict(settings(K, R, F=10)))
 
 
 def test_a_weighted_row_pulls_the_fit_towards_it():
@@ -113,15 +119,14 @@ def test_the_grid_comparison_takes_the_best_run_within_the_budget(tmp_path):
 def test_optimisation_finds_the_best_grid_setting_within_the_budget(method, budget):
     time_model, error_model = Model(method, "time", TIME[method], []), Model(method, "error", ERROR[method], [])
     found = optimise(time_model, error_model, budget)
-    axes = ["directions", "resolution"] + (["points", "splat_scale"] if method == "imperfect" else [])
+    grid = axes(method)
     best = np.inf
-    for values in itertools.product(*(GRID[a] for a in axes)):
-        x = dict(zip(axes, values))
-        N, s = x.get("points", 16384), x.get("splat_scale", 1.8)
-        per_frame = float(time_model.predict(x["directions"], x["resolution"], N, s, 1)) - TIME[method]["t_once"]
+    for values in itertools.product(*grid.values()):
+        x = dict(zip(grid, values))
+        per_frame = float(time_model.predict({**x, "frames": 1})) - TIME[method]["t_once"]
         frames = int((budget - TIME[method]["t_once"]) // per_frame)
         if frames >= 1:
-            best = min(best, float(error_model.predict(x["directions"], x["resolution"], N, s, frames)))
+            best = min(best, float(error_model.predict({**x, "frames": frames})))
     assert found.predicted_time_s <= budget and found.settings["frames"] >= 1
     assert found.predicted_error <= 1.001 * best
 
@@ -174,6 +179,6 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     assert result["measured"]["error"] == min(c["measured"]["error"] for c in result["candidates"])
     for method in ("perfect", "imperfect"):  # a residual per calibration run and one for the refinement run
         for kind in ("time", "error"):
-            assert len(result["models"][method][kind]["residuals"]) == len(CALIBRATION[method]) + 1
+            assert len(result["models"][method][kind]["residuals"]) == len(METHODS[method].tune.calibration) + 1
     assert json.loads((tmp_path / "tune.json").read_text())["recommended"] == rec
     assert "<h1>evalkit tune: cornell-box, 1 s</h1>" in (tmp_path / "report.html").read_text()

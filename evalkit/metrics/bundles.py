@@ -31,10 +31,11 @@ from __future__ import annotations
 import numpy as np
 
 from evalkit.core.bundleset import BundleSet
+from evalkit.core.settings import DEPTH_TOLERANCE
 
-# GL perfect depths are float32 along lines centred on the bounding sphere: about 1e-6 of the
-# radius. 1e-4 leaves a wide margin and still separates surfaces 1e-4 r apart.
-DEFAULT_DEPTH_TOLERANCE = 1e-4
+# The depth tolerance (evalkit/core/settings.py): GL perfect depths are float32 along lines centred
+# on the bounding sphere, about 1e-6 of the radius; 1e-4 leaves a wide margin and still separates
+# surfaces 1e-4 r apart.
 SLOPE_BINS = (0.0, 0.1, 0.25, 0.5, 0.75, 1.0)
 
 
@@ -53,7 +54,7 @@ def frame_mismatch(test: BundleSet, exact: BundleSet) -> str | None:
     return None
 
 
-def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = DEFAULT_DEPTH_TOLERANCE) -> dict:
+def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = DEPTH_TOLERANCE) -> dict:
     """Hole, spurious and redundant nodes and depth errors of ``test`` against ``exact``, in
     aggregate and per direction (see the module docstring). ``depth_tolerance`` is in units of the
     frame radius. Raises ValueError when the two sets do not share their lines."""

@@ -1,5 +1,5 @@
-"""What the runs of a study share, made once: Mitsuba references, Embree exact bundles (and the
-Embree scene that traces them), and the process's GL context.
+"""What the runs of a study share, made once: Mitsuba references and Embree exact bundles (and the
+Embree scene that traces them). The process's GL context is `gpu_impl.context.default_context`.
 
 `prepare_artefacts` makes the references and exact bundles before any run starts (and before any
 worker process does), so parallel runs never render the same reference twice.
@@ -12,7 +12,6 @@ from pathlib import Path
 
 from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.scene import Scene, load_scene
-from gpu_impl.context import GLContext
 from references.embree import ExactTracer
 from references.mitsuba import DEFAULT_STORE, Reference, load_reference, reference, store_entry
 
@@ -84,14 +83,3 @@ def exact_tracer(scene: Scene) -> ExactTracer:
     if key not in _TRACERS:
         _TRACERS[key] = ExactTracer(scene)
     return _TRACERS[key]
-
-
-_GL: GLContext | None = None
-
-
-def gl_context() -> GLContext:
-    """One GL context per process, made at its first GL run (making one is slow)."""
-    global _GL
-    if _GL is None:
-        _GL = GLContext()
-    return _GL

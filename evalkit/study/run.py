@@ -20,10 +20,10 @@ from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene, load_scene
 from evalkit.metrics.bundles import compare_bundles, eye_vertices, next_hit_errors
 from evalkit.metrics.images import compare_images
-from evalkit.study.artefacts import exact_bundles, exact_tracer, film_size, gl_context, reference_for
+from evalkit.study.artefacts import exact_bundles, exact_tracer, film_size, reference_for
 from evalkit.study.spec import render_settings, run_id
-from gpu_impl.bundles import BundleTracer
-from gpu_impl.renderer import Renderer
+from gpu_impl.api import bundle_tracer, render
+from gpu_impl.context import default_context
 from gpu_impl.scene_buffers import GpuScene
 from references.mitsuba import timed_render
 
@@ -104,19 +104,14 @@ def _measure(run: dict, measure: dict, out: Path, folder: Path) -> dict:
 
 
 def _render(scene: Scene, run: dict) -> tuple[dict, dict, dict]:
-    gl = gl_context()
-    renderer = Renderer(gl, scene, render_settings(run))
-    try:
-        result = renderer.render()
-    finally:
-        renderer.release()
+    result = render(scene, render_settings(run))
     t = result.timings
     timings = {
         "wall_s": t["wall_s"],
         "frames_rendered": result.params["frames_rendered"],
         "paths_per_pixel": result.params["paths_per_pixel"],
         "nodes_per_frame": result.stats["nodes_median"],
-        "gl_renderer": gl.info["renderer"],
+        "gl_renderer": result.params["gl"]["renderer"],
         **{f"ms_{k}": v for k, v in t["median_ms"].items() if "." not in k},
     }
     return result.images, timings, {**result.params, "warnings": result.warnings}
@@ -124,29 +119,16 @@ def _render(scene: Scene, run: dict) -> tuple[dict, dict, dict]:
 
 def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
     exact = exact_bundles(scene, run, out)
-    gl = gl_context()
-    st = render_settings(run)
+    gl = default_context()
     with (
         GpuScene(gl, scene) as gpu_scene,
-        BundleTracer(
-            gl,
-            gpu_scene,
-            st.method,
-            directions=st.directions,
-            resolution=st.resolution,
-            points=st.points,
-            splat_scale=st.splat_scale,
-            sampler=st.sampler,
-            splatter=st.splatter,
-            node_budget=st.node_budget,
-            count_covered=True,
-        ) as tracer,
+        bundle_tracer(gl, gpu_scene, render_settings(run), count_covered=True) as tracer,
     ):
         directions = DirectionSet.make(int(run["directions"]), seed=int(run["seed"]))
         tracer.build(directions)  # warm-up: the first build compiles and sizes the buffers
         stats = tracer.build(directions)
         bundles = tracer.read()
-        splat_radius = tracer.splat_radius if run["method"] == "imperfect" else None
+        splat_radius = tracer.params().get("splat_radius")
     r = compare_bundles(bundles, exact)
     embree = exact_tracer(scene)
     vertices = eye_vertices(scene, embree, int(measure["eye_vertices"]), seed=int(run["seed"]))

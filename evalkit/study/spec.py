@@ -27,10 +27,14 @@ A study file (TOML; studies/*.toml are examples)::
     group = "points"
     log = "xy"
 
-Methods: ``perfect`` and ``imperfect`` (GL bundles; rendered with `gpu_impl.renderer.Renderer`
-when images are measured) and ``mitsuba`` (Mitsuba 3 at ``spp``, timed). A run sets the scene, the
-method and any `RenderSettings` field; what it leaves out takes the renderer's own default
-(`RUN_DEFAULTS`). ``width`` and ``height`` left out are the scene camera's.
+Methods: the registered bundle methods (`gpu_impl.registry.METHODS`; rendered with
+`gpu_impl.renderer.Renderer` when images are measured) and ``mitsuba`` (Mitsuba 3 at ``spp``,
+timed). A run sets the scene, the method and any `RenderSettings` field or setting of its units
+(``points`` of imperfect bundles, say); what it leaves out takes the renderer's own default
+(`RUN_DEFAULTS`, and each unit's). A row holds every setting that applies to its run and none that
+does not: a unit's setting in ``[defaults]`` goes to the runs whose units have it, and one a grid
+gives a run whose units do not have it is an error. ``width`` and ``height`` left out are the
+scene camera's.
 """
 
 from __future__ import annotations
@@ -38,20 +42,24 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-import math
 import os
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from evalkit.core.errors import InputError
+from evalkit.core.settings import RenderSettings
 from evalkit.metrics.images import METRICS
-from gpu_impl.renderer import RenderSettings
+from gpu_impl.registry import METHODS, all_units, resolve
 
-METHODS = ("perfect", "imperfect", "mitsuba")
-# The parameters a run may set: the scene and every RenderSettings field, with the renderer's
+# Methods a study runs that are not bundle methods: the Mitsuba reference renderer, timed.
+REFERENCE_METHODS = ("mitsuba",)
+# The parameters every run has: the scene and every RenderSettings field, with the renderer's
 # defaults (Mitsuba runs use scene, bounces, spp, width, height and seed of them).
-RUN_DEFAULTS = {"scene": "cornell-box", **{f.name: f.default for f in fields(RenderSettings)}}
+RUN_DEFAULTS = {"scene": "cornell-box", **{f.name: f.default for f in fields(RenderSettings) if f.name != "options"}}
+# ... and the settings of the registered units, which a run has when its units do.
+UNIT_SETTINGS = tuple(dict.fromkeys(name for unit in all_units() for name in unit.option_names()))
+PARAMETERS = (*RUN_DEFAULTS, *UNIT_SETTINGS)
 MEASURE_DEFAULTS = {
     "bundles": False,
     "render": True,
@@ -99,7 +107,7 @@ def study_from_dict(spec: dict, path: Path | None = None) -> Study:
     unknown = set(spec) - TOP_KEYS
     if unknown:
         raise InputError(where, f"unknown key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(TOP_KEYS))}")
-    defaults = {**RUN_DEFAULTS, **_table(spec, "defaults", where)}
+    defaults = _table(spec, "defaults", where)
     grids = spec.get("grid", [{}])
     if isinstance(grids, dict):
         grids = [grids]
@@ -107,8 +115,7 @@ def study_from_dict(spec: dict, path: Path | None = None) -> Study:
     for grid in grids:
         axes = {k: v if isinstance(v, list) else [v] for k, v in grid.items()}
         for values in itertools.product(*axes.values()):
-            run = {**defaults, **dict(zip(axes, values))}
-            validate_run(run, where)
+            run = make_run(dict(zip(axes, values)), defaults, where)
             key = run_id(run)
             if key not in seen:
                 seen.add(key)
@@ -154,40 +161,45 @@ def _table(spec: dict, key: str, where: str) -> dict:
     return value
 
 
-def validate_run(run: dict, where: str) -> None:
-    """An `InputError` naming ``where`` and the first parameter of ``run`` that is unknown, of the
-    wrong type or out of the renderer's range (`RenderSettings.validate`)."""
-    unknown = set(run) - set(RUN_DEFAULTS)
+def make_run(given: dict, defaults: dict, where: str) -> dict:
+    """A run's parameters: ``given`` over ``defaults`` (a study's [defaults]) over `RUN_DEFAULTS`,
+    checked, with every setting of its units filled in and none that does not apply to them. A
+    unit's setting from ``defaults`` that does not apply is left out; one in ``given`` is an
+    error. Every problem is an `InputError` naming ``where`` and the parameter."""
+    run = {**RUN_DEFAULTS, **defaults, **given}
+    unknown = [k for k in run if k not in PARAMETERS]
     if unknown:
-        raise InputError(
-            where, f"unknown run parameter(s) {', '.join(sorted(unknown))}; known: {', '.join(RUN_DEFAULTS)}"
-        )
+        known = ", ".join(PARAMETERS)
+        raise InputError(where, f"unknown run parameter(s) {', '.join(sorted(unknown))}; known: {known}")
     if not isinstance(run["scene"], str):
         raise InputError(where, f"scene = {run['scene']!r} is not a scene name or path")
-    if run["method"] not in METHODS:
-        raise InputError(where, f"method '{run['method']}' is not one of {', '.join(METHODS)}")
-    for f in fields(RenderSettings):
-        value, kind = run[f.name], f.type  # 'bool', 'int', 'int | None', 'float' or 'str' (postponed annotations)
-        if value is None and kind.endswith("| None") or kind == "str":
-            continue
-        if kind == "bool":
-            ok = isinstance(value, bool)
-        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise InputError(where, f"{f.name} = {value!r} is not a finite number")
-        else:
-            ok = isinstance(value, int) or kind == "float"
-        if not ok:
-            raise InputError(
-                where, f"{f.name} = {value!r} must be {'true or false' if kind == 'bool' else 'a whole number'}"
-            )
-    try:  # a Mitsuba run checks the settings it shares with the renderer
-        render_settings({**run, "method": "perfect"} if run["method"] == "mitsuba" else run).validate()
+    options = [k for k in run if k not in RUN_DEFAULTS]
+    try:
+        if run["method"] in REFERENCE_METHODS:
+            explicit = [k for k in options if k in given]
+            if explicit:
+                raise ValueError(f"{explicit[0]} is a setting of bundle rendering, not of {run['method']} runs")
+            common = {k: run[k] for k in RUN_DEFAULTS}
+            render_settings({**common, "method": None}).validate()
+            return common
+        if run["method"] is not None and run["method"] not in METHODS.names:
+            known = ", ".join((*METHODS.names, *REFERENCE_METHODS))
+            raise ValueError(f"method '{run['method']}' is not one of {known}")
+        applicable = resolve(render_settings({k: run[k] for k in RUN_DEFAULTS})).units.values()
+        keep = {name for unit in applicable for name in unit.option_names()} | set(given)
+        resolved = resolve(render_settings({k: v for k, v in run.items() if k in RUN_DEFAULTS or k in keep}))
     except ValueError as e:
         raise InputError(where, str(e)) from None
+    return {"scene": run["scene"], **resolved.params()}
+
+
+def parameters(row: dict) -> dict:
+    """The run parameters of a study row (the rest are its metrics, timings and provenance)."""
+    return {k: row[k] for k in PARAMETERS if k in row}
 
 
 def render_settings(run: dict) -> RenderSettings:
-    """The run's `RenderSettings` (every parameter but the scene)."""
+    """The run's `RenderSettings` (every parameter but the scene; a unit's settings as options)."""
     return RenderSettings(**{k: v for k, v in run.items() if k != "scene"})
 
 

@@ -2,7 +2,7 @@
 // call, the splat points of imperfect bundles, and the sorted lists the eye paths read.
 //
 // A node is 8 bytes: its depth along the bundle direction d and a reference, the triangle
-// (perfect bundles) or the splat point (imperfect ones); BUNDLE_METHOD says which. What an eye
+// (perfect bundles) or the splat point (imperfect ones); NODE_REFERENCE says which. What an eye
 // path needs at a node (position, normals, albedo, emission) is computed where a path reaches it
 // (bundle_hits.glsl), so nothing else is stored per node. List l holds nodes list_first(l) ..
 // list_end(l) - 1, sorted by depth (then reference).
@@ -10,8 +10,8 @@
 // Passes that read the sorted lists define BUNDLE_LOOKUP (a compute shader may use at most 16
 // storage blocks, so each include declares only what its passes use).
 
-#if !defined BUNDLE_METHOD
-#error "bundle.glsl needs BUNDLE_METHOD (METHOD_PERFECT or METHOD_IMPERFECT): how node references are read"
+#if !defined NODE_REFERENCE
+#error "bundle.glsl needs NODE_REFERENCE (NODE_TRIANGLE or NODE_SPLAT_POINT): how node references are read"
 #endif
 
 struct BundleFrame {
@@ -22,7 +22,7 @@ struct BundleFrame {
 
 layout(std430, binding = BINDING_FRAMES) readonly buffer Frames { BundleFrame frames[]; };
 
-#if BUNDLE_METHOD == METHOD_IMPERFECT
+#if NODE_REFERENCE == NODE_SPLAT_POINT
 // A surface point of imperfect bundles: its triangle and barycentrics (b1, b2) as two unorm16, so
 // the point follows its triangle when the geometry moves. Points k N .. (k + 1) N - 1 are
 // direction k's (splat_points.glsl makes them).

@@ -38,6 +38,12 @@ layout(std430, binding = BINDING_NODES) buffer Nodes { uint64_t nodes[]; };
 layout(std430, binding = BINDING_LIST_COUNTS) buffer ListCounts { uint list_counts[]; };
 #endif
 
+#if defined SPLAT_LINE_RECORDS
+// The lines each splat covers, from the compute splatter's count pass to its scatter pass
+// (splat_lists.glsl says what the four words hold).
+layout(std430, binding = BINDING_SPLAT_LINES) buffer SplatLines { uvec4 splat_lines[]; };
+#endif
+
 #if defined NODE_KEYS
 // A node as one 64-bit key that sorts as (depth, reference) does: the depth's order bits
 // (common.glsl) in the high word, then the reference with FACING_BIT in the low word. Sorting and

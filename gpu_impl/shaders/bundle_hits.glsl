@@ -18,7 +18,7 @@ struct BundleHit {
 BundleHit bundle_hit(vec3 position, uint ref) {
     BundleHit hit;
     hit.position = position;
-#if BUNDLE_METHOD == METHOD_IMPERFECT
+#if NODE_REFERENCE == NODE_SPLAT_POINT
     hit.triangle = points[ref].triangle;
 #else
     hit.triangle = ref;
@@ -26,7 +26,7 @@ BundleHit bundle_hit(vec3 position, uint ref) {
     uvec3 v = triangle_vertices(hit.triangle);
     vec3 p0 = vertex_position(v.x);
     vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, position);
-#if BUNDLE_METHOD == METHOD_IMPERFECT
+#if NODE_REFERENCE == NODE_SPLAT_POINT
     vec2 centre = point_barycentrics(ref);
     hit.normal = shading_normal(hit.triangle, v, centre.x, centre.y);
 #else

@@ -25,7 +25,7 @@ void main() {
     vec3 origin = line_origin(k, list_pixel(list)), d = frames[k].d.xyz;
     for (uint i = list_first(list); i < list_end(list); i++) {
         BundleHit hit = list_node_hit(origin, d, i);
-        uint prim = BUNDLE_METHOD == METHOD_IMPERFECT ? hit.triangle | SPLAT_BIT : hit.triangle;
+        uint prim = NODE_REFERENCE == NODE_SPLAT_POINT ? hit.triangle | SPLAT_BIT : hit.triangle;
         attributes[i] = uvec4(encode_normal(hit.normal), packHalf2x16(hit.albedo.rg), packHalf2x16(vec2(hit.albedo.b, 0.0)), prim);
     }
 }

@@ -165,7 +165,7 @@ void main() {
             vec3 e = light_irradiance(node.position, nn);
 #else
             // Per node (perfect bundles) or per splat point (imperfect).
-            vec3 e = irradiance_at(BUNDLE_METHOD == METHOD_IMPERFECT ? node_ref(hit) : hit, front ? 0u : 1u);
+            vec3 e = irradiance_at(NODE_REFERENCE == NODE_SPLAT_POINT ? node_ref(hit) : hit, front ? 0u : 1u);
 #endif
             reflected = throughput * node.albedo * INV_PI * e;
 #endif

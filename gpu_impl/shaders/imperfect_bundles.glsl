@@ -6,7 +6,7 @@
 // resolve_lists.glsl keeps surfaces facing either way apart). splat_lists.glsl finds the same
 // nodes without the rasterizer (--splatter compute, the default).
 
-#define BUNDLE_METHOD METHOD_IMPERFECT
+#define NODE_REFERENCE NODE_SPLAT_POINT
 #define LINKED_LISTS
 #include "common.glsl"
 #include "scene.glsl"

@@ -41,7 +41,7 @@ void store_irradiance(uint item, vec3 position, vec3 normal, uint triangle) {
 void main() {
     uint id = linear_id();
     if (id >= invocations) return;
-#if BUNDLE_METHOD == METHOD_IMPERFECT
+#if NODE_REFERENCE == NODE_SPLAT_POINT
     SplatSource s = splat_source(id);
     store_irradiance(id, s.centre, shading_normal(s.triangle, s.vertices, s.b.x, s.b.y), s.triangle);
 #else

@@ -1,15 +1,16 @@
-// Direct lighting from point, spot and directional lights through shadow maps
-// (gpu_impl/lights.py fills the buffers and renders the shadow atlas).
+// Direct lighting from point, spot and directional lights through shadow maps, and from the
+// frame's light vertices (gpu_impl/lights.py fills the buffers and renders the shadow atlas).
 //
 // Radiometry follows Mitsuba's emitters, so images compare with its references: a point or spot
 // light gives intensity / distance^2 (the spot times Mitsuba's falloff, linear in angle from 1 at
-// beam_width to 0 at cutoff_angle), a directional light its irradiance. An emitter sample (next-
-// event estimation of emissive triangles, gpu_impl/lights.py: EmitterSamples) is a point light
-// whose intensity falls as the cosine to its emitter's normal, L_e cos_y / (M p(y)), weighted by
-// multiple importance sampling against the bundle direction that could have found the emitter.
+// beam_width to 0 at cutoff_angle), a directional light its irradiance. A light vertex (an emitter
+// sample: next-event estimation of emissive triangles, gpu_impl/lights.py: EmitterSamples) is a
+// point light whose intensity falls as the cosine to its surface's normal, L_e cos_y / (M p(y)),
+// weighted by multiple importance sampling against the bundle direction that could have found the
+// emitter; the light visibility unit says how it is seen (LIGHT_VISIBILITY: light_visibility_*.glsl).
 //
-// Compiled per scene: SHADOW_LIGHTS is 0 without point, spot or directional lights, and then
-// nothing here exists.
+// Compiled per scene: SHADOW_LIGHTS is 0 without point, spot or directional lights or light
+// vertices, and then nothing here exists.
 
 #if SHADOW_LIGHTS
 
@@ -111,6 +112,12 @@ float spot_falloff(Light light, float cos_theta) {
     return (light.shape.x - acos(cos_theta)) * light.shape.y;
 }
 
+#if LIGHT_VISIBILITY == LIGHT_VISIBILITY_EXACT
+#include "light_visibility_exact.glsl"
+#else
+#error "LIGHT_VISIBILITY names no light visibility (gpu_impl/layout.py: LIGHT_VISIBILITY_*)"
+#endif
+
 // Irradiance at p on the side its normal n faces, from every shadow-mapped light.
 vec3 light_irradiance(vec3 p, vec3 n) {
     vec3 e = vec3(0.0);
@@ -134,7 +141,9 @@ vec3 light_irradiance(vec3 p, vec3 n) {
         }
         float cos_theta = dot(n, to_light);
         if (cos_theta <= 0.0 || all(equal(arriving, vec3(0.0)))) continue;
-        e += arriving * (cos_theta * shadow_visibility(shadow_view_of(light, p), p, n, to_light));
+        float visible = light.position.w == LIGHT_EMITTER_SAMPLE ? light_vertex_visibility(light, p, n, to_light)
+                                                                  : shadow_visibility(shadow_view_of(light, p), p, n, to_light);
+        e += arriving * (cos_theta * visible);
     }
     return e;
 }

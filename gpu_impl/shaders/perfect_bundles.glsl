@@ -13,7 +13,7 @@
 // NULL_FRAGMENT builds the raw-raster baseline of benchmarks/bundles.py: the same geometry and
 // vertex work with an empty fragment shader.
 
-#define BUNDLE_METHOD METHOD_PERFECT
+#define NODE_REFERENCE NODE_TRIANGLE
 #define LINKED_LISTS
 #include "common.glsl"
 #include "scene.glsl"

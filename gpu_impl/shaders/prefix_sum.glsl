@@ -14,10 +14,11 @@ layout(std430, binding = BINDING_SCAN_SUMS) buffer ScanSums { uint block_sums[];
 
 uniform uint count;  // values to scan
 
-// 16 values per invocation: a CPU rasterizer pays for every workgroup barrier, and blocks of 4096
-// values need a quarter of the barriers blocks of 1024 did (4.19 M list counts: 14 ms, was 36).
-#define PER_THREAD 16u
-#define BLOCK (PER_THREAD * LOCAL_SIZE)
+// SCAN_PER_THREAD (16, gpu_impl/layout.py) values per invocation: a CPU rasterizer pays for every
+// workgroup barrier, and blocks of 4096 values need a quarter of the barriers blocks of 1024 did
+// (4.19 M list counts: 14 ms, was 36).
+#define PER_THREAD SCAN_PER_THREAD
+#define BLOCK (PER_THREAD * uint(LOCAL_SIZE))
 
 uint block_index() {
     return gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;

@@ -3,17 +3,24 @@
 // suite runs it (tests/test_gl_context.py); RECORD_GROUP picks the includes, which together would
 // exceed a compute shader's 16 storage blocks.
 
+#extension GL_ARB_gpu_shader_int64 : require
 #include "common.glsl"
 
 #if RECORD_GROUP == 0
-#define BUNDLE_METHOD METHOD_IMPERFECT
+#define NODE_REFERENCE NODE_SPLAT_POINT
 #include "scene.glsl"
 #include "bundle.glsl"
 #elif RECORD_GROUP == 1
 #define SHADOW_LIGHTS 1
+#define LIGHT_VISIBILITY LIGHT_VISIBILITY_EXACT
 #include "lights.glsl"
-#else
+#elif RECORD_GROUP == 2
 #include "paths.glsl"
+#else
+#define LINKED_LISTS
+#define SLOT_LISTS
+#define SPLAT_LINE_RECORDS
+#include "bundle_build.glsl"
 #endif
 
 #if defined COMPUTE_SHADER
@@ -31,9 +38,15 @@ void main() {
 #elif RECORD_GROUP == 1
     lengths[0] = uint(lights.length());
     lengths[1] = uint(shadow_views.length());
-#else
+#elif RECORD_GROUP == 2
     lengths[0] = uint(paths.length());
     lengths[1] = uint(sums.length());
+#else
+    lengths[0] = uint(nodes.length());
+    lengths[1] = uint(node_next.length());
+    lengths[2] = uint(list_depth.length());
+    lengths[3] = uint(list_ref.length());
+    lengths[4] = uint(splat_lines.length());
 #endif
 }
 

@@ -57,7 +57,10 @@ void main() {
 // runs many times faster); its first 19 compare-exchanges sort 8 keys, the first 63 sort 16, all
 // 191 sort 32, and a list runs only as many as its length needs. Longer lists (a deep stack of
 // surfaces, heavily overlapping splats) are insertion-sorted in place, in global memory.
-#define NETWORK 32u
+#if SORT_NETWORK != 32
+#error "the sorting network below is written out for SORT_NETWORK = 32 keys (gpu_impl/layout.py)"
+#endif
+#define NETWORK uint(SORT_NETWORK)
 uint64_t key[NETWORK];
 #define PADDING 0xFFFFFFFFFFFFFFFFul  // sorts last
 

@@ -25,9 +25,10 @@
 // the same as the raster splatter's.
 
 #extension GL_ARB_gpu_shader_int64 : require
-#define BUNDLE_METHOD METHOD_IMPERFECT
+#define NODE_REFERENCE NODE_SPLAT_POINT
 #define SLOT_LISTS
 #define NODE_KEYS
+#define SPLAT_LINE_RECORDS
 #include "common.glsl"
 #include "scene.glsl"
 #include "bundle.glsl"
@@ -42,9 +43,8 @@ uniform bool nearest_only;
 
 // A splat's lines as the count pass found them: x the box's first column | its first row << 16,
 // y a bit per line (row-major, LINES_WIDTH columns a row), z the box's width | LINES_FACING |
-// LINES_KEPT, w the bits of dot(n, centre), the splat plane's offset. Without LINES_KEPT the
-// scatter finds the lines itself.
-layout(std430, binding = BINDING_SPLAT_LINES) buffer SplatLines { uvec4 splat_lines[]; };
+// LINES_KEPT, w the bits of dot(n, centre), the splat plane's offset (splat_lines[], declared in
+// bundle_build.glsl). Without LINES_KEPT the scatter finds the lines itself.
 #define LINES_WIDTH 0xFFu
 #define LINES_FACING 0x100u
 #define LINES_KEPT 0x200u  // merging: only the nearest of a triangle's splats puts a node on a line

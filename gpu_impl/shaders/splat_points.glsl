@@ -12,7 +12,7 @@
 //   halves the triangle again and again (each half has half the area), so the points of a large
 //   triangle are stratified in 2D too. Fewer holes for the same splat size, so fewer nodes.
 
-#define BUNDLE_METHOD METHOD_IMPERFECT
+#define NODE_REFERENCE NODE_SPLAT_POINT
 #define SPLAT_POINTS_WRITE
 #include "common.glsl"
 #include "bundle.glsl"

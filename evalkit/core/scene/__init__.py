@@ -5,10 +5,11 @@ from __future__ import annotations
 import os
 
 from evalkit.core.errors import InputError
+from evalkit.core.scene.assemble import assemble
 from evalkit.core.scene.builtin import BUILTIN_SCENES
 from evalkit.core.scene.mesh_import import load_mesh_file
 from evalkit.core.scene.mitsuba_io import load_mitsuba_file
-from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scene, SceneFeatures, assemble
+from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scene, SceneFeatures
 
 MITSUBA_EXTENSIONS = (".xml",)
 MESH_EXTENSIONS = (".obj", ".ply", ".gltf", ".glb")

@@ -21,8 +21,10 @@ import math
 import numpy as np
 
 from evalkit.core.mitsuba_env import mitsuba
+from evalkit.core.scene.assemble import assemble, look_at
+from evalkit.core.scene.colour import srgb_to_linear
 from evalkit.core.scene.mitsuba_io import load_mitsuba_dict
-from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scene, assemble, look_at, srgb_to_linear
+from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scene
 from evalkit.core.scene.tessellate import box, subdivide, surface, unit_sphere
 
 FURNACE_ALBEDO = 0.5

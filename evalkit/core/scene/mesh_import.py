@@ -19,7 +19,9 @@ import os
 import numpy as np
 
 from evalkit.core.errors import InputError
-from evalkit.core.scene.model import Material, Mesh, Scene, assemble, default_sun, rgb, srgb_to_linear
+from evalkit.core.scene.assemble import assemble, default_sun
+from evalkit.core.scene.colour import rgb, srgb_to_linear
+from evalkit.core.scene.model import Material, Mesh, Scene
 
 
 def load_mesh_file(path: str | os.PathLike) -> Scene:

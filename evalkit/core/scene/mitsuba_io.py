@@ -21,7 +21,9 @@ import numpy as np
 
 from evalkit.core.errors import InputError
 from evalkit.core.mitsuba_env import mitsuba
-from evalkit.core.scene.model import Camera, Light, Material, Mesh, Scene, assemble, rgb
+from evalkit.core.scene.assemble import assemble
+from evalkit.core.scene.colour import rgb
+from evalkit.core.scene.model import Camera, Light, Material, Mesh, Scene
 from evalkit.core.scene.tessellate import unit_disk, unit_sphere
 
 SPHERE_SEGMENTS = (128, 64)  # (longitude, latitude): area within 0.1 % of the analytic sphere

@@ -1,0 +1,67 @@
+"""A scene described for people and JSON: what `evalkit scene info` prints."""
+
+from __future__ import annotations
+
+from evalkit.core.scene.model import Light, Scene
+
+
+def scene_summary(scene: Scene) -> dict:
+    """A JSON-ready description of ``scene``, as `evalkit scene info` prints it."""
+    lo, hi = scene.bounds()
+    centre, radius = scene.bounding_sphere()
+    f = scene.features()
+    used = sorted({m.material for m in scene.meshes})
+    return {
+        "name": scene.name,
+        "source": scene.source,
+        "content_hash": scene.content_hash(),
+        "triangles": scene.triangle_count,
+        "meshes": len(scene.meshes),
+        "degenerate_removed": scene.degenerate_removed,
+        "origin": scene.origin.tolist(),
+        "bounds": {"min": (lo + scene.origin).tolist(), "max": (hi + scene.origin).tolist()},
+        "bounding_radius": radius,
+        "surface_area": scene.surface_area(),
+        "materials": [
+            {
+                "name": scene.materials[i].name,
+                "albedo": list(scene.materials[i].albedo),
+                "texture": None if scene.materials[i].texture is None else list(scene.materials[i].texture.shape[:2]),
+                "emission": list(scene.materials[i].emission),
+                "twosided": scene.materials[i].twosided,
+                "source_bsdf": scene.materials[i].source_bsdf,
+                "approximated": scene.materials[i].approximated,
+            }
+            for i in used
+        ],
+        "lights": [_light_summary(light) for light in scene.lights],
+        "camera": {
+            "position": (scene.camera.position + scene.origin).tolist(),
+            "fov": scene.camera.fov,
+            "fov_axis": scene.camera.fov_axis,
+            "width": scene.camera.width,
+            "height": scene.camera.height,
+        },
+        "features": {
+            "triangle_count": f.triangle_count,
+            "textures": f.textures,
+            "emitters": f.emitters,
+            "environment": f.environment,
+            "light_types": list(f.light_types),
+            "depth_complexity": f.depth_complexity,
+            "twosided": f.twosided,
+            "approximated_bsdfs": list(f.approximated_bsdfs),
+        },
+        "warnings": list(scene.warnings),
+    }
+
+
+def _light_summary(light: Light) -> dict:
+    d = {"kind": light.kind, "intensity": list(light.intensity)}
+    if light.direction is not None:
+        d["direction"] = light.direction.tolist()
+    if light.kind == "spot":
+        d["cutoff_angle"], d["beam_width"] = light.cutoff_angle, light.beam_width
+    if light.envmap is not None:
+        d["envmap"] = list(light.envmap.shape[:2])
+    return d

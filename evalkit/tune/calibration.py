@@ -1,0 +1,237 @@
+"""The tuner's runs and its answer: the calibration sweep, the refinement that anchors the models
+where the decision is made, the check that renders each method's optimum, and `tune`, which does
+all of it (evalkit/tune/__init__.py says why each step is there)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from evalkit.core.errors import InputError
+from evalkit.pages import is_number
+from evalkit.study.executors import read_rows, run_study
+from evalkit.study.run import versions
+from evalkit.study.spec import study_from_dict
+from evalkit.tune.models import TUNE_METRICS, axes, fit_model
+from evalkit.tune.optimise import optimise
+from evalkit.tune.report import write_tune_report
+from gpu_impl.registry import METHODS
+
+# The last two calibration runs of each method have LONG shares of the calibration time: runs where
+# the noise has fallen far enough for the bias terms to show (fitted to short runs alone, the
+# error model put cornell-box's 60 s recommendation at half its measured error).
+LONG = 3
+CALIBRATION_SHARE = 2.0  # the calibration's render time, in budgets (each run renders at least one frame)
+# The part of it that the spread runs share; the rest renders each method's first optimum, which
+# then weighs as much as half the spread runs in the refit: a model of a few terms is least wrong
+# where the decision is made, and the error model's bias terms extrapolate badly (atrium's
+# holes and overhang grow fast below N = 16384, its 10 s recommendation measured 13x its
+# prediction from the spread runs alone).
+SPREAD = 0.5
+MAX_FRAMES = 100_000  # a calibration run's frame limit: its time budget ends it long before
+
+
+def calibration_grid(methods: tuple[str, ...], seconds: float) -> list[dict]:
+    """The calibration sweep's runs (each method's `TuneTerms.calibration`), each with its share of
+    ``seconds`` as its time budget."""
+    runs = {m: METHODS[m].tune.calibration for m in methods}
+    shares = {m: [1] * (len(runs[m]) - 2) + [LONG] * 2 for m in methods}
+    unit = seconds / sum(sum(v) for v in shares.values())
+    return [
+        {"method": m, **settings, "time_budget": round(share * unit, 3), "frames": MAX_FRAMES}
+        for m in methods
+        for settings, share in zip(runs[m], shares[m])
+    ]
+
+
+@dataclass
+class TunerStudies:
+    """The tuner's runs of one scene and image: each set of them a study (`evalkit.study`, cached) in
+    its own folder under ``out``, all measured against one reference (rendered once into
+    ``out``/references unless the committed store has it)."""
+
+    defaults: dict  # scene, seed and the image
+    metric: str  # IMAGE_METRIC
+    reference_spp: int
+    out: Path
+    progress: object = print
+
+    def run(self, name: str, grid: list[dict]) -> list[dict]:
+        """The rows of the runs ``grid`` (in ``out``/``name``); a failed run is an error naming the folder."""
+        image, metric = self.metric.split("_", 1)
+        study = study_from_dict(
+            {
+                "name": f"tune_{name}",
+                "title": f"evalkit tune: {name} runs of {self.defaults['scene']}",
+                "defaults": self.defaults,
+                "grid": grid,
+                "measure": {
+                    "images": [image],
+                    "metrics": [metric],
+                    "reference_spp": self.reference_spp,
+                    "reference_store": str(self.out / "references"),
+                },
+            }
+        )
+        rows = run_study(study, self.out / name, progress=self.progress, command=" ".join(sys.argv))
+        failed = [r for r in rows if r["status"] != "ok"]
+        if failed:
+            raise InputError(
+                str(self.out / name), f"{len(failed)} of the tuner's runs failed, first: {failed[0]['status']}"
+            )
+        return rows
+
+
+def tune(
+    scene: str,
+    budget: float,
+    method: str = "both",
+    metric: str = "indirect_relmse",
+    out: str | Path | None = None,
+    width: int = 128,
+    height: int = 128,
+    bounces: int = 3,
+    spp: int = 16,
+    reference_spp: int = 16384,
+    seed: int = 0,
+    calibration_share: float = CALIBRATION_SHARE,
+    check: bool = True,
+    grid: str | Path | None = None,
+    progress=print,
+) -> dict:
+    """Recommend settings for ``scene`` within ``budget`` seconds of render time, predicted by models
+    fitted to a calibration sweep of about ``calibration_share`` x ``budget`` seconds of render time,
+    and (``check``) measure the recommendation; ``grid``: a study's folder to compare it with
+    (`compare_with_grid`). Returns everything `evalkit tune --json` prints; writes ``tune.json``
+    and ``report.html`` to ``out``."""
+    if not (isinstance(budget, (int, float)) and math.isfinite(budget) and budget > 0):
+        raise InputError("tune", f"the budget must be a positive number of seconds, got {budget}")
+    if metric not in TUNE_METRICS:
+        raise InputError("tune", f"unknown metric {metric!r}; known: {', '.join(TUNE_METRICS)}")
+    if method not in (*METHODS.names, "both"):
+        known = ", ".join(METHODS.names)
+        raise InputError("tune", f"method must be {known} or both, got {method!r}")
+    if not (isinstance(calibration_share, (int, float)) and math.isfinite(calibration_share) and calibration_share > 0):
+        raise InputError("tune", f"the calibration share must be a positive number of budgets, got {calibration_share}")
+    if grid is not None and not (Path(grid) / "results.jsonl").is_file():
+        raise InputError(
+            str(grid), "no results.jsonl: run the grid study first (evalkit study studies/tune_check.toml)"
+        )
+    methods = METHODS.names if method == "both" else (method,)
+    out = Path(out or f"out/tune/{Path(scene).stem}")
+    image = {"width": width, "height": height, "bounces": bounces, "spp": spp}
+    start = time.perf_counter()
+    studies = TunerStudies({"scene": scene, "seed": seed, **image}, metric, reference_spp, out, progress)
+    seconds = calibration_share * budget
+    rows = studies.run("calibration", calibration_grid(methods, SPREAD * seconds))
+    models = {m: _fit(m, rows, metric) for m in methods}
+    first = {m: optimise(models[m]["time"], models[m]["error"], budget) for m in methods}
+    share = round((1 - SPREAD) * seconds / len(methods), 3)
+    anchors = studies.run(
+        "refinement",
+        [{**c.settings, "method": m, "frames": MAX_FRAMES, "time_budget": share} for m, c in first.items()],
+    )
+    rows += [{**r, "weight": len(METHODS[r["method"]].tune.calibration) / 2} for r in anchors]
+    models = {m: _fit(m, rows, metric) for m in methods}
+    candidates = [optimise(models[m]["time"], models[m]["error"], budget) for m in methods]
+    measured = {}
+    if check:
+        # Every method's candidate is rendered and the least measured error wins: between methods
+        # the models' residuals (0.1-0.3 in log) are as large as the predicted differences.
+        checked = studies.run("check", [{"method": c.method, **c.settings} for c in candidates])
+        measured = {
+            r["method"]: {"time_s": float(r["wall_s"]), "error": float(r[metric]), "run_id": r["run_id"]}
+            for r in checked
+        }
+        best = min(candidates, key=lambda c: measured[c.method]["error"])
+    else:
+        best = min(candidates, key=lambda c: c.predicted_error)
+    result = {
+        "scene": scene,
+        "budget_s": budget,
+        "metric": metric,
+        "method": method,
+        "image": image,
+        "seed": seed,
+        "reference_spp": reference_spp,
+        "recommended": {"method": best.method, **best.settings, **image},
+        "predicted": {"time_s": best.predicted_time_s, "error": best.predicted_error},
+        "chosen_by": "measured error" if check else "predicted error",
+        "candidates": [{**c.as_dict(), **({"measured": measured[c.method]} if check else {})} for c in candidates],
+        **({"measured": measured[best.method]} if check else {}),
+        "models": {
+            m: {
+                kind: {
+                    "constants": models[m][kind].constants,
+                    "residuals": models[m][kind].residuals,
+                    "rms_log_residual": models[m][kind].rms_residual(),
+                }
+                for kind in ("time", "error")
+            }
+            for m in methods
+        },
+        "first_optimum": [c.as_dict() for c in first.values()],
+        "warnings": [model.warning for m in methods for model in models[m].values() if model.warning],
+        "calibration": {
+            "runs": len(rows),
+            "share": calibration_share,
+            "render_s": sum(float(r["wall_s"]) for r in rows),
+            "run_s": sum(float(r["run_s"]) for r in rows),
+            "folders": [str(out / "calibration"), str(out / "refinement")],
+        },
+        "versions": versions(),
+    }
+    if grid is not None:
+        result["grid"] = compare_with_grid(result, Path(grid))
+    result["tune_s"] = time.perf_counter() - start
+    result["report"] = str(out / "report.html")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "tune.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_tune_report(result, rows, models, out / "report.html")
+    return result
+
+
+def _fit(method: str, rows: list[dict], metric: str) -> dict:
+    return {"time": fit_model(method, "time", rows), "error": fit_model(method, "error", rows, metric)}
+
+
+def compare_with_grid(result: dict, folder: Path) -> dict:
+    """The best run of a grid study (studies/tune_check.toml) of the tuner's scene and image within
+    its budget (a ``time_budget`` run of that budget), beside the recommendation's measured error."""
+    metric, budget = result["metric"], result["budget_s"]
+    rows = read_rows(folder)
+    if not rows:
+        raise InputError(
+            str(folder), "no results.jsonl rows: run the grid study first (evalkit study studies/tune_check.toml)"
+        )
+    same = [
+        r
+        for r in rows
+        if r["status"] == "ok"
+        and Path(r["scene"]).stem == Path(result["scene"]).stem
+        and r.get("time_budget") == budget
+        and all(r.get(k) == v for k, v in result["image"].items())
+        and is_number(r.get(metric))
+        and r["wall_s"] <= budget
+    ]
+    if not same:
+        image = result["image"]
+        raise InputError(
+            str(folder),
+            f"no run of {result['scene']} at {image['width']}x{image['height']}, {image['bounces']} bounces, "
+            f"{image['spp']} spp with time_budget = {budget:g} measured {metric} within it",
+        )
+    best = min(same, key=lambda r: r[metric])
+    keys = ("method", *axes(best["method"]), "frames_rendered")
+    out = {
+        "folder": str(folder),
+        "runs": len(same),
+        "best": {**{k: best[k] for k in keys}, "time_s": best["wall_s"], "error": best[metric]},
+    }
+    if "measured" in result:
+        out["ratio"] = result["measured"]["error"] / best[metric]
+    return out

@@ -1,0 +1,128 @@
+"""The tuner's report: predicted error-versus-time fronts beside the measured runs and the check,
+the fitted constants and their residuals."""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+import numpy as np
+
+from evalkit.core.errors import InputError
+from evalkit.figures import pyplot
+from evalkit.pages import page
+from evalkit.tune.optimise import optimise
+from gpu_impl.registry import settings_symbols
+
+
+def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) -> None:
+    """report.html: predicted error-versus-time fronts beside the measured rows and the check, the
+    fitted constants and their residuals."""
+    plt = pyplot()
+    metric, budget = result["metric"], result["budget_s"]
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    # Nine budgets a factor 2 apart: each is a whole optimisation (about 0.1 s).
+    budgets = np.geomspace(budget / 16, budget * 16, 9)
+    for i, (method, m) in enumerate(models.items()):
+        colour = f"C{i}"
+        front = []
+        for b in budgets:
+            try:
+                front.append((b, optimise(m["time"], m["error"], float(b)).predicted_error))
+            except InputError:
+                continue
+        if front:
+            ax.plot(*zip(*front), "-", color=colour, label=f"{method}: predicted front")
+        mine = [r for r in rows if r["method"] == method]
+        ax.plot(
+            [r["wall_s"] for r in mine],
+            [r[metric] for r in mine],
+            "o",
+            color=colour,
+            mfc="none",
+            label=f"{method}: calibration runs",
+        )
+        for c in (c for c in result["candidates"] if c["method"] == method):
+            ax.plot(
+                [c["predicted_time_s"]],
+                [c["predicted_error"]],
+                "*",
+                color=colour,
+                ms=11,
+                label=f"{method} optimum: predicted",
+            )
+            if "measured" in c:
+                ax.plot(
+                    [c["measured"]["time_s"]],
+                    [c["measured"]["error"]],
+                    "X",
+                    color=colour,
+                    ms=9,
+                    label=f"{method} optimum: measured",
+                )
+    ax.axvline(budget, color="grey", lw=0.8, ls=":")
+    ax.set(
+        xscale="log",
+        yscale="log",
+        xlabel="render time (s)",
+        ylabel=metric,
+        title=f"{result['scene']}: {metric} against time",
+    )
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    png = path.with_suffix(".png")
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    rec, calibration = result["recommended"], result["calibration"]
+    grid = result.get("grid")
+    render_s = calibration["render_s"]
+    parts = [
+        f"<h1>evalkit tune: {html.escape(result['scene'])}, {budget:g} s</h1>",
+        f"<p>Metric {html.escape(metric)}; image {rec['width']}x{rec['height']}, {rec['bounces']} bounces, "
+        f"{rec['spp']} paths per pixel per frame; calibration: {calibration['runs']} runs, {render_s:.1f} s of "
+        f"render time ({render_s / budget:.2f}x the budget; asked for {calibration['share']:g}x), "
+        f"{calibration['run_s']:.1f} s with loading and measuring, "
+        f"cached in {html.escape(' and '.join(calibration['folders']))}.</p>",
+        "<h2>Recommendation</h2><table><tr><th>setting</th><th>value</th></tr>",
+        *[f"<tr><td>{html.escape(k)}</td><td>{v}</td></tr>" for k, v in rec.items()],
+        f"</table><p>Each method's optimum, chosen between by {html.escape(result['chosen_by'])}:</p>",
+        "<table><tr><th>candidate</th><th>predicted time (s)</th><th>predicted error</th>"
+        "<th>measured time (s)</th><th>measured error</th></tr>",
+        *[
+            f"<tr><td>{html.escape(settings_text(c))}</td><td>{c['predicted_time_s']:.3g}</td>"
+            f"<td>{c['predicted_error']:.4g}</td>"
+            + (
+                f"<td>{c['measured']['time_s']:.3g}</td><td>{c['measured']['error']:.4g}</td>"
+                if "measured" in c
+                else "<td></td><td></td>"
+            )
+            + "</tr>"
+            for c in result["candidates"]
+        ],
+        *(
+            [
+                f"<tr><td>best of {grid['runs']} grid runs: {html.escape(settings_text(grid['best']))}</td>"
+                "<td></td><td></td>"
+                f"<td>{grid['best']['time_s']:.3g}</td><td>{grid['best']['error']:.4g}</td></tr>"
+            ]
+            if grid
+            else []
+        ),
+        f"</table><p><img src='{png.name}'></p><h2>Fitted models</h2>",
+        *[f"<p><b>Warning</b>: {html.escape(w)}</p>" for w in result["warnings"]],
+    ]
+    for method, m in result["models"].items():
+        for kind, fitted in m.items():
+            constants = ", ".join(f"{k} = {v:.4g}" for k, v in fitted["constants"].items())
+            residuals = ", ".join(f"{v:+.2f}" for v in fitted["residuals"])
+            parts.append(
+                f"<p><b>{method} {kind}</b>: {constants}; log residuals per run {residuals} "
+                f"(rms {fitted['rms_log_residual']:.2f})</p>"
+            )
+    path.write_text(page(f"evalkit tune: {result['scene']}", parts))
+
+
+def settings_text(settings: dict) -> str:
+    """'perfect K=8 R=256 F=22' and so on, from a candidate's or a grid row's settings."""
+    short = {**settings_symbols(), "frames_rendered": "F"}
+    return " ".join([settings["method"], *(f"{short[k]}={v}" for k, v in settings.items() if k in short)])

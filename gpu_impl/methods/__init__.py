@@ -1,0 +1,1 @@
+"""Bundle methods: one module each, registered in gpu_impl/registry.py."""

@@ -1,0 +1,320 @@
+"""Imperfect ray bundles (the poster's point splats): each direction draws its own seeded set of N
+points on the surfaces, each a disk of radius ``splat_scale * sqrt(A / (pi N))`` (or
+``splat_radius``) in its source triangle's plane, and the nodes are where bundle lines cross the
+disks.
+
+- ``points``: N points per direction (shaders/splat_points.glsl), stratified along a space-filling
+  curve or independent (``sampler``).
+- ``lists``, compute splatter (the default): every splat counts the lines it covers, a prefix sum
+  makes exact-size slot ranges, round-trip 1 reads their total, and every splat writes its nodes
+  (shaders/splat_lists.glsl): no linked list, no re-run. The count pass leaves each splat's lines
+  behind (`SPLAT_LINES`) so the scatter does not search for them again.
+- ``lists``, raster splatter: the poster's splats drawn by the rasterizer as triangles with a
+  circular cut-out into linked lists (shaders/imperfect_bundles.glsl).
+- ``resolve``: each list sorted and its redundant nodes (one surface crossing covered by several
+  splats) merged in place, at the front of its range (shaders/resolve_lists.glsl).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from evalkit.core.settings import DEPTH_TOLERANCE, setting
+from gpu_impl.bundles import BundleTracer, LinkedListTracer
+from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT
+from gpu_impl.units import BundleMethod, TuneTerms
+
+SPLATTERS = ("compute", "raster")
+# Splat radius in units of sqrt(A / (pi N)), the radius at which N disks cover area A once. With
+# independent uniform points a surface point is missed by all of them with probability
+# exp(-splat_scale^2); the stratified points leave far fewer holes, exp(-1.25 s^2.4) on cornell-box.
+# 1.8 is the hole model's recommendation for stratified points (studies/hole_vs_splat.toml: 1.81
+# on cornell-box, 1.94 on atrium whose curved-surface floor of holes no splat size removes), at
+# 3.2 nodes per crossing against 4 for the old default 2 (docs/MEASURED_FACTS.md).
+DEFAULT_SPLAT_SCALE = 1.8
+# The hole model's shape per sampler, P(hole) ~ exp(-c s^q) (studies/hole_vs_splat.toml on
+# cornell-box, docs/MEASURED_FACTS.md): the tuner's hole term.
+HOLE_SHAPE = {"stratified": (1.26, 2.42), "random": (0.99, 1.95)}
+
+
+@dataclass(frozen=True)
+class ImperfectSettings:
+    points: int = setting(16384, "points per direction", minimum=1, symbol="N")
+    splat_scale: float = setting(
+        DEFAULT_SPLAT_SCALE, "splat radius in units of sqrt(A / (pi N))", positive=True, symbol="s"
+    )
+    splat_radius: float | None = setting(
+        None, "absolute splat radius in scene units (overrides splat_scale)", positive=True
+    )
+    sampler: str = setting(
+        "stratified", "the points: stratified along a space-filling curve, or independent", choices=tuple(SAMPLERS)
+    )
+    splatter: str = setting(
+        "compute", "splats found by a compute pass (exact-size lists) or drawn by the rasterizer", choices=SPLATTERS
+    )
+    merge: bool = setting(True, "merge the nodes of one surface crossing that several splats make")
+
+
+class SplatTracer(BundleTracer):
+    """What both splatters share: the points, their radius, the merge."""
+
+    node_reference = NODE_SPLAT_POINT
+    raw_nodes_are = "splat nodes before merging"
+    point_bytes = SPLAT_POINT.itemsize  # per point, whatever the node count
+
+    def __init__(self, gl, gpu_scene, settings, **hooks):
+        super().__init__(gl, gpu_scene, settings, **hooks)
+        own = METHOD.settings_of(settings)
+        self.N, self.sampler, self.splatter, self.merge = own.points, own.sampler, own.splatter, own.merge
+        if 3 * self.K * self.N >= 2**31:
+            raise ValueError(f"K={self.K}, N={self.N} exceed the 32-bit point indices")
+        # The radius at which N disks cover the scene's area once: the unit of splat_scale.
+        unit = math.sqrt(gpu_scene.arrays.tri_area.sum() / (math.pi * self.N))
+        self.splat_radius = own.splat_radius if own.splat_radius is not None else own.splat_scale * unit
+        self.splat_scale = self.splat_radius / unit
+        if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
+            raise ValueError(f"the splat radius must be positive and finite, got {self.splat_radius}")
+        self._check_budget(self.fixed_bytes, what=f"{self.K * self.N:,} {self.points_are} and the list offsets")
+        self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N).clear()  # triangle 0 for a warm-up draw
+
+    points_are = "splat points"
+
+    def describe(self) -> str:
+        return f"imperfect bundles (K={self.K}, R={self.R}, N={self.N})"
+
+    @property
+    def fixed_bytes(self) -> int:
+        return super().fixed_bytes + self.point_bytes * self.K * self.N
+
+    @property
+    def irradiance_items(self) -> int:
+        """Precomputed node light is stored per splat point: every node a splat makes shares it."""
+        return self.K * self.N
+
+    @property
+    def irradiance_invocations(self) -> int:
+        return self.K * self.N
+
+    def uniforms(self) -> dict:
+        return {**super().uniforms(), "points_per_direction": self.N, "splat_radius": self.splat_radius}
+
+    @property
+    def merge_tolerance(self) -> float:
+        """How far apart in depth two nodes of one line may be and still be merged as one surface
+        (shaders/resolve_lists.glsl): the depth tolerance under which the bundle metrics call two
+        nodes one surface (`DEPTH_TOLERANCE` of the frame radius), so merging removes what they
+        count redundant; negative (nothing merges) without merging. Splats of one plane cross a
+        line at one depth; a wider tolerance (a splat radius) also merged a corner's two walls
+        where one's splats overhang the other, trading holes for fewer nodes: measured on
+        cornell-box (K=32, N=16384, s=1.5), 4.6 % holes against 3.6 %."""
+        return DEPTH_TOLERANCE * self.gpu_scene.radius if self.merge else -1.0
+
+    def points_program(self):
+        return self.gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler])
+
+    def build_lists(self, directions, timer) -> tuple[int, int]:
+        self.buffers["LIST_COUNTS"].clear()
+        self.bind()
+        with timer.measure("points"):
+            shader = self.points_program()
+            seed, frame = directions.seed & 0xFFFFFFFF, directions.frame & 0xFFFFFFFF
+            self._uniforms(shader, triangle_count=self.gpu_scene.triangle_count, seed=seed, frame=frame)
+            self.gl.dispatch(shader, self.K * self.N)
+        return self.splat_lists(timer)
+
+    def splat_lists(self, timer) -> tuple[int, int]:
+        """Every splat's nodes into the lists; returns (re-runs, nodes written)."""
+        raise NotImplementedError
+
+    def merge_program(self):
+        raise NotImplementedError
+
+    def resolve_lists(self) -> None:
+        merge = self.merge_program()
+        merge["merge_tolerance"] = self.merge_tolerance
+        self.gl.dispatch(merge, self.list_count)
+
+    def covered_nodes(self, counters: np.ndarray, raw: int) -> int | None:
+        """Every line a splat covers: without merging, one node each (None: not counted)."""
+        return raw
+
+    def build_stats(self, counters: np.ndarray, raw: int) -> dict:
+        nodes = int(counters[COUNTERS["KEPT"]])
+        return {
+            "nodes": nodes,
+            "covered_nodes": self.covered_nodes(counters, raw),
+            "redundant_nodes": raw - nodes,
+            "redundant_tolerance": self.merge_tolerance if self.merge else 0.0,
+            "merged": self.merge,
+            "sampler": self.sampler,
+            "splatter": self.splatter,
+        }
+
+    def params(self) -> dict:
+        return {
+            "points": self.N,
+            "splat_scale": self.splat_scale,
+            "splat_radius": self.splat_radius,
+            "sampler": self.sampler,
+            "splatter": self.splatter,
+            "merged": self.merge,
+        }
+
+    def read_points(self) -> np.ndarray:
+        """The last build's splat points (K N,) as `SPLAT_POINT` records."""
+        raw = self.buffers["POINTS"].read(SPLAT_POINT.itemsize * self.K * self.N)
+        return np.frombuffer(raw, dtype=SPLAT_POINT).copy()
+
+
+class ComputeSplatTracer(SplatTracer):
+    """The compute splatter: count, exact allocation, scatter."""
+
+    point_bytes = SPLAT_POINT.itemsize + SPLAT_LINES.itemsize
+    points_are = "splat points, their lines"
+
+    def __init__(self, gl, gpu_scene, settings, **hooks):
+        super().__init__(gl, gpu_scene, settings, **hooks)
+        # The count pass's variant: counting the lines splats cover, too, or not.
+        self.count_variant = {"COUNT_SPLATS": True, **({"COUNT_COVERED": True} if self.count_covered else {})}
+        self._ensure("SPLAT_LINES", SPLAT_LINES.itemsize * self.K * self.N)
+        self._compile()
+
+    def compute_programs(self) -> list:
+        gl = self.gl
+        return [
+            self.points_program(),
+            gl.program("splat_lists", **self.count_variant),
+            gl.program("splat_lists", SCATTER_SPLATS=True),
+            self.merge_program(),
+        ]
+
+    def merge_program(self):
+        return self.gl.program("resolve_lists", MERGE_LISTS=True)
+
+    def splat_lists(self, timer) -> tuple[int, int]:
+        gl = self.gl
+        with timer.measure("lists"):
+            count = gl.program("splat_lists", **self.count_variant)
+            self._uniforms(count, nearest_only=self.merge)
+            gl.dispatch(count, self.K * self.N)
+            raw = self._scan_lists()
+            # Every list's end (its next list's offset) as the scatter's cursor, counting down.
+            lists = self.buffers["LIST_COUNTS"]
+            gl.copy_buffer(lists, self.buffers["LIST_OFFSETS"], 4 * self.list_count, read_offset=4)
+            self.bind()
+            scatter = gl.program("splat_lists", SCATTER_SPLATS=True)
+            self._uniforms(scatter, nearest_only=self.merge)
+            gl.dispatch(scatter, self.K * self.N)
+        return 0, raw
+
+    def covered_nodes(self, counters: np.ndarray, raw: int) -> int | None:
+        if counters[COUNTERS["MISMATCH"]]:
+            raise RuntimeError(
+                f"the splat count and scatter passes found {counters[COUNTERS['MISMATCH']]} lines differently: "
+                "a driver that rounds the same arithmetic two ways; use splatter='raster'"
+            )
+        if not self.merge:
+            return raw
+        return int(counters[COUNTERS["COVERED"]]) if "COUNT_COVERED" in self.count_variant else None
+
+    def build_stats(self, counters: np.ndarray, raw: int) -> dict:
+        return {**super().build_stats(counters, raw), "capacity": raw}
+
+
+class RasterSplatTracer(LinkedListTracer, SplatTracer):
+    """The poster's splats: triangles in each splat's tangent plane with per-corner uvs and a
+    circular cut-out, drawn by the rasterizer into linked lists, then merged."""
+
+    raster_program = "imperfect_bundles"
+
+    def __init__(self, gl, gpu_scene, settings, **hooks):
+        super().__init__(gl, gpu_scene, settings, **hooks)  # every line a splat covers is a node here
+        self._make_lists()
+        self._compile()
+
+    def predicted_nodes(self, overlap: float = 1.0) -> int:
+        return super().predicted_nodes(max(1.0, self.splat_scale**2))
+
+    def compute_programs(self) -> list:
+        return [self.points_program(), self.gl.program("resolve_lists", COUNT_LISTS=True), self.merge_program()]
+
+    def merge_program(self):
+        return self.gl.program("resolve_lists", MERGE_LISTS=True, FROM_LINKED_LISTS=True)
+
+    def vertex_array(self, program):
+        return self.gl.vertex_array(program, [])
+
+    def draw(self, vao, base: int, count: int) -> None:
+        vertices, first = 3 * self.N * count, 3 * self.N * base
+        self.gl.draw(vao, moderngl.TRIANGLES, self.framebuffer, depth_test=False, vertices=vertices, first=first)
+
+    def splat_lists(self, timer) -> tuple[int, int]:
+        return self.linked_lists(timer)
+
+    def resolve_lists(self) -> None:
+        self.count_lists()
+        super().resolve_lists()
+
+    def build_stats(self, counters: np.ndarray, raw: int) -> dict:
+        return {**super().build_stats(counters, raw), "capacity": self.capacity}
+
+
+def tracer(gl, gpu_scene, settings, **hooks) -> SplatTracer:
+    """The builder of the chosen splatter."""
+    compute = METHOD.settings_of(settings).splatter == "compute"
+    return (ComputeSplatTracer if compute else RasterSplatTracer)(gl, gpu_scene, settings, **hooks)
+
+
+def _time(x: dict) -> list:
+    K, R, N, s, F = x["directions"], x["resolution"], x["points"], x["splat_scale"], x["frames"]
+    lists = K * R * R * 1e-6
+    return [F * K * N * 1e-6, F * lists * s * s]  # t_points: the splat points; t_nodes: the splat nodes
+
+
+def _error(x: dict, xp) -> list:
+    s, N = x["splat_scale"], x["points"]
+    c, q = HOLE_SHAPE[x["sampler"]]
+    # h: the splat points' holes, with the hole model's shape; g: their overhang, growing with the radius squared.
+    return [xp.exp(-c * xp.exp(q * xp.log(s))), s * s * 16384.0 / N]
+
+
+METHOD = BundleMethod(
+    name="imperfect",
+    summary="point splats in their triangles' tangent planes, a new point set per direction (the poster's method)",
+    settings=ImperfectSettings,
+    tracer=tracer,
+    tune=TuneTerms(
+        axes={
+            "points": [1024, 2048, 4096, 8192, 16384, 32768, 65536],
+            "splat_scale": [1.2, 1.4, 1.6, 1.8, 2.0, 2.2, 2.4, 2.6],
+        },
+        log_axes=("points",),
+        time_terms=("t_points", "t_nodes"),
+        time=_time,
+        error_terms=("h", "g"),
+        error=_error,
+        # (K, R, N, s), spread so that every term of the models changes between runs; the last two run longest.
+        calibration=tuple(
+            {"directions": k, "resolution": r, "points": n, "splat_scale": s}
+            for k, r, n, s in [
+                (8, 64, 4096, 1.8),
+                (32, 128, 16384, 1.8),
+                (32, 64, 16384, 1.4),
+                (8, 128, 4096, 2.4),
+                (16, 96, 8192, 1.8),
+                (32, 128, 4096, 2.2),
+                (16, 64, 16384, 2.4),
+                (64, 128, 16384, 1.6),
+                (8, 96, 65536, 2.2),
+                (16, 64, 32768, 1.6),
+                (8, 192, 32768, 2.0),
+                (16, 128, 65536, 1.8),
+                (32, 64, 8192, 2.0),
+            ]
+        ),
+    ),
+)

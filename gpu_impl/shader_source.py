@@ -1,0 +1,150 @@
+"""The shaders as source: the program files (gpu_impl/shaders/*.glsl, one program per file with
+``#if defined VERTEX_SHADER`` stage guards, shared code through ``#include``), the header every
+stage gets (the shared table of gpu_impl/layout.py and the variant's defines), and the variants the
+code compiles.
+
+`SHADER_VARIANTS` lists, per program, every set of defines the code can compile it with: a list
+of flag sets, or the axes of the scene features and settings it is compiled over (every product of
+them, less the combinations `REQUIRES` rules out). `GLContext.program` records what it compiles
+(`COMPILED`); the test suite compiles every listed variant and fails on a compiled one that is not
+listed (tests/conftest.py), so the list cannot drift from what runs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+from pathlib import Path
+
+from gpu_impl.layout import (
+    BINDINGS,
+    ENVIRONMENT_KINDS,
+    LIGHT_VISIBILITY_EXACT,
+    NODE_SPLAT_POINT,
+    NODE_TRIANGLE,
+    SAMPLERS,
+    SHADER_CONSTANTS,
+    glsl_literal,
+)
+
+SHADER_DIR = Path(__file__).parent / "shaders"
+STAGES = {"VERTEX_SHADER": "vertex_shader", "FRAGMENT_SHADER": "fragment_shader", "COMPUTE_SHADER": "compute_shader"}
+
+NODE_REFERENCES = (NODE_TRIANGLE, NODE_SPLAT_POINT)
+LIGHT_VISIBILITIES = (LIGHT_VISIBILITY_EXACT,)
+ENVIRONMENTS = tuple(ENVIRONMENT_KINDS.values())
+# A define that is 1 only where another one is (lazy light and light vertices need shadow-mapped lights).
+REQUIRES = {"LAZY_LIGHTING": "SHADOW_LIGHTS", "EMITTER_SAMPLES": "SHADOW_LIGHTS"}
+# Per program: flag sets (a list), or axes (a dict of define -> the values the code sets it to).
+VARIANTS = {
+    "perfect_bundles": [{}, {"NULL_FRAGMENT": True}],
+    "imperfect_bundles": [{}, {"NULL_FRAGMENT": True}],
+    "splat_points": {"SAMPLER": tuple(SAMPLERS.values())},
+    "splat_lists": [{"COUNT_SPLATS": True}, {"COUNT_SPLATS": True, "COUNT_COVERED": True}, {"SCATTER_SPLATS": True}],
+    "resolve_lists": [
+        {"COUNT_LISTS": True},
+        {"SORT_LISTS": True},
+        {"MERGE_LISTS": True},
+        {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True},
+    ],
+    "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],
+    "expand_nodes": {"TEXTURES": (0, 1), "NODE_REFERENCE": NODE_REFERENCES},
+    "gbuffer": [{}],
+    "shadow_maps": [{}],
+    "irradiance": {
+        "SHADOW_LIGHTS": (1,),
+        "NODE_SIDES": (1, 2),
+        "TEXTURES": (0, 1),
+        "NODE_REFERENCE": NODE_REFERENCES,
+        "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
+    },
+    "primary": {
+        "SHADOW_LIGHTS": (0, 1),
+        "ENVIRONMENT": ENVIRONMENTS,
+        "TEXTURES": (0, 1),
+        "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
+    },
+    "eye_paths": {
+        "SHADOW_LIGHTS": (0, 1),
+        "LAZY_LIGHTING": (0, 1),
+        "EMITTER_SAMPLES": (0, 1),
+        "ENVIRONMENT": ENVIRONMENTS,
+        "NODE_SIDES": (1, 2),
+        "TEXTURES": (0, 1),
+        "NODE_REFERENCE": NODE_REFERENCES,
+        "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
+    },
+    "resolve_images": [{}],
+    "record_strides": {"RECORD_GROUP": (0, 1, 2, 3)},
+}
+
+
+def _expand(spec) -> list[dict]:
+    if isinstance(spec, list):
+        return spec
+    combos = [dict(zip(spec, values)) for values in itertools.product(*spec.values())]
+    return [c for c in combos if all(not c.get(a) or c.get(b, 1) for a, b in REQUIRES.items())]
+
+
+# Program name -> every set of defines the code compiles it with.
+SHADER_VARIANTS = {name: _expand(spec) for name, spec in VARIANTS.items()}
+# (program, defines) of every program compiled in this process.
+COMPILED: set[tuple[str, tuple]] = set()
+
+
+def variant_key(name: str, defines: dict) -> tuple[str, tuple]:
+    return name, tuple(sorted((k, int(v) if isinstance(v, bool) else v) for k, v in defines.items()))
+
+
+def unlisted_variants() -> list[tuple[str, tuple]]:
+    """Variants this process compiled that `SHADER_VARIANTS` does not list."""
+    listed = {variant_key(name, d) for name, variants in SHADER_VARIANTS.items() for d in variants}
+    return sorted(COMPILED - listed)
+
+
+def is_program(text: str) -> bool:
+    """Program files define main(); the others are includes (``#include "common.glsl"``)."""
+    return re.search(r"^\s*void\s+main\s*\(", text, re.M) is not None
+
+
+def shader_stages(text: str) -> list[str]:
+    """The stages a .glsl file defines, from its ``#if defined X_SHADER`` guards."""
+    return [s for s in STAGES if re.search(rf"^\s*#\s*(el)?if\s+defined\s*\(?\s*{s}\b", text, re.M)]
+
+
+INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*$', re.M)
+
+
+def expand_includes(text: str, within: tuple[str, ...] = ()) -> str:
+    """``text`` with every ``#include "file.glsl"`` line replaced by that file's text, its own
+    includes expanded too (the preprocessor then keeps or drops it with the ``#if`` around it)."""
+
+    def include(match) -> str:
+        name = match.group(1)
+        if name in within:
+            raise ValueError(f"shaders/{name} includes itself through {' -> '.join(within)}")
+        path = SHADER_DIR / name
+        if not path.is_file():
+            raise ValueError(f"shaders/{within[-1] if within else '?'}: no include file shaders/{name}")
+        return expand_includes(path.read_text(), (*within, name))
+
+    return INCLUDE.sub(include, text)
+
+
+def program_sources(name: str, defines: dict) -> dict[str, str]:
+    """The stages of ``shaders/<name>.glsl`` (moderngl's keyword per stage), each with its header
+    and its includes expanded."""
+    text = (SHADER_DIR / f"{name}.glsl").read_text()
+    stages = shader_stages(text)  # the program's own guards: its includes have theirs
+    if not is_program(text) or not stages:
+        raise ValueError(f"shaders/{name}.glsl has no main() under a stage guard; it is an include")
+    text = expand_includes(text, (f"{name}.glsl",))
+    return {STAGES[s]: with_header(text, s, defines) for s in stages}
+
+
+def with_header(text: str, stage: str, defines: dict) -> str:
+    lines = ["#version 450 core", f"#define {stage}"]
+    lines += [f"#define BINDING_{name} {index}" for name, index in BINDINGS.items()]
+    lines += [f"#define {name} {glsl_literal(value)}" for name, value in SHADER_CONSTANTS.items()]
+    lines += [f"#define {k} {int(v) if isinstance(v, bool) else v}" for k, v in sorted(defines.items())]
+    return "\n".join(lines) + "\n#line 1\n" + text

@@ -1,0 +1,1 @@
+"""Path strategies: one module each, registered in gpu_impl/registry.py."""

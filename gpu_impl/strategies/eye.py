@@ -1,0 +1,87 @@
+"""Eye paths with next-event estimation (the poster's strategy): every path starts at a G-buffer
+sample (shaders/primary.glsl) and each bounce takes a uniformly chosen bundle of the frame and its
+next node (shaders/eye_paths.glsl), with no visibility test. Emissive triangles are found two ways,
+weighted by multiple importance sampling: by the paths hitting them, and by next-event estimation
+through ``light_samples`` points drawn on them per frame (`gpu_impl.lights.EmitterSamples`), the
+frame's light vertices, whose visibility the light visibility unit makes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from evalkit.core.settings import setting
+from gpu_impl.lights import EmitterSamples, LightVertices
+from gpu_impl.units import PathStrategy
+
+# Measured on cornell-box (B=3, K=32, R=128, 128x128, 32 frames x 16 paths): indirect relMSE
+# 0.0017 for M = 4, 8 and 16 alike, at 345, 430 and 680 ms a frame; direct relMSE 0.0003 at M=4,
+# 0.0002 from 8 on.
+DEFAULT_LIGHT_SAMPLES = 8
+
+
+@dataclass(frozen=True)
+class EyeSettings:
+    light_samples: int = setting(
+        DEFAULT_LIGHT_SAMPLES, "points drawn on the emitters per frame for next-event estimation (0: none)", minimum=0
+    )
+
+
+class EyePaths:
+    """The eye strategy of one renderer: its light vertices per frame and its bounce passes."""
+
+    def __init__(self, renderer, settings: EyeSettings):
+        self.renderer = renderer
+        scene = renderer.gpu_scene
+        emitters = scene.features.emitters
+        self.emitter_samples = (
+            EmitterSamples(scene.scene, settings.light_samples) if emitters and settings.light_samples else None
+        )
+        self.warnings = []
+        if emitters and not settings.light_samples:
+            self.warnings.append(
+                "next-event estimation is off (light_samples = 0): emissive triangles light only the "
+                "paths that hit them, so images of small emitters converge slowly"
+            )
+
+    @property
+    def light_vertices_per_frame(self) -> int:
+        return 0 if self.emitter_samples is None else self.emitter_samples.count
+
+    def light_vertices(self, seed: int, frame: int) -> LightVertices:
+        """This frame's emitter samples (only called when there are some)."""
+        scene = self.renderer.gpu_scene.scene
+        if self.emitter_samples.scene is not scene:  # posed since: the emitters may have moved
+            self.emitter_samples = EmitterSamples(scene, self.emitter_samples.count)
+        return self.emitter_samples.frame_lights(seed, frame)
+
+    def defines(self) -> dict:
+        return {"EMITTER_SAMPLES": int(self.emitter_samples is not None)}
+
+    def uniforms(self) -> dict:
+        if self.emitter_samples is None:
+            return {}
+        return {"emitter_sample_density": self.emitter_samples.density_scale}
+
+    def programs(self, defines: dict) -> dict:
+        """The bounce pass's programs: node light precomputed, and (with shadow-mapped lights) lazy."""
+        gl = self.renderer.gl
+        programs = {"eye_paths": gl.program("eye_paths", **defines, LAZY_LIGHTING=0)}
+        if defines["SHADOW_LIGHTS"]:
+            programs["eye_paths_lazy"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=1)
+        return programs
+
+    def bounce(self, j: int, frame: int, lazy: bool) -> None:
+        """Every path from vertex j - 1 to vertex j."""
+        program = self.renderer.programs["eye_paths_lazy" if lazy else "eye_paths"]
+        program["bounce"] = j
+        program["frame"] = frame & 0xFFFFFFFF
+        self.renderer.gl.dispatch(program, self.renderer.paths)
+
+
+STRATEGY = PathStrategy(
+    name="eye",
+    summary="eye paths over the frame's bundles, with next-event estimation to emitter samples",
+    settings=EyeSettings,
+    paths=EyePaths,
+)

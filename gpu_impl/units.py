@@ -1,0 +1,135 @@
+"""What a registered unit is: a bundle method, a light visibility or a path strategy, each one module
+(and its shaders) that declares its name, its own settings with their defaults and ranges, and what
+it makes. `gpu_impl.registry` lists the units; nothing else names them.
+
+A unit's settings are a frozen dataclass of `evalkit.core.settings.setting` fields: the command
+line makes a flag of each, studies validate run parameters against them, and the render's
+provenance records them. `RenderSettings` carries them flat, as ``options``; `settings_of` gives a
+unit its own slice, defaults filled in and checked.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+from evalkit.core.settings import RenderSettings, check_settings, declared
+
+
+@dataclass(frozen=True)
+class NoSettings:
+    """The settings of a unit that has none of its own."""
+
+
+@dataclass(frozen=True)
+class Unit:
+    """A registered unit: its ``name`` (what settings, flags and study files say), a line saying
+    what it does, and the dataclass of its own settings."""
+
+    kind: ClassVar[str] = "unit"
+    name: str
+    summary: str
+    settings: type = NoSettings
+
+    def option_names(self) -> list[str]:
+        return [f.name for f in declared(self.settings)]
+
+    def settings_of(self, render: RenderSettings) -> Any:
+        """This unit's settings: those ``render`` gives, the others at their defaults; checked."""
+        given = dict(render.options)
+        mine = self.settings(**{name: given[name] for name in self.option_names() if name in given})
+        check_settings(mine)
+        return mine
+
+    def describe(self, settings: Any) -> str:
+        """The unit and its settings in a few symbols, e.g. 'imperfect N=16384 s=1.8'."""
+        short = [
+            f"{f.metadata['symbol']}={getattr(settings, f.name)}"
+            for f in declared(self.settings)
+            if f.metadata["symbol"]
+        ]
+        return " ".join([self.name, *short])
+
+
+@dataclass(frozen=True)
+class TuneTerms:
+    """What a bundle method adds to `evalkit.tune`'s models (its package docstring has them all).
+
+    ``axes``: the method's own settings the optimiser varies, with the values the recommendation is
+    rounded to; those in ``log_axes`` it varies in log space. ``time_terms`` / ``time``: names and
+    per-frame features of the time model's terms beyond the shared ones (a constant and the lists,
+    K R^2); ``error_terms`` / ``error``: the error model's beyond the shared bias and noise.
+    Features are functions of a dict of settings (directions, resolution, frames and the axes;
+    ``sampler`` too for the error) that work on numpy arrays and Dr.Jit floats alike (``xp`` gives
+    exp and log). ``calibration``: the method's calibration runs, spread so that every term changes
+    between them.
+    """
+
+    axes: dict = field(default_factory=dict)
+    log_axes: tuple[str, ...] = ()
+    time_terms: tuple[str, ...] = ()
+    time: Callable = lambda x: []
+    error_terms: tuple[str, ...] = ()
+    error: Callable = lambda x, xp: []
+    calibration: tuple[dict, ...] = ()
+
+
+@dataclass(frozen=True)
+class BundleMethod(Unit):
+    """A way to build ray bundles on the GPU. ``tracer(gl, gpu_scene, render_settings, **extra)``
+    makes its `gpu_impl.bundles.BundleTracer` (``extra``: the tracer's test and study hooks)."""
+
+    kind: ClassVar[str] = "bundle method"
+    tracer: Callable = None
+    tune: TuneTerms = TuneTerms()
+
+
+@dataclass(frozen=True)
+class LightVisibility(Unit):
+    """How light vertices (emitter samples, light-path vertices) see the scene: shadow maps of one
+    kind. ``maps(gl, gpu_scene, its_settings)`` makes the object that draws them each frame
+    (`gpu_impl.visibility`)."""
+
+    kind: ClassVar[str] = "light visibility"
+    maps: Callable = None
+
+
+@dataclass(frozen=True)
+class PathStrategy(Unit):
+    """How a frame's paths are made and weighted. ``paths(renderer, its_settings)`` makes the object
+    that runs them each frame (`gpu_impl.strategies`)."""
+
+    kind: ClassVar[str] = "path strategy"
+    paths: Callable = None
+
+
+class Registry:
+    """The registered units of one kind, by name, in the order registered: the first is the default."""
+
+    def __init__(self, kind: str, *units: Unit):
+        if not units:
+            raise ValueError(f"no {kind} registered")
+        self.kind = kind
+        self.units = {u.name: u for u in units}
+        if len(self.units) != len(units):
+            raise ValueError(f"two {kind}s share a name: {[u.name for u in units]}")
+
+    @property
+    def default(self) -> Unit:
+        return next(iter(self.units.values()))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self.units)
+
+    def __iter__(self):
+        return iter(self.units.values())
+
+    def __getitem__(self, name: str | None) -> Unit:
+        """The unit called ``name`` (None: the default); ValueError naming the known ones."""
+        if name is None:
+            return self.default
+        if name not in self.units:
+            raise ValueError(f"{self.kind} must be one of {', '.join(self.units)}, got {name!r}")
+        return self.units[name]
