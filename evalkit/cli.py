@@ -27,6 +27,7 @@ from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
 from evalkit.figures import error_map_png
 from evalkit.metrics.bundles import compare_bundles
+from evalkit.metrics.confidence import mean_ratio, z_test
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
@@ -283,9 +284,42 @@ def _compare(args) -> int:
             write_exr(out / f"{m.name}.exr", np.repeat(m.map[..., None], 3, axis=2).astype(np.float32), provenance)
             vmax = error_map_png(m.map, out / f"{m.name}.png")
             print(f"map         {out / (m.name + '.exr')} and .png (magma, 0..{vmax:.3g})")
+    confidence = _confidence(args, test, test_meta, ref)
     if args.json:
-        print(json.dumps({name: {"value": m.value, "params": m.params} for name, m in metrics.items()}))
+        result = {name: {"value": m.value, "params": m.params} for name, m in metrics.items()}
+        print(json.dumps({**result, **confidence}, default=float))
     return 0
+
+
+def _confidence(args, test, test_meta, ref) -> dict:
+    """The mean ratio with its interval (the test's frame means and the reference's variance, from
+    their ``_variance.exr`` siblings) and the z-test (both variances), as far as the files allow."""
+    variance = {}
+    for name, path in (("test", Path(args.test)), ("reference", Path(args.ref))):
+        sibling = path.with_name(f"{path.stem}_variance.exr")
+        variance[name] = read_exr(sibling)[0] if sibling.is_file() else None
+    out = {}
+    frame_means = test_meta.get("frame_means")
+    if variance["reference"] is None:
+        print("confidence  none: the reference has no _variance.exr beside it")
+        return out
+    if frame_means:
+        r = mean_ratio(np.asarray(frame_means), ref, variance["reference"])
+        out["mean_ratio"] = r
+        channels = ", ".join(_interval(c) for c in r["per_channel"])
+        print(f"mean ratio  {_interval(r['all'])} ({r['level']:.0%} interval, {r['frames']} frames); rgb {channels}")
+    if variance["test"] is not None:
+        z = z_test(test, variance["test"], ref, variance["reference"])
+        out["z_test"] = {k: v for k, v in z.items() if k != "map"}
+        print(
+            f"z-test      {z['outside_share']:.3%} of {z['tested']:,} values outside |z| > {z['threshold']:.2f} "
+            f"(alpha {z['alpha']:g}, Sidak)"
+        )
+    return out
+
+
+def _interval(r: dict) -> str:
+    return f"{r['ratio']:.4f}" + ("" if r["lo"] is None else f" [{r['lo']:.4f}, {r['hi']:.4f}]")
 
 
 def _study(args) -> int:

@@ -292,7 +292,7 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
 
     node_cost = float(study.hole_model.get("node_cost", DEFAULT_NODE_COST))
     # The rows of a method with splats: those that have a splat scale.
-    splats = [r for r in rows if is_number(r.get("splat_scale")) and is_number(r.get("hole_rate"))]
+    splats = [r for r in rows if is_number(r.get("splat_scale")) and is_number(r.get("leak_rate"))]
     fits = analyse(splats, node_cost)
     (out / "hole_model.json").write_text(json.dumps(fits, indent=2) + "\n")
     if not fits:
@@ -312,8 +312,13 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
                 ),
                 key=lambda r: r["splat_scale"],
             )
-            holes = [max(r["hole_rate"], 1 / r["exact_nodes"]) for r in mine]
-            line = ax.plot([r["splat_scale"] for r in mine], holes, "o", label=f"measured N={f['points']}")[0]
+            holes = [max(r["leak_rate"], 1 / r["exact_nodes"]) for r in mine]
+            scales = [r["splat_scale"] for r in mine]
+            line = ax.plot(scales, holes, "o", label=f"leaks, N={f['points']}")[0]
+            # Beside them the holes, leaks and offsets together.
+            ax.plot(
+                scales, [r["hole_rate"] for r in mine], "x", color=line.get_color(), label=f"holes, N={f['points']}"
+            )
             s = np.linspace(mine[0]["splat_scale"], mine[-1]["splat_scale"], 100)
             ax.plot(
                 s,
@@ -328,11 +333,11 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
             )
         ax.set_yscale("log")
         ax.set_xlabel("splat scale s (radius / sqrt(A / (pi N)))")
-        ax.set_ylabel("hole rate")
+        ax.set_ylabel("leak rate (holes: x)")
         ax.set_title(f"{scene}, {sampler} points: measured, the model, (dotted) the recommended s", fontsize=9)
         cost_ax.set_yscale("log")
         cost_ax.set_xlabel("nodes per surface crossing before merging")
-        cost_ax.set_ylabel("hole rate")
+        cost_ax.set_ylabel("leak rate")
         cost_ax.set_title(f"{scene}, {sampler} points: holes against what they cost", fontsize=9)
         for a in (ax, cost_ax):
             a.grid(True, which="both", alpha=0.3)
@@ -361,15 +366,15 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
         "regret",
     ]
     return (
-        "<h2>Hole model</h2><p>P(hole) = h0 + (1 - h0) exp(-c s^q) and nodes per surface crossing before merging "
+        "<h2>Hole model</h2><p>P(leak) = h0 + (1 - h0) exp(-c s^q) and nodes per surface crossing before merging "
         "= c_n s^2, fitted per scene, sampler and point count in log space with Dr.Jit AD (independent points, "
-        "ideally: "
-        "c = c_n = 1, q = 2, h0 = 0; stratified points leave fewer holes, q > 2; h0 is the floor of crossings whose "
-        "splats lie in a neighbouring triangle's plane, see evalkit/metrics/hole_model.py). Ratio errors are "
-        "|ln(predicted / measured)| of the hole rate. "
-        f"The recommended splat scale minimises hole rate + {node_cost:g} x nodes per crossing (gradient descent with "
+        "ideally: c = c_n = 1, q = 2, h0 = 0; stratified points leave fewer leaks, q > 2). A leak is a line that "
+        "crosses a surface and finds no node of it; the holes (crosses) count offsets too, surfaces found within a "
+        "splat's reach but beyond the depth tolerance, where a splat lies in a neighbouring triangle's plane "
+        "(evalkit/metrics/bundles.py). Ratio errors are |ln(predicted / measured)| of the leak rate. "
+        f"The recommended splat scale minimises leak rate + {node_cost:g} x nodes per crossing (gradient descent with "
         "Dr.Jit AD; a direct search beside it as a check); regret is the measured cost at the grid scale nearest the "
-        "recommendation over the measured best cost, less 1. Below each fit, the hole rate against the nodes per "
+        "recommendation over the measured best cost, less 1. Below each fit, the leak rate against the nodes per "
         "crossing it costs.</p>"
         "<img src='plots/hole_model.png'>" + table_html(fits, columns)
     )

@@ -144,15 +144,14 @@ class BundleTracer:
         """The method and its settings in a few symbols, for messages: 'perfect bundles (K=8, R=64)'."""
         return f"bundles (K={self.K}, R={self.R})"
 
-    @property
-    def irradiance_items(self) -> int:
-        """What precomputed node light is stored per (shaders/irradiance.glsl): every node."""
-        return self.stats["nodes"]
+    # Where the shadow-mapped light its nodes reflect is computed ("lazy": where each path lands;
+    # a method whose nodes can carry light computed once per frame says how, `irradiance_items`).
+    lighting: str = "lazy"
 
     @property
-    def irradiance_invocations(self) -> int:
-        """The irradiance pass's invocations: one per list, lighting its nodes in turn."""
-        return self.list_count
+    def irradiance_items(self) -> int:
+        """The items precomputed node light is stored per (shaders/irradiance.glsl)."""
+        raise NotImplementedError
 
     @property
     def fixed_bytes(self) -> int:

@@ -60,6 +60,9 @@ BINDINGS = {
     "LIGHTS": 27,
     "SHADOW_VIEWS": 28,
     "ALIVE_PATHS": 29,
+    # the frames' spread (resolve_images.glsl): per pixel, and per workgroup this frame
+    "IMAGE_M2": 31,
+    "FRAME_SUMS": 32,
 }
 
 # Bits and enumerations. np.uint32 values are written as GLSL uint literals (1u), Python ints as

@@ -35,7 +35,8 @@ LIGHT_VISIBILITIES = (LIGHT_VISIBILITY_EXACT,)
 ENVIRONMENTS = tuple(ENVIRONMENT_KINDS.values())
 # A define that is 1 only where another one is (lazy light and light vertices need shadow-mapped lights).
 REQUIRES = {"LAZY_LIGHTING": "SHADOW_LIGHTS", "EMITTER_SAMPLES": "SHADOW_LIGHTS"}
-# Per program: flag sets (a list), or axes (a dict of define -> the values the code sets it to).
+# Per program: flag sets (a list), or axes (a dict of define -> the values the code sets it to),
+# with a rule that leaves out combinations no code makes (a (dict, predicate) pair).
 VARIANTS = {
     "perfect_bundles": [{}, {"NULL_FRAGMENT": True}],
     "imperfect_bundles": [{}, {"NULL_FRAGMENT": True}],
@@ -55,7 +56,6 @@ VARIANTS = {
         "SHADOW_LIGHTS": (1,),
         "NODE_SIDES": (1, 2),
         "TEXTURES": (0, 1),
-        "NODE_REFERENCE": NODE_REFERENCES,
         "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
     },
     "primary": {
@@ -64,16 +64,20 @@ VARIANTS = {
         "TEXTURES": (0, 1),
         "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
     },
-    "eye_paths": {
-        "SHADOW_LIGHTS": (0, 1),
-        "LAZY_LIGHTING": (0, 1),
-        "EMITTER_SAMPLES": (0, 1),
-        "ENVIRONMENT": ENVIRONMENTS,
-        "NODE_SIDES": (1, 2),
-        "TEXTURES": (0, 1),
-        "NODE_REFERENCE": NODE_REFERENCES,
-        "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
-    },
+    "eye_paths": (
+        {
+            "SHADOW_LIGHTS": (0, 1),
+            "LAZY_LIGHTING": (0, 1),
+            "EMITTER_SAMPLES": (0, 1),
+            "ENVIRONMENT": ENVIRONMENTS,
+            "NODE_SIDES": (1, 2),
+            "TEXTURES": (0, 1),
+            "NODE_REFERENCE": NODE_REFERENCES,
+            "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
+        },
+        # Precomputed light (shadow-mapped lights, not lazy) is splat points' only.
+        lambda d: not d["SHADOW_LIGHTS"] or d["LAZY_LIGHTING"] or d["NODE_REFERENCE"] == NODE_SPLAT_POINT,
+    ),
     "resolve_images": [{}],
     "record_strides": {"RECORD_GROUP": (0, 1, 2, 3)},
 }
@@ -82,8 +86,9 @@ VARIANTS = {
 def _expand(spec) -> list[dict]:
     if isinstance(spec, list):
         return spec
-    combos = [dict(zip(spec, values)) for values in itertools.product(*spec.values())]
-    return [c for c in combos if all(not c.get(a) or c.get(b, 1) for a, b in REQUIRES.items())]
+    axes, possible = spec if isinstance(spec, tuple) else (spec, lambda d: True)
+    combos = [dict(zip(axes, values)) for values in itertools.product(*axes.values())]
+    return [c for c in combos if all(not c.get(a) or c.get(b, 1) for a, b in REQUIRES.items()) and possible(c)]
 
 
 # Program name -> every set of defines the code compiles it with.

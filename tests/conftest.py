@@ -16,6 +16,7 @@ from evalkit.core.exr import write_exr
 from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.settings import RenderSettings
 from evalkit.figures import error_map_png
+from evalkit.metrics.confidence import mean_ratio
 from evalkit.metrics.images import relmse as metric
 from gpu_impl.api import bundle_tracer, render, trace_bundles
 from gpu_impl.context import GLContext
@@ -71,6 +72,17 @@ def render_with(gl, scene, **settings):
     """`gpu_impl.api.render` on the tests' GL context, the settings flat; settings the chosen units
     do not have are left out, so a test can give both methods the same keywords."""
     return render(scene, resolve(RenderSettings(**settings), inapplicable="drop").settings, gl=gl)
+
+
+def mean_interval(result, ref, image: str, channels: bool = False):
+    """The ratio of a render's image mean to a reference's with its 95 % interval
+    (`evalkit.metrics.confidence.mean_ratio`): over all channels, or per channel."""
+    r = mean_ratio(result.frame_means[image], ref.images[image], ref.variances[image])
+    return r["per_channel"] if channels else r["all"]
+
+
+def describe_interval(r: dict) -> str:
+    return f"{r['ratio']:.4f} [{r['lo']:.4f}, {r['hi']:.4f}]"
 
 
 def run_evalkit(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:

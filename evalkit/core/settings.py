@@ -25,10 +25,6 @@ IMAGES = ("direct", "indirect", "total")
 DEPTH_TOLERANCE = 1e-4
 # The poster used a 1 GB node buffer; the default leaves room for the largest settings it used.
 DEFAULT_NODE_BUDGET = 2 << 30
-# Where the shadow-mapped light that bundle nodes reflect is computed: "precomputed" once per node
-# or splat point, "lazy" at each path's hits, "auto" whichever costs fewer light evaluations in
-# the frame (gpu_impl/shaders/eye_paths.glsl, irradiance.glsl).
-LIGHTING = ("auto", "precomputed", "lazy")
 # The poster's configuration (docs/ARCHITECTURE.md); --bounces picks 1 or 3.
 PRESETS = {
     "paper": {"width": 1920, "height": 1024, "supersampling": 2, "resolution": 128, "directions": 256, "points": 16384},
@@ -131,7 +127,7 @@ class RenderSettings:
     seed: int = setting(0, "the seed of every random choice")
     time: float = setting(0.0, "animated scenes: the time (s) of the first frame")
     time_step: float = setting(0.0, "animated scenes: seconds between frames (0: every frame at time, accumulating)")
-    self_hit_bias: float = setting(0.25, "nodes within this many bundle pixels beyond a vertex are skipped", minimum=0)
+    self_hit_bias: float = setting(0.05, "nodes within this many bundle pixels beyond a vertex are skipped", minimum=0)
     rotate_directions: bool = setting(
         True, "new directions every frame (false: frame 0's; a static scene builds its bundles once)"
     )
@@ -147,11 +143,6 @@ class RenderSettings:
         "the most memory for nodes, what they are built from and their precomputed light",
         minimum=1,
         unit="byte",
-    )
-    lighting: str = setting(
-        "auto",
-        "node light: precomputed per node or splat point, lazy at path hits, or auto per frame",
-        choices=LIGHTING,
     )
     # The chosen units' own settings as given, (name, value) pairs sorted by name.
     options: tuple = ()

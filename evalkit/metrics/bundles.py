@@ -13,6 +13,18 @@ when that node is within the depth tolerance. Then:
   twice in one pixel, as overlapping splats do);
 - the **depth error** of a matched test node is its distance to the nearest exact node.
 
+A hole is either of two things, and they mean different things for the light:
+
+- an **offset**: a test node of the same surface lies near the crossing, beyond the tolerance but
+  within a splat's reach. A splat is a disk of radius r in its own triangle's plane; on a curved
+  or creased surface it stands off the surface by up to r along the surface normal, r / |cos t|
+  along a line at angle t to the normal (`OFFSET_REACH_COS` bounds the slope). A node of the
+  same facing (the sign of its normal along the line), left over by the matching (spurious or
+  redundant), within that reach of the crossing is the surface, offset: a path still meets it.
+  Perfect bundles have no reach beyond the tolerance: every hole of theirs is a leak.
+- a **leak**: no such node, so a line crosses the surface and finds no node for it: light leaks
+  through. Leaks are what the splat size and point count must remove (the hole model fits them).
+
 So test nodes = matched + redundant + spurious, and exact nodes = matched + holes. Node agreement
 is matched / exact nodes. The spurious rate is per test node; spurious nodes per exact crossing
 compares lists of different density (imperfect bundles with and without merging) on one scale.
@@ -37,6 +49,9 @@ from evalkit.core.settings import DEPTH_TOLERANCE
 # on the bounding sphere, about 1e-6 of the radius; 1e-4 leaves a wide margin and still separates
 # surfaces 1e-4 r apart.
 SLOPE_BINS = (0.0, 0.1, 0.25, 0.5, 0.75, 1.0)
+# The least |cos| between a line and a surface the offset reach counts with: at grazing angles a
+# splat's reach along the line is capped at ten radii.
+OFFSET_REACH_COS = 0.1
 
 
 def frame_mismatch(test: BundleSet, exact: BundleSet) -> str | None:
@@ -131,6 +146,10 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
     redundant_k = per_direction(redundant_node, t_dir)
     n_exact, n_test = len(e_key), len(t_key)
     holes, spurious, redundant = int(hole_per_cluster.sum()), int(spurious_node.sum()), int(redundant_node.sum())
+    splat_radius = test.params.get("splat_radius")
+    leaks, offsets, offset_depth = _leaks_and_offsets(
+        test, exact, tau, splat_radius, cluster, starts, hole_per_cluster, spurious_node | redundant_node
+    )
     return {
         "test_method": test.method,
         "exact_method": exact.method,
@@ -151,6 +170,20 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
         "spurious_per_crossing": spurious / max(n_exact, 1),
         "redundant_rate": redundant / max(n_test, 1),
         "same_prim_rate": float(same_prim.mean()) if len(same_prim) else 1.0,
+        "leaks": leaks,
+        "offsets": offsets,
+        "leak_rate": leaks / max(n_exact, 1),
+        "offset_rate": offsets / max(n_exact, 1),
+        # How far offset surfaces lie from the exact crossing along the line, in frame radii and
+        # (imperfect bundles) splat radii: quantiles over the offsets.
+        "offset_depth": {
+            "splat_radius": splat_radius,
+            **{
+                f"{unit}_{q}": (float(np.quantile(offset_depth / scale, level)) if len(offset_depth) else None)
+                for unit, scale in (("radii", exact.radius), ("splat_radii", splat_radius or np.nan))
+                for q, level in (("p50", 0.5), ("p90", 0.9), ("max", 1.0))
+            },
+        },
         "depth_error": {  # of matched test nodes, in units of the frame radius
             "mean": float(relative_error.mean()),
             "rms": float(np.sqrt(np.mean(relative_error**2))),
@@ -173,6 +206,45 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
             "redundant_rate": (np.bincount(t_slope[redundant_node], minlength=bins) / np.maximum(test_s, 1)).tolist(),
         },
     }
+
+
+def _leaks_and_offsets(test, exact, tau, splat_radius, cluster, starts, hole_per_cluster, unmatched):
+    """(leaks, offsets, the offsets' depth gaps) of the holes: per cluster with holes, the test
+    nodes left over by the matching (``unmatched``), facing the same way, within the reach of the
+    cluster's crossing (see the module docstring)."""
+    holed = np.nonzero(hole_per_cluster > 0)[0]
+    if not len(holed) or splat_radius is None:
+        return int(hole_per_cluster.sum()), 0, np.zeros(0)
+    R2 = exact.resolution**2
+    dirs = exact.directions.directions
+    first = np.nonzero(starts)[0][holed]  # each holed cluster's first exact node
+    e_list = exact.node_lists()[first]
+    e_depth = exact.depth[first].astype(np.float64)
+    e_dot = np.einsum("ij,ij->i", exact.normal[first].astype(np.float64), dirs[e_list // R2])
+    reach = np.maximum(splat_radius / np.maximum(np.abs(e_dot), OFFSET_REACH_COS), tau)
+    t_all = test.node_lists()
+    t_dot = np.einsum("ij,ij->i", test.normal.astype(np.float64), dirs[t_all // R2])
+    gaps = np.full(len(holed), np.inf)
+    for facing in (True, False):  # nodes facing along the line, then against it
+        pick = unmatched & ((t_dot > 0) == facing)
+        mine = (e_dot > 0) == facing
+        t_list, t_depth = t_all[pick], test.depth[pick].astype(np.float64)
+        # One sorted key per node, lists kept further apart than any reach.
+        span = np.ptp(np.concatenate([t_depth, e_depth, [0.0]])) + 4 * reach.max() + 1.0
+        low = min(t_depth.min(initial=0.0), e_depth.min(initial=0.0))
+        t_key = t_list * span + (t_depth - low)
+        e_key = e_list[mine] * span + (e_depth[mine] - low)
+        pos = np.searchsorted(t_key, e_key)
+        best = np.full(len(e_key), np.inf)
+        for candidate in (pos - 1, pos):
+            ok = (candidate >= 0) & (candidate < len(t_key))
+            c = np.where(ok, candidate, 0)
+            gap = np.where(ok, np.abs(t_key[c] - e_key), np.inf) if len(t_key) else np.full(len(e_key), np.inf)
+            best = np.minimum(best, gap)
+        gaps[mine] = best
+    covered = gaps <= reach
+    offsets = int(np.minimum(hole_per_cluster[holed][covered], 1).sum())
+    return int(hole_per_cluster.sum()) - offsets, offsets, gaps[covered]
 
 
 # -- next hits from eye vertices ----------------------------------------------------------------

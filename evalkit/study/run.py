@@ -19,6 +19,7 @@ from evalkit.core.bundleset import DirectionSet
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene, load_scene
 from evalkit.metrics.bundles import compare_bundles, eye_vertices, next_hit_errors
+from evalkit.metrics.confidence import mean_ratio, z_test
 from evalkit.metrics.images import compare_images
 from evalkit.study.artefacts import exact_bundles, exact_tracer, film_size, reference_for
 from evalkit.study.spec import render_settings, run_id
@@ -75,6 +76,7 @@ def _measure(run: dict, measure: dict, out: Path, folder: Path) -> dict:
         row.update(_bundle_metrics(scene, run, measure, out))
     if not measure["render"]:
         return row
+    result = None  # a bundle render: its frames say how noisy its images are
     if run["method"] == "mitsuba":
         images, seconds, info = timed_render(
             scene, int(run["bounces"]), int(run["spp"]), *film_size(scene, run), int(run["seed"])
@@ -82,7 +84,8 @@ def _measure(run: dict, measure: dict, out: Path, folder: Path) -> dict:
         row.update({"wall_s": seconds, "paths_per_pixel": int(run["spp"]), "gl_renderer": None})
         provenance = {**run, **info}
     else:
-        images, timings, provenance = _render(scene, run)
+        result, timings = _render(scene, run)
+        images, provenance = result.images, {**result.params, "warnings": result.warnings}
         row.update(timings)
     if not measure["images"]:
         return row
@@ -96,6 +99,8 @@ def _measure(run: dict, measure: dict, out: Path, folder: Path) -> dict:
         # The relative error of the image's mean: bias that noise cannot hide (light lost to holes,
         # or gained from splats overhanging an emitter).
         row[f"{name}_mean_error"] = float(images[name].mean() / max(float(ref.images[name].mean()), 1e-30) - 1.0)
+        if result is not None:
+            row.update(_confidence(name, result, ref))
         for metric in metrics.values():
             row[f"{name}_{metric.name}"] = metric.value
             if metric.name in ("relmse", "flip"):
@@ -103,7 +108,24 @@ def _measure(run: dict, measure: dict, out: Path, folder: Path) -> dict:
     return row
 
 
-def _render(scene: Scene, run: dict) -> tuple[dict, dict, dict]:
+def _confidence(name: str, result, ref) -> dict:
+    """How sure the comparison of one image is: the ratio of its mean to the reference's with the
+    95 % interval, and the share of pixels the z-test finds outside the noise
+    (`evalkit.metrics.confidence`)."""
+    ratio = mean_ratio(result.frame_means[name], ref.images[name], ref.variances[name])["all"]
+    row = {
+        f"{name}_mean_ratio": ratio["ratio"],
+        f"{name}_mean_ratio_lo": ratio["lo"],
+        f"{name}_mean_ratio_hi": ratio["hi"],
+    }
+    if result.variances is not None:
+        z = z_test(result.images[name], result.variances[name], ref.images[name], ref.variances[name])
+        row[f"{name}_z_outside"] = z["outside_share"]
+    return row
+
+
+def _render(scene: Scene, run: dict):
+    """The run's render and its row's timings."""
     result = render(scene, render_settings(run))
     t = result.timings
     timings = {
@@ -114,7 +136,7 @@ def _render(scene: Scene, run: dict) -> tuple[dict, dict, dict]:
         "gl_renderer": result.params["gl"]["renderer"],
         **{f"ms_{k}": v for k, v in t["median_ms"].items() if "." not in k},
     }
-    return result.images, timings, {**result.params, "warnings": result.warnings}
+    return result, timings
 
 
 def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
@@ -141,6 +163,8 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
             "test_nodes",
             "agreement",
             "hole_rate",
+            "leak_rate",
+            "offset_rate",
             "spurious_rate",
             "spurious_per_crossing",
             "redundant_rate",
@@ -154,6 +178,9 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
     row["written_nodes_per_crossing"] = stats["raw_nodes"] / max(r["exact_nodes"], 1)
     row["kept_nodes_per_crossing"] = r["test_nodes"] / max(r["exact_nodes"], 1)
     row["depth_error_rms"] = r["depth_error"]["rms"]
+    # How far offset surfaces lie from the crossing, in splat radii (imperfect bundles).
+    row["offset_splat_radii_p50"] = r["offset_depth"]["splat_radii_p50"]
+    row["offset_splat_radii_p90"] = r["offset_depth"]["splat_radii_p90"]
     row["worst_direction_hole_rate"] = max(r["per_direction"]["hole_rate"])
     for i, rate in enumerate(r["per_slope"]["hole_rate"]):
         row[f"hole_rate_slope{i}"] = rate

@@ -36,6 +36,11 @@ SPLATTERS = ("compute", "raster")
 # on cornell-box, 1.94 on atrium whose curved-surface floor of holes no splat size removes), at
 # 3.2 nodes per crossing against 4 for the old default 2 (docs/MEASURED_FACTS.md).
 DEFAULT_SPLAT_SCALE = 1.8
+# Where the shadow-mapped light splat nodes reflect is computed: "precomputed" once per splat point
+# (at its centre, up to a splat radius from a hit: cornell-box, K=256, R=128, indirect light +0.3 %
+# over lazy light), "lazy" where each path lands, "auto" whichever costs fewer light evaluations
+# in the frame (the renderer decides; shaders/irradiance.glsl, eye_paths.glsl).
+LIGHTING = ("auto", "precomputed", "lazy")
 # The hole model's shape per sampler, P(hole) ~ exp(-c s^q) (studies/hole_vs_splat.toml on
 # cornell-box, docs/MEASURED_FACTS.md): the tuner's hole term.
 HOLE_SHAPE = {"stratified": (1.26, 2.42), "random": (0.99, 1.95)}
@@ -57,6 +62,11 @@ class ImperfectSettings:
         "compute", "splats found by a compute pass (exact-size lists) or drawn by the rasterizer", choices=SPLATTERS
     )
     merge: bool = setting(True, "merge the nodes of one surface crossing that several splats make")
+    lighting: str = setting(
+        "auto",
+        "splat points' shadow-mapped light: precomputed per point, lazy at each path's hit, or auto per frame",
+        choices=LIGHTING,
+    )
 
 
 class SplatTracer(BundleTracer):
@@ -70,6 +80,7 @@ class SplatTracer(BundleTracer):
         super().__init__(gl, gpu_scene, settings, **hooks)
         own = METHOD.settings_of(settings)
         self.N, self.sampler, self.splatter, self.merge = own.points, own.sampler, own.splatter, own.merge
+        self.lighting = own.lighting
         if 3 * self.K * self.N >= 2**31:
             raise ValueError(f"K={self.K}, N={self.N} exceed the 32-bit point indices")
         # The radius at which N disks cover the scene's area once: the unit of splat_scale.
@@ -93,10 +104,6 @@ class SplatTracer(BundleTracer):
     @property
     def irradiance_items(self) -> int:
         """Precomputed node light is stored per splat point: every node a splat makes shares it."""
-        return self.K * self.N
-
-    @property
-    def irradiance_invocations(self) -> int:
         return self.K * self.N
 
     def uniforms(self) -> dict:

@@ -42,3 +42,26 @@ BundleHit list_node_hit(vec3 origin, vec3 d, uint index) {
     return bundle_hit(origin + node_depth(index) * d, node_ref(index));
 }
 #endif
+
+// The triangle a node's reference lies on (a splat: its point's triangle).
+uint ref_triangle(uint ref) {
+#if NODE_REFERENCE == NODE_SPLAT_POINT
+    return points[ref].triangle;
+#else
+    return ref;
+#endif
+}
+
+// Whether point y, on the plane of a node's surface, lies on that surface: inside its triangle
+// (perfect bundles), or within its splat's disk (imperfect), up to round-off.
+bool on_node_surface(uint ref, vec3 y) {
+#if NODE_REFERENCE == NODE_SPLAT_POINT
+    vec3 to_centre = y - splat_source(ref).centre;
+    return dot(to_centre, to_centre) <= splat_radius * splat_radius * (1.0 + 1e-4);
+#else
+    uvec3 v = triangle_vertices(ref);
+    vec3 p0 = vertex_position(v.x);
+    vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, y);
+    return b.x >= -1e-4 && b.y >= -1e-4 && b.x + b.y <= 1.0 + 1e-4;
+#endif
+}

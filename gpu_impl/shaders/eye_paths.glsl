@@ -74,57 +74,96 @@ void main() {
     float cos_theta = abs(c);
     vec3 throughput = path.throughput * (2.0 * cos_theta) * path.albedo;
 
-    // The vertex's line. Lines pass up to a bundle pixel h = 2 radius / R beside the vertex. Of
-    // the lines around it, the one taken is the nearest whose offset from the vertex points to
-    // the side of its tangent plane the path leaves to (the geometric normal's side, per grid
-    // axis). A line offset below the plane would cross it ahead of the vertex and, near a concave
-    // edge (a wall meeting the floor), could pass outside the edge and miss the wall: light lost
-    // in O(h) of every such edge, 4 % of a closed furnace's indirect light at R = 64.
+    // The next vertex: where the ray from the vertex along omega meets the frame's bundle. No line
+    // passes through the vertex; the four around it (R x R lines, h = 2 radius / R apart) pass up
+    // to a pixel beside it, and each meets surfaces the ray may or may not. Each line offers the
+    // first node beyond the vertex whose plane the ray reaches, and the ray's own point on that
+    // plane; the ray lands on the nearest of them that lies on its node's surface (inside its
+    // triangle, or within its splat). A point on a surface another line meets nearer is behind
+    // that surface (the far wall beside a block), so all four are looked at. Where no point lies
+    // on its surface (the ray passes between the surfaces the lines meet, or they are triangles
+    // smaller than a pixel), the line on the vertex's open side (its geometric normal's, per grid
+    // axis) decides, as one line did before. One line's node taken where it lies put the next vertex half a pixel off on
+    // average, towards the open side, and lost the light of lines passing beside a concave edge:
+    // +2 % and -1 % of cornell-box's and the furnace's indirect light at R = 64
+    // (docs/MEASURED_FACTS.md).
+    vec3 x = path.position;
     vec3 ng = decode_normal(path.geometric);
     float cg = dot(ng, f.d.xyz);
     // With a shading normal, omega may point below the geometric surface: the path would enter it.
     bool leaves = forward ? cg > 0.0 : cg < 0.0;
-    float R = float(resolution);
-    vec2 grid = (vec2(dot(path.position, f.u.xyz), dot(path.position, f.v.xyz)) / radius * 0.5 + 0.5) * R - vec2(f.u.w, f.v.w) - 0.5;
+    vec2 grid = bundle_grid_position(f, x);
+    ivec2 corner = ivec2(floor(grid));
+    // The open side's line: of the four, the one offset from the vertex towards its normal.
     vec2 above = vec2(dot(ng, f.u.xyz), dot(ng, f.v.xyz));
-    ivec2 pixel = ivec2(above.x >= 0.0 ? ceil(grid.x) : floor(grid.x), above.y >= 0.0 ? ceil(grid.y) : floor(grid.y));
-    pixel = clamp(pixel, ivec2(0), ivec2(resolution - 1));
-    uint list = pixel_list(k, pixel);
-    vec3 origin = line_origin(k, pixel);
-
-    // Nodes up to the vertex's depth along the line are behind it; so are those up to where the
-    // line crosses the vertex's tangent plane, should it cross ahead (only at the grid's border,
-    // where no line above the plane is left). A further self-hit bias of self_hit_bias h skips
-    // surfaces that curve within a bundle pixel of the vertex and covers float32 depths;
-    // occluders nearer than that to the vertex are missed.
-    float depth = dot(path.position - origin, f.d.xyz);
-    float crossing = depth + dot(ng, path.position - (origin + depth * f.d.xyz)) / (leaves ? cg : 1.0);
-    float bias = self_hit_bias * 2.0 * radius / R;
-    float bound = forward ? max(depth, crossing) + bias : min(depth, crossing) - bias;
-
-    // The nearest node beyond the bound along omega: a binary search of the sorted depths.
-    uint first = list_first(list), last = list_end(list);
-    uint lo = first, hi = last;
-    while (lo < hi) {
-        uint mid = (lo + hi) / 2u;
-        if (forward ? node_depth(mid) <= bound : node_depth(mid) < bound) lo = mid + 1u; else hi = mid;
+    int open_side = (above.x >= 0.0 && grid.x > floor(grid.x) ? 1 : 0) + (above.y >= 0.0 && grid.y > floor(grid.y) ? 2 : 0);
+    // Nodes up to the vertex's depth along a line are behind it; so are those up to where the line
+    // crosses the vertex's tangent plane, should it cross ahead (a line below that plane). A
+    // further self-hit bias of self_hit_bias h covers float32 depths: occluders nearer than that
+    // to the vertex are missed.
+    float bias = self_hit_bias * 2.0 * radius / float(resolution);
+    uint hit = NO_NODE, open_hit = NO_NODE;
+    vec3 hit_origin = vec3(0.0), open_origin = vec3(0.0);
+    float hit_t = 0.0, open_t = 0.0;
+    for (int i = 0; i < 4 && leaves; i++) {
+        int c = i == 0 ? open_side : (i <= open_side ? i - 1 : i);  // the open side first, then the others
+        ivec2 pixel = corner + ivec2(c & 1, c >> 1);
+        if (any(lessThan(pixel, ivec2(0))) || any(greaterThanEqual(pixel, ivec2(resolution)))) continue;
+        uint list = pixel_list(k, pixel);
+        vec3 origin = line_origin(k, pixel);
+        float depth = dot(x - origin, f.d.xyz);
+        float crossing = depth + dot(ng, x - (origin + depth * f.d.xyz)) / cg;
+        float bound = forward ? max(depth, crossing) + bias : min(depth, crossing) - bias;
+        // The nearest node beyond the bound along omega: a binary search of the sorted depths.
+        uint first = list_first(list), last = list_end(list);
+        uint lo = first, hi = last;
+        while (lo < hi) {
+            uint mid = (lo + hi) / 2u;
+            if (forward ? node_depth(mid) <= bound : node_depth(mid) < bound) lo = mid + 1u; else hi = mid;
+        }
+        uint node = forward ? (lo < last ? lo : NO_NODE) : (lo > first ? lo - 1u : NO_NODE);
+        // A node whose plane the ray cannot reach (the plane lies behind the vertex, or through
+        // it) is on the line only because the line passes beside the vertex: the next one is
+        // taken. Near a concave edge a line may pass behind the other surface (a floor vertex's
+        // line behind the wall) and meet its back: the furnace's 1-bounce indirect light at R = 32
+        // was 5.7 % short before (tests/test_renderer.py). A splat lies in its triangle's plane.
+        while (node != NO_NODE) {
+            uint ref = node_ref(node);
+            vec3 plane_normal = triangle_normal(ref_triangle(ref));
+            float gap = dot(plane_normal, origin + node_depth(node) * f.d.xyz - x), along = dot(plane_normal, omega);
+            if (gap * along > 0.0) {
+                float t = gap / along;
+                // No nearer than the best so far (on its plane, usually): it cannot win.
+                if ((hit == NO_NODE || t < hit_t * (1.0 - 1e-5)) && on_node_surface(ref, x + t * omega)) {
+                    hit = node;
+                    hit_origin = origin;
+                    hit_t = t;
+                }
+                if (c == open_side) {
+                    open_hit = node;
+                    open_origin = origin;
+                    open_t = t;
+                }
+                break;
+            }
+            node = forward ? (node + 1u < last ? node + 1u : NO_NODE) : (node > first ? node - 1u : NO_NODE);
+        }
     }
-    uint hit = forward ? (lo < last ? lo : NO_NODE) : (lo > first ? lo - 1u : NO_NODE);
-
-    // A node whose plane a ray from the vertex along omega cannot reach (the plane lies behind the
-    // vertex, or through it) is on the line only because the line passes beside the vertex: it is
-    // skipped. Near a concave edge the line, above the vertex's own plane, may still pass behind
-    // the other surface (a floor vertex's line behind the wall) and meet that surface's back, which
-    // ended the path: the furnace's 1-bounce indirect light at R = 32 was 5.7 % short, 1.3 % now
-    // (tests/test_renderer.py). The test holds for any planar primitive, and a splat lies in its
-    // triangle's plane.
+    bool on_surface = hit != NO_NODE;
+    if (!on_surface) {
+        hit = open_hit;
+        hit_origin = open_origin;
+        hit_t = open_t;
+    }
     BundleHit node;
     vec3 node_geometric;
-    while (hit != NO_NODE) {
-        node = list_node_hit(origin, f.d.xyz, hit);
+    if (hit != NO_NODE) {
+        // The ray's point on the node's surface; off it (the open side's line), the node where it
+        // lies: a small curved facet's plane carried to the ray put the vertex inside neighbouring
+        // parts (-18 % of the parts scene's indirect light at R = 128).
+        vec3 y = on_surface ? x + hit_t * omega : hit_origin + node_depth(hit) * f.d.xyz;
+        node = bundle_hit(y, node_ref(hit));
         node_geometric = triangle_normal(node.triangle);
-        if (dot(node_geometric, node.position - path.position) * dot(node_geometric, omega) > 0.0) break;
-        hit = forward ? (hit + 1u < last ? hit + 1u : NO_NODE) : (hit > first ? hit - 1u : NO_NODE);
     }
 
     vec3 emitted = vec3(0.0);   // bounce j - 1
@@ -146,10 +185,8 @@ void main() {
 #if EMITTER_SAMPLES
             // Next-event estimation could have found this emitter too: multiple importance sampling.
             // Its density for omega is that of the point where the ray from the vertex along omega
-            // meets the emitter's plane, at distance t. The node lies on a line up to a bundle pixel
-            // beside the vertex: near a concave edge its distance differs from t many times over, and
-            // with it the two strategies' weights did not sum to 1: the furnace with 8 emitter samples
-            // lost 1.4 % of its indirect light, 0.7 % now (tests/test_renderer.py).
+            // meets the emitter's plane, at distance t (measured on the plane: with a node on a line
+            // beside the vertex, near a concave edge, the two strategies' weights did not sum to 1).
             float t = dot(node_geometric, node.position - path.position) / dot(node_geometric, omega);
             float cos_y = max(dot(node.normal, -omega), 0.0);
             emitted *= power_heuristic(BUNDLE_DIRECTION_PDF, emitter_sample_density * emitter_weight(m) * t * t / cos_y);
@@ -164,8 +201,7 @@ void main() {
 #if LAZY_LIGHTING
             vec3 e = light_irradiance(node.position, nn);
 #else
-            // Per node (perfect bundles) or per splat point (imperfect).
-            vec3 e = irradiance_at(NODE_REFERENCE == NODE_SPLAT_POINT ? node_ref(hit) : hit, front ? 0u : 1u);
+            vec3 e = irradiance_at(node_ref(hit), front ? 0u : 1u);  // per splat point
 #endif
             reflected = throughput * node.albedo * INV_PI * e;
 #endif

@@ -1,10 +1,11 @@
-// The shadow-mapped light (lights.glsl) reaching every bundle node (perfect bundles: one
-// invocation per list, each node at its slot) or every splat point (imperfect bundles: at the
-// point, with the splat's normal, the light of every node its splat makes), on the front and, for
-// a two-sided material, the back. The renderer runs it only when that costs less than lighting
-// each path's hits where they land (gpu_impl/renderer.py); the eye paths multiply it by the albedo
-// they find at the hit.
+// The shadow-mapped light (lights.glsl) reaching every splat point of imperfect bundles, at the
+// point with the splat's normal: the light of every node its splat makes, on the front and, for a
+// two-sided material, the back. The renderer runs it only when that costs less than lighting each
+// path's hits where they land (gpu_impl/renderer.py); the eye paths multiply it by the albedo they
+// find at the hit. Perfect bundles' hits are lit where each ray lands, which no node's light could
+// follow.
 
+#define NODE_REFERENCE NODE_SPLAT_POINT
 #define BUNDLE_LOOKUP
 #define PRECOMPUTED_IRRADIANCE
 #include "common.glsl"
@@ -21,7 +22,7 @@
 
 layout(local_size_x = LOCAL_SIZE) in;
 
-uniform uint invocations;  // K R^2 lists (perfect) or K N points (imperfect)
+uniform uint invocations;  // K N points
 
 void store_irradiance(uint item, vec3 position, vec3 normal, uint triangle) {
     vec3 front = light_irradiance(position, normal);
@@ -41,17 +42,8 @@ void store_irradiance(uint item, vec3 position, vec3 normal, uint triangle) {
 void main() {
     uint id = linear_id();
     if (id >= invocations) return;
-#if NODE_REFERENCE == NODE_SPLAT_POINT
     SplatSource s = splat_source(id);
     store_irradiance(id, s.centre, shading_normal(s.triangle, s.vertices, s.b.x, s.b.y), s.triangle);
-#else
-    int k = list_direction(id);
-    vec3 origin = line_origin(k, list_pixel(id)), d = frames[k].d.xyz;
-    for (uint i = list_first(id); i < list_end(id); i++) {
-        BundleHit hit = list_node_hit(origin, d, i);
-        store_irradiance(i, hit.position, hit.normal, hit.triangle);
-    }
-#endif
 }
 
 #endif

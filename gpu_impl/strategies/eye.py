@@ -64,11 +64,14 @@ class EyePaths:
         return {"emitter_sample_density": self.emitter_samples.density_scale}
 
     def programs(self, defines: dict) -> dict:
-        """The bounce pass's programs: node light precomputed, and (with shadow-mapped lights) lazy."""
+        """The bounce pass's programs: lazy light (with shadow-mapped lights), and without any or
+        from the splat points' precomputed light."""
         gl = self.renderer.gl
-        programs = {"eye_paths": gl.program("eye_paths", **defines, LAZY_LIGHTING=0)}
-        if defines["SHADOW_LIGHTS"]:
+        programs = {}
+        if defines["SHADOW_LIGHTS"]:  # lit where each path lands, and (splat points) from precomputed light
             programs["eye_paths_lazy"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=1)
+        if not defines["SHADOW_LIGHTS"] or self.renderer.tracer.lighting != "lazy":
+            programs["eye_paths"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=0)
         return programs
 
     def bounce(self, j: int, frame: int, lazy: bool) -> None:

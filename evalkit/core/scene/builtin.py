@@ -12,6 +12,10 @@
 - ``atrium-dense`` is ``atrium`` with every triangle split into 9 in its own plane: the same
   surfaces in 2.4 M triangles, where perfect bundles pay for every triangle and imperfect ones
   only for their points.
+- ``parts`` is a tray of small diffuse parts, smooth-shaded (vertex normals), packed with narrow
+  crevices between them and contacts where they rest on the tray, lit only by an environment map
+  (a sky with a bright lobe around the sun): fine geometry under environment light, where a bundle pixel is as wide as
+  the gaps.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from evalkit.core.scene.assemble import assemble, look_at
 from evalkit.core.scene.colour import srgb_to_linear
 from evalkit.core.scene.mitsuba_io import load_mitsuba_dict
 from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scene
-from evalkit.core.scene.tessellate import box, subdivide, surface, unit_sphere
+from evalkit.core.scene.tessellate import box, subdivide, surface, unit_disk, unit_sphere
 
 FURNACE_ALBEDO = 0.5
 FURNACE_EMISSION = 1.0
@@ -183,6 +187,104 @@ def atrium_dense() -> Scene:
     return assemble("atrium-dense", "atrium-dense", meshes, scene.materials, scene.lights, scene.camera)
 
 
+# --- parts ----------------------------------------------------------------------------------------
+
+# 24 x 24 parts 0.3 apart: pegs of radius 0.135 leave 0.03 gaps, a third of a bundle pixel at R = 128
+# (the scene's bounding radius is about 4.4, so a pixel is 0.07 wide at R = 128).
+_PARTS_GRID = 24
+_PARTS_PITCH = 0.3
+_PEG_RADIUS = 0.135
+
+
+def parts() -> Scene:
+    """Pegs (smooth cylinders with flat caps), balls and lying rods on a tray with a rim, under a
+    sky map; deterministic."""
+    rng = np.random.default_rng(11)
+    kinds = {"peg": [], "ball": [], "rod": []}
+    half = 0.5 * (_PARTS_GRID - 1) * _PARTS_PITCH
+    for i in range(_PARTS_GRID):
+        for j in range(_PARTS_GRID):
+            x, z = -half + i * _PARTS_PITCH, -half + j * _PARTS_PITCH
+            pick = rng.random()
+            if pick < 0.6:
+                kinds["peg"].append(_peg(x, z, rng.uniform(0.15, 0.55)))
+            elif pick < 0.85:
+                kinds["ball"].append(_ball(x, z, rng.uniform(0.11, _PEG_RADIUS)))
+            else:
+                kinds["rod"].append(_rod(x, z, rng.uniform(0, math.pi)))
+    materials = [
+        Material("tray", albedo=(0.55, 0.55, 0.5)),
+        Material("peg", albedo=(0.7, 0.3, 0.2)),
+        Material("ball", albedo=(0.2, 0.45, 0.7), twosided=True),
+        Material("rod", albedo=(0.75, 0.7, 0.3)),
+    ]
+    edge = half + 0.3
+    tray = [box(np.array([-edge, -0.3, -edge]), np.array([edge, 0.0, edge]), subdivisions=8)]
+    for lo, hi in (((-edge, 0.0, -edge), (edge, 0.25, -edge + 0.1)), ((-edge, 0.0, edge - 0.1), (edge, 0.25, edge))):
+        tray.append(box(np.array(lo), np.array(hi), subdivisions=4))
+    meshes = [Mesh("tray", *_merge(tray)[:2], material=0)]
+    for m, name in enumerate(("peg", "ball", "rod"), start=1):
+        p, f, n, uv = _merge(kinds[name])
+        meshes.append(Mesh(name, p, f, material=m, normals=n, uvs=uv))
+    sky = Light("envmap", (1.0, 1.0, 1.0), envmap=_sky_map(), to_world=np.eye(4))
+    camera = Camera(
+        look_at([2.6, 3.4, 4.0], [0.0, 0.1, 0.0], [0.0, 1.0, 0.0]), fov=40.0, fov_axis="x", width=128, height=96
+    )
+    return assemble("parts", "parts", meshes, materials, [sky], camera)
+
+
+def _peg(x: float, z: float, height: float) -> tuple:
+    """A cylinder of `_PEG_RADIUS` standing on the tray: a smooth side and a flat cap."""
+    r = _PEG_RADIUS
+
+    def side(u, v):  # u: around, v: up (front: outward)
+        a = 2 * math.pi * u
+        return np.stack([x + r * np.cos(a), v * height, z - r * np.sin(a)], -1)
+
+    p, f, n, uv = unit_disk(16)  # in z = 0 facing +z: turned to face +y at the top
+    cap = (p[:, [0, 2, 1]] * [r, 1.0, -r] + [x, height, z], f, np.tile([0.0, 1.0, 0.0], (len(p), 1)), uv)
+    return _merge([surface(side, 16, 4), cap])
+
+
+def _ball(x: float, z: float, radius: float) -> tuple:
+    p, f, n, uv = unit_sphere((16, 8))
+    return p * radius + np.array([x, radius, z]), f, n, uv
+
+
+def _rod(x: float, z: float, angle: float) -> tuple:
+    """A rod lying on the tray across its cell, smooth-shaded."""
+    r, length = 0.05, 0.26
+    axis = np.array([math.cos(angle), 0.0, math.sin(angle)])
+    side = np.cross(axis, [0.0, 1.0, 0.0])
+
+    def shape(u, v):  # u: around, v: along (front: outward)
+        t = (v - 0.5) * length
+        a = 2 * math.pi * u
+        return (
+            np.array([x, r, z])
+            + t[..., None] * axis
+            + r * (np.cos(a)[..., None] * side + np.sin(a)[..., None] * [0, 1, 0])
+        )
+
+    return surface(shape, 12, 4)
+
+
+def _sky_map(height: int = 64, width: int = 128) -> np.ndarray:
+    """A lat-long sky (Mitsuba's convention: rows from +y down to -y): blue above, brighter at the
+    horizon, a dim ground below, and a bright lobe around a high sun."""
+    theta = (np.arange(height) / (height - 1)) * math.pi  # from the zenith
+    phi = (np.arange(width) + 0.5) / width * 2 * math.pi
+    t, ph = np.meshgrid(theta, phi, indexing="ij")
+    up = np.cos(t)[..., None]
+    sky = np.where(up > 0, np.array([0.35, 0.55, 1.0]) * (0.6 + 0.8 * (1 - up)), np.array([0.25, 0.22, 0.2]))
+    direction = np.stack([np.sin(t) * np.cos(ph), np.cos(t), np.sin(t) * np.sin(ph)], -1)
+    sun = np.array([0.5, 0.75, 0.43])
+    sun /= np.linalg.norm(sun)
+    # A broad bright lobe, not a sun disk: bundle paths find the environment only by pointing at it.
+    sky = sky + 4.0 * np.maximum(direction @ sun, 0.0)[..., None] ** 8 * np.array([1.0, 0.95, 0.85])
+    return sky.astype(np.float32)
+
+
 def _textured(name: str, texture: np.ndarray) -> Material:
     mean = texture.reshape(-1, 3).mean(axis=0)
     return Material(name, albedo=tuple(float(x) for x in mean), texture=texture, twosided=True)
@@ -279,4 +381,5 @@ BUILTIN_SCENES = {
     "atrium": atrium,
     "atrium-animated": atrium_animated,
     "atrium-dense": atrium_dense,
+    "parts": parts,
 }

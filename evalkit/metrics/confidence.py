@@ -1,0 +1,99 @@
+"""How sure a comparison of a render with its reference is.
+
+- `mean_ratio`: the ratio of the image means, test over reference, with a confidence interval
+  that holds both images' noise. The test's noise comes from its frames: a render's frames are
+  independent estimates (each draws new directions, jitter and paths), so the spread of the
+  frames' image means gives the standard error of their mean, with F - 1 degrees of freedom
+  (Student's t). Within a frame the pixels share one set of bundles and are correlated, so the
+  per-pixel variances could not give it. The reference's pixels are independent (Mitsuba seeds
+  every pixel's sampler apart), so the standard error of its image mean is the root of the summed
+  per-pixel variances of the mean over the number of values. The two combine by the delta method
+  (relative errors add in quadrature) with Welch-Satterthwaite's degrees of freedom.
+- `z_test`: Mitsuba's render tests' per-pixel test (src/render/tests/test_renders.py): each
+  pixel and channel's difference over the root of the two variances of the mean, a two-sided
+  test at level alpha with a Sidak correction for the number of values; the share of values the
+  noise cannot explain, and the map of |z| (the largest over channels).
+
+A finite bundle set is a biased discretisation, so the z-test rejects even perfect bundles where
+the bias shows; the share it rejects says where, and how much of the image, the bias exceeds the
+noise. The ratio's interval says how large it is overall.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+LEVEL = 0.95  # the confidence of the intervals
+Z_ALPHA = 0.01  # the z-test's family-wise significance (Mitsuba's render tests use 0.01)
+
+
+def mean_ratio(test_frame_means: np.ndarray, ref: np.ndarray, ref_variance: np.ndarray, level: float = LEVEL) -> dict:
+    """The test's image mean over the reference's, per channel and over all channels, with its
+    ``level`` interval. ``test_frame_means``: (F, 3), each frame's image mean per channel (the
+    render's ``frame_means``); ``ref``, ``ref_variance``: (H, W, 3), the reference and its
+    per-pixel variance of the mean. With one frame the test's noise is unknown: no interval."""
+    from scipy import stats
+
+    frames = np.asarray(test_frame_means, dtype=np.float64).reshape(-1, 3)
+    ref, var = np.asarray(ref, dtype=np.float64), np.asarray(ref_variance, dtype=np.float64)
+    count = ref.shape[0] * ref.shape[1]
+    out = {"level": level, "frames": len(frames)}
+    # Per channel, then over all three (the channels' mean: its frames' means, its summed variance).
+    series = {
+        "per_channel": [(frames[:, c], ref[..., c].mean(), var[..., c].sum() / count**2) for c in range(3)],
+        "all": [(frames.mean(axis=1), ref.mean(), var.sum() / (3 * count) ** 2)],
+    }
+    for key, items in series.items():
+        rows = []
+        for f, mr, vr in items:
+            mt = float(f.mean())
+            ratio = mt / mr if mr > 0 else math.nan
+            row = {"ratio": ratio, "lo": None, "hi": None, "test_se": None, "ref_se": math.sqrt(vr)}
+            if len(f) > 1 and mr > 0 and mt > 0:
+                a = (f.std(ddof=1) / math.sqrt(len(f)) / mt) ** 2  # relative variances
+                b = vr / mr**2
+                dof = (a + b) ** 2 / (a * a / (len(f) - 1)) if a > 0 else math.inf
+                q = (
+                    float(stats.t.ppf(0.5 + level / 2, dof))
+                    if math.isfinite(dof)
+                    else float(stats.norm.ppf(0.5 + level / 2))
+                )
+                half = q * math.sqrt(a + b) * ratio
+                row.update(lo=ratio - half, hi=ratio + half, test_se=math.sqrt(a) * mt)
+            rows.append(row)
+        out[key] = rows if key == "per_channel" else rows[0]
+    return out
+
+
+def within(ratio: dict, bound: float) -> bool:
+    """Whether the interval of a `mean_ratio` entry lies inside 1 +- ``bound``."""
+    return ratio["lo"] is not None and 1 - bound <= ratio["lo"] and ratio["hi"] <= 1 + bound
+
+
+def z_test(test: np.ndarray, test_variance: np.ndarray, ref: np.ndarray, ref_variance: np.ndarray,
+           alpha: float = Z_ALPHA) -> dict:  # fmt: skip
+    """The per-pixel two-sided z-test of test against reference at family-wise level ``alpha``
+    (Sidak over every pixel and channel): the share of values outside, the threshold on |z|, and
+    the map of the largest |z| over channels (H, W). Values with no variance on either side are
+    left out (the count says how many were tested)."""
+    from scipy import stats
+
+    var = np.asarray(test_variance, dtype=np.float64) + np.asarray(ref_variance, dtype=np.float64)
+    diff = np.asarray(test, dtype=np.float64) - np.asarray(ref, dtype=np.float64)
+    tested = var > 0
+    z = np.zeros_like(diff)
+    z[tested] = diff[tested] / np.sqrt(var[tested])
+    n = int(tested.sum())
+    alpha_each = 1.0 - (1.0 - alpha) ** (1.0 / max(n, 1))  # Sidak
+    threshold = float(stats.norm.isf(alpha_each / 2))
+    outside = int((np.abs(z) > threshold).sum())
+    return {
+        "alpha": alpha,
+        "tested": n,
+        "threshold": threshold,
+        "outside": outside,
+        "outside_share": outside / n if n else math.nan,
+        "map": np.abs(z).max(axis=2),
+    }
