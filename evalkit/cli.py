@@ -20,13 +20,13 @@ from evalkit.check import calibrate, evaluate, junit_xml
 from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.errors import InputError
 from evalkit.core.exr import read_exr, write_exr
-from evalkit.core.scene import load_scene
+from evalkit.core.scene import builtin_names, load_scene
 from evalkit.core.scene.summary import scene_summary
 from evalkit.core.settings import DEPTH_TOLERANCE, IMAGES, PRESETS, RenderSettings, declared
 from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
 from evalkit.figures import error_map_png
-from evalkit.metrics.bundles import compare_bundles
+from evalkit.metrics.bundles import compare_bundles, resolution_advice
 from evalkit.metrics.confidence import mean_ratio, z_test
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
 from evalkit.study.executors import run_study
@@ -83,6 +83,14 @@ def _scene_info(args) -> int:
         f"features    textures={f['textures']} emitters={f['emitters']} environment={f['environment']} "
         f"lights={','.join(f['light_types']) or '-'}"
     )
+    advice = resolution_advice(scene, ExactTracer(scene), seed=args.seed)
+    probed = ", ".join(f"{100 * e:.1f} % at R={r}" for r, e in advice["error_rate"].items())
+    verdict = f"R >= {advice['recommended']}" if advice["recommended"] else f"more than R={max(advice['error_rate'])}"
+    print(
+        f"resolution  {verdict}: wrong next hits {probed} "
+        f'(target {100 * advice["target"]:.0f} %, docs/MEASURED_FACTS.md "Choosing R")'
+    )
+    info["resolution"] = advice
     for w in info["warnings"]:
         print(f"warning     {w}")
     if args.json:
@@ -332,6 +340,7 @@ def _study(args) -> int:
         executor=args.executor,
         scheduler=args.scheduler,
         command="evalkit " + " ".join(sys.argv[1:]),
+        wait=args.wait,
     )
     ok = sum(r["status"] == "ok" for r in rows)
     print(f"study       {study.name}: {ok} of {len(rows)} runs ok")
@@ -584,11 +593,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_doctor)
 
     scene = sub.add_parser("scene", help="scene commands").add_subparsers(dest="scene_command", required=True)
-    p = scene.add_parser("info", help="triangles, bounds, materials, lights, features and warnings of a scene")
+    p = scene.add_parser(
+        "info", help="triangles, bounds, materials, lights, features, warnings and the bundle resolution R it needs"
+    )
     p.add_argument(
         "scene",
-        help="a built-in name (cornell-box, furnace, atrium, atrium-animated) or a .xml/.obj/.ply/.gltf/.glb path",
+        help="a built-in name (" + ", ".join(builtin_names()) + ") or a .xml/.obj/.ply/.gltf/.glb path",
     )
+    p.add_argument("--seed", type=int, default=0, help="seed of the eye vertices and directions that probe R")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_scene_info)
 
@@ -686,6 +698,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="local processes, or Dask (a LocalCluster of --workers, or --scheduler)",
     )
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask: an existing scheduler, e.g. tcp://host:8786")
+    p.add_argument("--wait", action="store_true", help="wait for another study writing to --out, rather than refuse")
     p.set_defaults(run=_study)
 
     p = sub.add_parser(

@@ -304,7 +304,7 @@ class BundleTracer:
     def read(self) -> BundleSet:
         """The last build as a `BundleSet` (host memory): the nodes with the attributes an eye path
         sees at them (shaders/expand_nodes.glsl)."""
-        offsets, depth, _, slots = self.node_refs()
+        offsets, depth, refs, slots = self.node_refs()
         used = int(slots[-1]) + 1 if len(slots) else 0
         attributes = self.gl.buffer(reserve=16 * max(used, 1))
         try:
@@ -345,7 +345,12 @@ class BundleTracer:
             material=material,
             params=params,
             stats=dict(self.stats),
+            **self.splat_fields(refs),
         )
+
+    def splat_fields(self, refs: np.ndarray) -> dict:
+        """`BundleSet`'s splat fields for nodes with references ``refs`` (none without splats)."""
+        return {}
 
     def release(self) -> None:
         """Free every GL object this tracer made (not the scene upload: its maker owns that)."""

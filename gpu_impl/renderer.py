@@ -29,6 +29,7 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
+from evalkit.core.atomic import write_text
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene
@@ -454,7 +455,7 @@ def write_render(result: RenderResult, out: str | os.PathLike) -> list[Path]:
             written.append(path)
     path = out / "timings.json"
     record = {"timings": result.timings, "stats": result.stats, "params": result.params, "warnings": result.warnings}
-    path.write_text(json.dumps(record, indent=2) + "\n")
+    write_text(path, json.dumps(record, indent=2) + "\n")
     written.append(path)
     return written
 

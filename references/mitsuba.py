@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evalkit.core.atomic import write_text
 from evalkit.core.errors import InputError
 from evalkit.core.exr import read_exr, write_exr
 from evalkit.core.mitsuba_env import mitsuba
@@ -170,7 +171,8 @@ def reference(
                 entry / file, image, {**{k: v for k, v in manifest.items() if k != "files"}, "image": name + suffix}
             )
             manifest["files"][name + suffix] = file
-    (entry / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    # Last and whole: an entry is finished only with its manifest (a crash before leaves none).
+    write_text(entry / "manifest.json", json.dumps(manifest, indent=2) + "\n")
     state_path.unlink()
     return load_reference(entry, reused=False)
 

@@ -75,6 +75,20 @@ def test_perfect_bundles_agree_with_exact_lines(gl, name):
     assert result["spurious"] <= 0.005 * result["exact_nodes"], result
 
 
+def test_splat_nodes_lie_on_their_splats(gl):
+    """Each splat node's triangle and centre, read back from the GPU's point records, are those of
+    the splat that made it: the node is in the triangle's plane and within the splat's radius."""
+    scene = load_scene("cornell-box")
+    bundles = build(gl, scene, "imperfect", K=4, R=48, points=2048)
+    a = scene.arrays()
+    p = hit_points(bundles)
+    n = a.tri_normal[bundles.node_triangle()]
+    corner = a.positions[a.faces[bundles.node_triangle(), 0]]
+    assert np.abs(np.einsum("ij,ij->i", p - corner, n)).max() < 1e-5 * bundles.radius
+    r = bundles.params["splat_radius"]
+    assert np.linalg.norm(p - bundles.splat_centre, axis=1).max() <= r * (1 + 1e-4)
+
+
 def hit_points(bundles: BundleSet) -> np.ndarray:
     """Scene-space position of every node (float64)."""
     lists = bundles.node_lists()

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from evalkit.core.bundleset import BundleSet, DirectionSet, orthonormal_frames
+from evalkit.core.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, orthonormal_frames
 from evalkit.core.errors import InputError
 
 
@@ -94,6 +96,24 @@ def test_npz_round_trip_keeps_every_field(tmp_path):
         b.params,
         b.stats,
     )
+
+
+def test_npz_round_trip_keeps_the_splats(tmp_path):
+    b = small_bundles("imperfect")
+    m = b.node_count
+    b = replace(
+        b,
+        prim_id=np.full(m, SPLAT_PRIM_ID, np.int32),
+        splat_triangle=np.arange(m, dtype=np.int32) % 5,
+        splat_centre=np.random.default_rng(1).random((m, 3)),
+    )
+    assert b.check() is None
+    b.save(tmp_path / "b.npz")
+    c = BundleSet.load(tmp_path / "b.npz")
+    for name in BundleSet.SPLAT_FIELDS:
+        assert np.array_equal(getattr(b, name), getattr(c, name)), name
+    assert np.array_equal(c.node_triangle(), np.arange(m) % 5)
+    assert "splat nodes without" in replace(b, splat_triangle=None, splat_centre=None).check()
 
 
 def test_bad_bundle_files_are_one_line_errors(tmp_path):

@@ -49,7 +49,9 @@ def test_libllvm_choice_prefers_19_and_never_15_or_16(tmp_path):
     assert find_libllvm(pattern) is None
 
 
-@pytest.mark.parametrize("name, min_triangles", [("cornell-box", 36), ("furnace", 192), ("atrium", 250_000)])
+@pytest.mark.parametrize(
+    "name, min_triangles", [("cornell-box", 36), ("furnace", 192), ("atrium", 250_000), ("lit-room", 500)]
+)
 def test_scene_info_builtin(name, min_triangles):
     done = run_evalkit("scene", "info", name, "--json")
     assert done.returncode == 0, done.stderr
@@ -57,6 +59,7 @@ def test_scene_info_builtin(name, min_triangles):
     assert info["triangles"] >= min_triangles and info["name"] == name
     assert "features" in info and "depth_complexity" in info["features"]
     assert f"{info['triangles']:,}" in done.stdout
+    assert f"resolution  R >= {info['resolution']['recommended']}:" in done.stdout
 
 
 def test_scene_info_gltf_with_warnings(tmp_path):

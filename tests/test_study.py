@@ -1,15 +1,18 @@
-"""Studies: the grid, rows with every parameter and metric, resume, the Dask executor, the report,
-and bad study files."""
+"""Studies: the grid, rows with every parameter and metric, resume (after a torn row too), one
+study per folder, the Dask executor, the report, and bad study files."""
 
 from __future__ import annotations
 
 import csv
 import json
+import os
+import shutil
 
 import pytest
 from conftest import run_evalkit
 
 from evalkit.core.errors import InputError
+from evalkit.core.lock import LOCK_NAME, folder_lock
 from evalkit.report import matched_time_rows
 from evalkit.study.executors import run_study
 from evalkit.study.spec import RUN_DEFAULTS, load_study, run_id, study_from_dict
@@ -26,7 +29,7 @@ TINY = {
         "points": 1024,
         "width": 32,
         "height": 32,
-        "frames": 1,
+        "frames": 2,  # two frames or more: their spread is the image's noise
         "spp": 2,
     },
     "grid": [{"method": ["perfect", "imperfect"], "seed": [0, 1]}, {"method": "mitsuba", "spp": 4, "seed": [0, 1]}],
@@ -122,6 +125,11 @@ def test_a_study_writes_one_row_per_run_with_parameters_metrics_timings_and_vers
         r["raw_nodes"] >= r["test_nodes"] and r["redundant_rate"] < 0.05 for r in bundles if r["method"] == "imperfect"
     )
     assert all(0 <= r["next_hit_error_rate"] <= 1 and r["next_hit_lookups"] > 100 for r in bundles)
+    # A bundle row says how sure its image mean is (a Mitsuba row has no frames to tell).
+    for r in bundles:
+        assert r["indirect_mean_ratio_lo"] < r["indirect_mean_ratio"] < r["indirect_mean_ratio_hi"]
+        assert 0 <= r["indirect_z_outside"] <= 1
+        assert r["leak_rate"] + r["offset_rate"] == pytest.approx(r["hole_rate"])
     # Different seeds give different images.
     perfect = [r for r in rows if r["method"] == "perfect"]
     assert perfect[0]["indirect_relmse"] != perfect[1]["indirect_relmse"]
@@ -152,6 +160,42 @@ def test_a_second_start_resumes_and_recomputes_nothing(tiny_study):
     assert "6 finished before, 0 to run" in lines[0]
     assert again == rows
     assert len((out / "results.jsonl").read_text().splitlines()) == 6
+
+
+def test_a_torn_last_row_is_dropped_with_a_warning_and_its_run_runs_again(tiny_study, tmp_path):
+    # What a run killed mid-write leaves: part of its row and no newline.
+    out, rows, _ = tiny_study
+    torn = tmp_path / "torn"
+    shutil.copytree(out, torn)  # the finished runs' folders too: the report reads their images
+    whole = (out / "results.jsonl").read_text().splitlines()
+    (torn / "results.jsonl").write_text("\n".join(whole[:4]) + "\n" + whole[4][: len(whole[4]) // 2])
+    lines = []
+    again = run_study(study_from_dict(TINY), torn, progress=lines.append)
+    assert any("torn row" in line and "results.jsonl" in line for line in lines), lines
+    assert "4 finished before, 2 to run" in next(line for line in lines if "finished before" in line)
+    written = [json.loads(line) for line in (torn / "results.jsonl").read_text().splitlines()]
+    assert sorted(r["run_id"] for r in written) == sorted(r["run_id"] for r in rows)  # none twice
+    assert [r["run_id"] for r in again] == [r["run_id"] for r in rows]
+
+
+def test_a_second_study_on_a_folder_in_use_refuses_in_one_line(tmp_path):
+    study = tmp_path / "study.toml"
+    study.write_text('[defaults]\nscene = "cornell-box"\n[measure]\nimages = []\nrender = false\n')
+    with folder_lock(tmp_path / "out", "study"):
+        r = run_evalkit("study", str(study), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"another study is writing here (pid {os.getpid()} on " in r.stderr and "--wait" in r.stderr
+    assert not (tmp_path / "out" / "results.jsonl").exists()
+
+
+def test_a_lock_left_by_a_killed_study_is_taken_over_with_a_warning(tmp_path):
+    # The kernel drops a flock when its process dies; the holder's line stays in the file.
+    (tmp_path / LOCK_NAME).write_text("pid 999999 on elsewhere since 2026-01-01 00:00:00: evalkit study x\n")
+    lines = []
+    with folder_lock(tmp_path, "study", progress=lines.append):
+        assert str(os.getpid()) in (tmp_path / LOCK_NAME).read_text()
+    assert len(lines) == 1 and "took over" in lines[0] and "pid 999999 on elsewhere" in lines[0]
+    assert (tmp_path / LOCK_NAME).read_text() == ""  # released: the next holder has nothing to warn of
 
 
 def test_the_dask_executor_gives_the_same_rows_as_the_local_one(tiny_study, tmp_path):

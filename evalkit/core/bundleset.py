@@ -26,13 +26,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from evalkit.core.atomic import atomic_path
 from evalkit.core.errors import InputError
 
 # The frame's radius is the bounding sphere's times this, so that round-off in the projection
 # never puts a vertex on the sphere outside its bundle's tile.
 FRAME_PADDING = 1.0 + 1e-6
 SPLAT_PRIM_ID = -1  # a node made by a point splat has no single triangle
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the splat nodes' triangle and centre
 
 
 def orthonormal_frames(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -138,6 +139,11 @@ class BundleSet:
     ``emission`` (M, 3) float32, the radiance the surface emits from its front side; ``prim_id`` (M,)
     int32, the scene triangle index (meshes in order) or `SPLAT_PRIM_ID`; ``material`` (M,) int32.
     ``offsets`` (K R R + 1,) int64. ``params`` and ``stats`` are JSON-ready provenance.
+
+    Sets made of splats (imperfect bundles) also hold, per node, ``splat_triangle`` (M,) int32,
+    the triangle the splat lies in, and ``splat_centre`` (M, 3) float64, its centre in scene space:
+    what an eye path needs to tell whether a point lies on the splat (`node_triangle`,
+    evalkit/metrics/bundles.py: `bundle_lookup`). Both are None for triangle nodes' sets.
     """
 
     method: str
@@ -154,8 +160,20 @@ class BundleSet:
     material: np.ndarray
     params: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+    splat_triangle: np.ndarray | None = None
+    splat_centre: np.ndarray | None = None
 
     NODE_FIELDS = ("depth", "normal", "albedo", "emission", "prim_id", "material")
+    SPLAT_FIELDS = ("splat_triangle", "splat_centre")
+
+    @property
+    def has_splats(self) -> bool:
+        return self.splat_triangle is not None
+
+    def node_triangle(self) -> np.ndarray:
+        """The triangle whose plane each node lies in (M,) int64: its own, or its splat's."""
+        own = self.prim_id.astype(np.int64)
+        return np.where(own >= 0, own, self.splat_triangle) if self.has_splats else own
 
     @property
     def node_count(self) -> int:
@@ -191,17 +209,19 @@ class BundleSet:
             "params": self.params,
             "stats": self.stats,
         }
-        np.savez(
-            path,
-            meta=np.array(json.dumps(meta)),
-            centre=self.centre,
-            directions=ds.directions,
-            axis_u=ds.axis_u,
-            axis_v=ds.axis_v,
-            jitter=ds.jitter,
-            offsets=self.offsets,
-            **{name: getattr(self, name) for name in self.NODE_FIELDS},
-        )
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:  # a file object: no .npz appended
+            np.savez(
+                f,
+                meta=np.array(json.dumps(meta)),
+                centre=self.centre,
+                directions=ds.directions,
+                axis_u=ds.axis_u,
+                axis_v=ds.axis_v,
+                jitter=ds.jitter,
+                offsets=self.offsets,
+                **{name: getattr(self, name) for name in self.NODE_FIELDS},
+                **({name: getattr(self, name) for name in self.SPLAT_FIELDS} if self.has_splats else {}),
+            )
 
     @staticmethod
     def load(path: str | os.PathLike) -> BundleSet:
@@ -227,7 +247,9 @@ class BundleSet:
         if missing:
             raise InputError(path, f"not a BundleSet file: missing {', '.join(sorted(missing))}")
         meta = json.loads(str(arrays["meta"]))
-        if meta.get("format_version") != FORMAT_VERSION:
+        # Version 1 differs only in having no splat fields: its exact and perfect sets (study
+        # caches) read as they are, and its imperfect ones fail `check` with the reason.
+        if meta.get("format_version") not in (1, FORMAT_VERSION):
             raise InputError(path, f"BundleSet format version {meta.get('format_version')} is not {FORMAT_VERSION}")
         ds = DirectionSet(
             arrays["directions"], arrays["axis_u"], arrays["axis_v"], arrays["jitter"], meta["seed"], meta["frame"]
@@ -242,6 +264,7 @@ class BundleSet:
             *(arrays[name] for name in BundleSet.NODE_FIELDS),
             params=meta["params"],
             stats=meta["stats"],
+            **{name: arrays[name] for name in BundleSet.SPLAT_FIELDS if name in arrays},
         )
         problem = bundles.check()
         if problem:
@@ -256,9 +279,13 @@ class BundleSet:
         if self.offsets[0] != 0 or np.any(np.diff(self.offsets) < 0):
             return "offsets do not start at 0 and never decrease"
         m = self.node_count
-        for name in self.NODE_FIELDS:
+        for name in self.NODE_FIELDS + (self.SPLAT_FIELDS if self.has_splats else ()):
             if len(getattr(self, name)) != m:
                 return f"{name} has {len(getattr(self, name))} entries for {m} nodes"
+        if (self.splat_centre is None) != (self.splat_triangle is None):
+            return "splat_triangle and splat_centre come together"
+        if not self.has_splats and np.any(self.prim_id == SPLAT_PRIM_ID):
+            return "splat nodes without their splats' triangles and centres"
         if not (np.isfinite(self.depth).all() and np.isfinite(self.normal).all() and np.isfinite(self.albedo).all()):
             return "node depths, normals or albedos contain NaN or Inf"
         lists = self.node_lists()

@@ -12,6 +12,7 @@ import os
 
 import numpy as np
 
+from evalkit.core.atomic import atomic_path
 from evalkit.core.errors import InputError
 
 PREFIX = "evalkit."
@@ -27,7 +28,8 @@ def write_exr(path: str | os.PathLike, rgb: np.ndarray, provenance: dict) -> Non
     header = {"compression": OpenEXR.ZIP_COMPRESSION}
     for key, value in provenance.items():
         header[PREFIX + key] = value if isinstance(value, str) else json.dumps(value)
-    OpenEXR.File(header, {"RGB": rgb}).write(os.fspath(path))
+    with atomic_path(path) as tmp:
+        OpenEXR.File(header, {"RGB": rgb}).write(os.fspath(tmp))
 
 
 def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:

@@ -42,8 +42,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from evalkit.core.bundleset import BundleSet
-from evalkit.core.settings import DEPTH_TOLERANCE
+from evalkit.core.bundleset import BundleSet, DirectionSet
+from evalkit.core.settings import DEPTH_TOLERANCE, RenderSettings
+
+DEFAULT_SELF_HIT_BIAS = RenderSettings().self_hit_bias
 
 # The depth tolerance (evalkit/core/settings.py): GL perfect depths are float32 along lines centred
 # on the bounding sphere, about 1e-6 of the radius; 1e-4 leaves a wide margin and still separates
@@ -294,15 +296,20 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
 
 def bundle_lookup(
     bundles: BundleSet,
+    arrays,
     position: np.ndarray,
     normal: np.ndarray,
     geometric: np.ndarray,
     k: np.ndarray,
-    self_hit_bias: float = 0.25,
+    self_hit_bias: float = DEFAULT_SELF_HIT_BIAS,
 ) -> dict:
-    """The renderer's next-vertex lookup (shaders/eye_paths.glsl) on a `BundleSet`, in float64:
-    per vertex, the direction taken (d_k or -d_k, in the shading hemisphere), whether it leaves the
-    geometric surface, and the node found (index into the set's nodes, -1: none)."""
+    """The renderer's next-vertex lookup (shaders/eye_paths.glsl) on a `BundleSet`, in float64.
+
+    ``arrays`` is the scene's `SceneArrays` (the triangles' corners and planes). Per vertex: the
+    direction taken (d_k or -d_k, in the shading hemisphere), whether it leaves the geometric
+    surface, the node landed on (index into the set's nodes, -1: none), the landing point, and
+    whether it lies on the node's surface (the ray's own point on it) or is the open side's node
+    where it lies. The four lines around the vertex are searched as the shader searches them."""
     ds = bundles.directions
     R, h = bundles.resolution, bundles.pixel_size()
     d, u, v = ds.directions[k], ds.axis_u[k], ds.axis_v[k]
@@ -319,38 +326,93 @@ def bundle_lookup(
         ],
         axis=1,
     )
+    corner = np.floor(grid).astype(np.int64)
     above = np.stack([np.einsum("ij,ij->i", geometric, u), np.einsum("ij,ij->i", geometric, v)], axis=1)
-    pixel = np.clip(np.where(above >= 0, np.ceil(grid), np.floor(grid)), 0, R - 1).astype(np.int64)
-    lists = k * R * R + pixel[:, 1] * R + pixel[:, 0]
-    origin = (
-        bundles.centre
-        + (bundles.radius * (2.0 * (pixel[:, :1] + 0.5 + ds.jitter[k, :1]) / R - 1.0)) * u
-        + (bundles.radius * (2.0 * (pixel[:, 1:] + 0.5 + ds.jitter[k, 1:]) / R - 1.0)) * v
-        - bundles.radius * d
-    )
-    depth = np.einsum("ij,ij->i", position - origin, d)
-    off_line = position - (origin + depth[:, None] * d)
-    crossing = depth + np.einsum("ij,ij->i", geometric, off_line) / np.where(leaves, cg, 1.0)
-    bias = self_hit_bias * h
-    bound = np.where(forward, np.maximum(depth, crossing) + bias, np.minimum(depth, crossing) - bias)
-    first, last = bundles.offsets[lists], bundles.offsets[lists + 1]
+    # The open side's line: of the four, the one offset from the vertex towards its normal.
+    toward = (above >= 0) & (grid > corner)
+    open_side = toward[:, 0].astype(np.int64) + 2 * toward[:, 1]
     depths = bundles.depth.astype(np.float64)
+    plane = arrays.tri_normal[bundles.node_triangle()]
+    on_surface = _on_surface_test(bundles, arrays)
+    own_surface = _own_surface_test(bundles, plane)
+    bias = self_hit_bias * h
     node = np.full(len(k), -1, np.int64)
-    for i in np.nonzero(leaves)[0]:  # vertices are thousands; each search is a few steps
-        span = depths[first[i] : last[i]]
-        if forward[i]:
-            j = np.searchsorted(span, bound[i], side="right")
-            node[i] = first[i] + j if j < len(span) else -1
-        else:
-            j = np.searchsorted(span, bound[i], side="left")
-            node[i] = first[i] + j - 1 if j > 0 else -1
-    found = np.nonzero(node >= 0)[0]
     point = np.full((len(k), 3), np.nan)
-    point[found] = origin[found] + depths[node[found], None] * d[found]
-    return {"omega": omega, "leaves": leaves, "node": node, "point": point}
+    landed = np.zeros(len(k), bool)
+    for i in np.nonzero(leaves)[0]:  # vertices are thousands; each search is a few steps
+        x, o, f = position[i], omega[i], forward[i]
+        hit = open_hit = -1
+        hit_t = 0.0
+        open_origin = None
+        for c in (open_side[i], *(c for c in range(4) if c != open_side[i])):
+            pixel = corner[i] + (c & 1, c >> 1)
+            if pixel.min() < 0 or pixel.max() >= R:
+                continue
+            st = bundles.radius * (2.0 * (pixel + 0.5 + ds.jitter[k[i]]) / R - 1.0)
+            origin = bundles.centre + st[0] * u[i] + st[1] * v[i] - bundles.radius * d[i]
+            depth = np.dot(x - origin, d[i])
+            crossing = depth + np.dot(geometric[i], x - (origin + depth * d[i])) / cg[i]
+            bound = max(depth, crossing) + bias if f else min(depth, crossing) - bias
+            lo, hi = bundles.offsets[
+                k[i] * R * R + pixel[1] * R + pixel[0] : k[i] * R * R + pixel[1] * R + pixel[0] + 2
+            ]
+            j = lo + np.searchsorted(depths[lo:hi], bound, side="right" if f else "left")
+            j = j if f else j - 1
+            # The first node whose plane the ray from the vertex reaches.
+            while lo <= j < hi:
+                gap = np.dot(plane[j], origin + depths[j] * d[i] - x)
+                along = np.dot(plane[j], o)
+                if gap * along > 0 and not own_surface(j, x, geometric[i]):
+                    t = gap / along
+                    if (hit < 0 or t < hit_t * (1 - 1e-5)) and on_surface(j, x + t * o):
+                        hit, hit_t = j, t
+                    if c == open_side[i]:
+                        open_hit, open_origin = j, origin
+                    break
+                j = j + 1 if f else j - 1
+        if hit >= 0:
+            node[i], point[i], landed[i] = hit, x + hit_t * o, True
+        elif open_hit >= 0:
+            node[i], point[i] = open_hit, open_origin + depths[open_hit] * d[i]
+    return {"omega": omega, "leaves": leaves, "node": node, "point": point, "on_surface": landed}
 
 
-def next_hit_errors(bundles: BundleSet, tracer, vertices: dict, seed: int = 0, self_hit_bias: float = 0.25) -> dict:
+def _own_surface_test(bundles: BundleSet, plane):
+    """Whether node j is a splat of the surface vertex x lies on: x within the splat's cylinder of
+    its radius (across and along its normal), facing the same way."""
+    if not bundles.has_splats:
+        return lambda j, x, ng: False
+    r = float(bundles.params["splat_radius"])
+
+    def covers(j, x, ng):
+        q = x - bundles.splat_centre[j]
+        along = q @ plane[j]
+        return plane[j] @ ng > 0 and abs(along) <= r and q @ q - along * along <= r * r
+
+    return covers
+
+
+def _on_surface_test(bundles: BundleSet, arrays):
+    """Whether point y on node j's plane lies on its surface, as shaders/bundle_hits.glsl tells:
+    within the splat's disk, or inside the triangle up to 1e-4 of its barycentrics."""
+    if bundles.has_splats:
+        r2 = float(bundles.params["splat_radius"]) ** 2 * (1 + 1e-4)
+        return lambda j, y: np.sum((y - bundles.splat_centre[j]) ** 2) <= r2
+    triangles = bundles.node_triangle()
+
+    def inside(j, y):
+        p0, p1, p2 = arrays.positions[arrays.faces[triangles[j]]]
+        e1, e2, q = p1 - p0, p2 - p0, y - p0
+        a, b, c = e1 @ e1, e1 @ e2, e2 @ e2
+        b1, b2 = np.array([c * (q @ e1) - b * (q @ e2), a * (q @ e2) - b * (q @ e1)]) / (a * c - b * b)
+        return b1 >= -1e-4 and b2 >= -1e-4 and b1 + b2 <= 1 + 1e-4
+
+    return inside
+
+
+def next_hit_errors(
+    bundles: BundleSet, tracer, vertices: dict, seed: int = 0, self_hit_bias: float = DEFAULT_SELF_HIT_BIAS
+) -> dict:
     """The next-hit error rate of ``bundles`` from ``vertices`` (see `eye_vertices`): each vertex
     takes a uniformly random bundle direction, as an eye path does; the bundle lookup is compared
     with the exact Embree ray from the vertex along the same direction. Vertices whose direction
@@ -359,7 +421,9 @@ def next_hit_errors(bundles: BundleSet, tracer, vertices: dict, seed: int = 0, s
     rng = np.random.default_rng(seed)
     K = bundles.directions.count
     k = rng.integers(0, K, len(vertices["position"]))
-    look = bundle_lookup(bundles, vertices["position"], vertices["normal"], vertices["geometric"], k, self_hit_bias)
+    look = bundle_lookup(
+        bundles, tracer.arrays, vertices["position"], vertices["normal"], vertices["geometric"], k, self_hit_bias
+    )
     use = np.nonzero(look["leaves"])[0]
     k, omega = k[use], look["omega"][use]
     node, point = look["node"][use], look["point"][use]
@@ -395,6 +459,9 @@ def next_hit_errors(bundles: BundleSet, tracer, vertices: dict, seed: int = 0, s
         "error_rate": float(1.0 - agree.sum() / n),
         "false_miss_rate": float(false_miss.sum() / n),
         "false_hit_rate": float(false_hit.sum() / n),
+        # Lookups that found nodes but no ray point on their surfaces (the ray passes between the
+        # surfaces the four lines meet): the open side's node stands in, up to a pixel off.
+        "off_surface_rate": float((bundle_hit & ~look["on_surface"][use]).sum() / n),
         "wrong_surface_rate": float(wrong_surface.sum() / n),
         "per_direction": {
             "lookups": n_k.tolist(),
@@ -405,4 +472,39 @@ def next_hit_errors(bundles: BundleSet, tracer, vertices: dict, seed: int = 0, s
             "lookups": n_s.tolist(),
             "error_rate": (np.bincount(slope[exact_hit & ~agree], minlength=bins) / np.maximum(n_s, 1)).tolist(),
         },
+    }
+
+
+# -- choosing the bundle resolution ---------------------------------------------------------------
+
+# The largest share of wrong next hits (`next_hit_errors` of exact bundles: lines up to a bundle
+# pixel beside the ray) at which a scene's image means stayed within 1 % of Mitsuba's in the
+# resolution studies (docs/MEASURED_FACTS.md: "Choosing R").
+NEXT_HIT_ERROR_TARGET = 0.10
+PROBE_RESOLUTIONS = (32, 64, 128, 256, 512, 1024, 2048)
+
+
+def resolution_advice(scene, tracer, directions: int = 4, vertices: int = 1000, seed: int = 0) -> dict:
+    """The least bundle resolution R at which eye paths' lookups in exact bundles (Embree, every
+    surface on every line) find the surface the ray from the vertex meets for all but
+    `NEXT_HIT_ERROR_TARGET` of eye vertices, doubling R from 32. A bundle pixel larger than the
+    geometry's features sends paths past surfaces the ray meets (or onto surfaces it misses),
+    whatever the method: no splat size or frame count removes that bias, only R does. Returns the
+    recommendation (None: not reached by the largest R probed), the target and the error rate at
+    each R probed. `tracer` is the exact tracer (references.embree.ExactTracer) of the scene."""
+    points = eye_vertices(scene, tracer, vertices, seed=seed)
+    ds = DirectionSet.make(directions, seed=seed)
+    probed, recommended = {}, None
+    for R in PROBE_RESOLUTIONS:
+        probed[R] = next_hit_errors(tracer.bundles(ds, R), tracer, points, seed=seed)["error_rate"]
+        if probed[R] <= NEXT_HIT_ERROR_TARGET:
+            recommended = R
+            break
+    return {
+        "recommended": recommended,
+        "target": NEXT_HIT_ERROR_TARGET,
+        "error_rate": probed,
+        "directions": directions,
+        "vertices": vertices,
+        "seed": seed,
     }

@@ -7,7 +7,6 @@ worker process does), so parallel runs never render the same reference twice.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from evalkit.core.bundleset import BundleSet, DirectionSet
@@ -68,9 +67,7 @@ def exact_bundles(scene: Scene, run: dict, out: Path) -> BundleSet:
             return cached
     path.parent.mkdir(parents=True, exist_ok=True)
     bundles = exact_tracer(scene).bundles(directions, int(run["resolution"]))
-    tmp = path.with_suffix(".tmp.npz")
-    bundles.save(tmp)
-    os.replace(tmp, path)
+    bundles.save(path)  # whole or not at all
     return bundles
 
 

@@ -2,7 +2,9 @@
 or on a Dask cluster), each appends its row to ``results.jsonl`` as it finishes, and at the end come
 ``results.csv``, ``study.json`` and ``report.html``.
 
-A second start skips the rows already there (resume) and retries failed ones.
+A second start skips the rows already there (resume) and retries failed ones. One study writes to
+a folder at a time (`evalkit.core.lock`). A run killed mid-write leaves a torn last line: it is
+dropped with a warning, and that run runs again.
 """
 
 from __future__ import annotations
@@ -19,7 +21,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from evalkit.core.atomic import write_text
 from evalkit.core.errors import InputError
+from evalkit.core.lock import folder_lock
 from evalkit.report import write_report
 from evalkit.study.artefacts import prepare_artefacts
 from evalkit.study.run import execute_run, versions
@@ -34,12 +38,17 @@ def run_study(
     scheduler: str | None = None,
     progress=print,
     command: str | None = None,
+    wait: bool = False,
 ) -> list[dict]:
     """Run every run not finished yet, append its row, then write results.csv and the report.
-    Returns every row (finished earlier or now), in the study's order."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    done = {r["run_id"]: r for r in read_rows(out) if r.get("status") == "ok"}
+    Returns every row (finished earlier or now), in the study's order. Another study writing to
+    ``out`` is an `InputError`, or with ``wait`` waited for."""
+    with folder_lock(out, "study", wait=wait, progress=progress):
+        return _run_study(study, Path(out), workers, executor, scheduler, progress, command)
+
+
+def _run_study(study, out: Path, workers, executor, scheduler, progress, command) -> list[dict]:
+    done = {r["run_id"]: r for r in read_rows(out, progress) if r.get("status") == "ok"}
     todo = [r for r in study.runs if run_id(r) not in done]
     progress(
         f"{study.name}: {len(study.runs)} runs, {len(done)} finished before, {len(todo)} to run "
@@ -50,6 +59,7 @@ def run_study(
         for row in _execute(todo, study.measure, out, workers, executor, scheduler):
             log.write(json.dumps(row, default=_json_default) + "\n")
             log.flush()
+            os.fsync(log.fileno())  # a finished run survives a power cut
             done[row["run_id"]] = row
             if row["status"] != "ok":
                 progress(
@@ -67,23 +77,34 @@ def run_study(
         "workers": workers,
         "finished": time.strftime("%Y-%m-%d %H:%M:%S"),
     }
-    (out / "study.json").write_text(json.dumps(meta, indent=2) + "\n")
+    write_text(out / "study.json", json.dumps(meta, indent=2) + "\n")
     write_report(study, rows, out, meta, failed)
     return rows
 
 
-def read_rows(out: Path) -> list[dict]:
+def read_rows(out: Path, progress=print) -> list[dict]:
+    """The rows of ``out/results.jsonl``. Every row is written with its newline in one write, so
+    text after the last newline is what a process killed mid-write leaves: it is cut from the
+    file with a warning, and its run runs again. A line that is not JSON before that is damage no
+    crash explains: an error."""
     path = out / "results.jsonl"
     if not path.is_file():
         return []
+    whole, newline, torn = path.read_bytes().rpartition(b"\n")
+    if torn.strip():
+        progress(
+            f"warning: {path}: its last line is a torn row (a run cut off mid-write); dropped, that run runs again"
+        )
+        with open(path, "r+b") as f:
+            f.truncate(len(whole + newline))
     rows = []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    for n, line in enumerate(whole.split(b"\n"), 1):
         if line.strip():
             try:
                 rows.append(json.loads(line))
             except ValueError:
                 raise InputError(
-                    str(path), f"line {n} is not JSON (a run cut off mid-write?); delete that line to resume"
+                    path, f"line {n} is not JSON (the file was edited?); delete that line to resume"
                 ) from None
     return rows
 

@@ -176,6 +176,17 @@ class SplatTracer(BundleTracer):
         raw = self.buffers["POINTS"].read(SPLAT_POINT.itemsize * self.K * self.N)
         return np.frombuffer(raw, dtype=SPLAT_POINT).copy()
 
+    def splat_fields(self, refs: np.ndarray) -> dict:
+        # Each node's splat point: its triangle, and its centre as shaders/bundle.glsl places it
+        # (in float64 here, in scene space).
+        points = self.read_points()[refs]
+        a = self.gpu_scene.arrays
+        triangle = points["triangle"].astype(np.int64)
+        b = np.stack([points["barycentrics"] & 0xFFFF, points["barycentrics"] >> 16], axis=1) / 65535.0
+        p0, p1, p2 = (a.positions[a.faces[triangle, i]] for i in range(3))
+        centre = p0 + b[:, :1] * (p1 - p0) + b[:, 1:] * (p2 - p0)
+        return {"splat_triangle": triangle.astype(np.int32), "splat_centre": centre}
+
 
 class ComputeSplatTracer(SplatTracer):
     """The compute splatter: count, exact allocation, scatter."""

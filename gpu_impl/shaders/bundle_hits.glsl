@@ -52,6 +52,22 @@ uint ref_triangle(uint ref) {
 #endif
 }
 
+// Whether a node is a splat of the surface the vertex x (geometric normal ng) lies on: x lies in
+// the splat's cylinder (its radius across and along its normal) and the two face the same way. A
+// splat stands in for its surface a radius around its centre; in its own triangle's plane it
+// stands off a curved surface (r^2 / 2 rho at curvature radius rho) and would shadow the vertex
+// it represents. Surfaces of one facing closer than a splat radius are one surface to splats.
+bool own_surface(uint ref, vec3 x, vec3 ng) {
+#if NODE_REFERENCE == NODE_SPLAT_POINT
+    vec3 n = triangle_normal(ref_triangle(ref));
+    vec3 q = x - splat_source(ref).centre;
+    float along = dot(q, n);
+    return dot(n, ng) > 0.0 && abs(along) <= splat_radius && dot(q, q) - along * along <= splat_radius * splat_radius;
+#else
+    return false;
+#endif
+}
+
 // Whether point y, on the plane of a node's surface, lies on that surface: inside its triangle
 // (perfect bundles), or within its splat's disk (imperfect), up to round-off.
 bool on_node_surface(uint ref, vec3 y) {

@@ -1,4 +1,4 @@
-"""Built-in scenes: `cornell-box`, `furnace` and `atrium`.
+"""Built-in scenes.
 
 - ``cornell-box`` is ``mi.cornell_box()`` itself, read through the Mitsuba importer.
 - ``furnace`` is a closed cube of one diffuse, emissive material seen from inside. Every surface
@@ -16,6 +16,9 @@
   crevices between them and contacts where they rest on the tray, lit only by an environment map
   (a sky with a bright lobe around the sun): fine geometry under environment light, where a bundle pixel is as wide as
   the gaps.
+- ``lit-room`` is a closed room lit only indirectly: a narrow spot light by the floor aims at the
+  ceiling, so everything but a small patch of the ceiling gets its light after a bounce. Eye paths
+  find that patch by chance; paths that start at the light (bidirectional) do not need to.
 """
 
 from __future__ import annotations
@@ -52,6 +55,34 @@ def furnace() -> Scene:
     material = Material("furnace", albedo=(FURNACE_ALBEDO,) * 3, emission=(FURNACE_EMISSION,) * 3)
     camera = Camera(look_at([0, 0, 0], [0, 0, -1], [0, 1, 0]), fov=90.0, fov_axis="x", width=128, height=128)
     return assemble("furnace", "furnace", [Mesh("enclosure", positions, faces, 0)], [material], [], camera)
+
+
+def lit_room() -> Scene:
+    """A 6 x 3 x 6 room seen from inside, two boxes on its floor, and a spot light of a 12 degree
+    cone by the foot of the wall behind the camera, aimed at the ceiling above it: the patch it
+    lights is out of view, so every pixel but a few is lit indirectly."""
+    walls = box(np.array([-3.0, 0.0, -3.0]), np.array([3.0, 3.0, 3.0]), subdivisions=6, inward=True)
+    tall = box(np.array([-1.9, 0.0, -1.6]), np.array([-0.9, 1.6, -0.6]), subdivisions=2)
+    low = box(np.array([0.6, 0.0, -0.4]), np.array([1.6, 0.7, 0.6]), subdivisions=2)
+    materials = [
+        Material("walls", albedo=(0.75, 0.75, 0.72)),
+        Material("tall", albedo=(0.7, 0.25, 0.2)),
+        Material("low", albedo=(0.2, 0.35, 0.7)),
+    ]
+    meshes = [Mesh("walls", *walls, 0), Mesh("tall", *tall, 1), Mesh("low", *low, 2)]
+    aim = np.array([0.2, 1.0, 0.1])
+    spot = Light(
+        "spot",
+        (60.0, 60.0, 60.0),
+        position=np.array([1.8, 0.2, 2.5]),
+        direction=aim / np.linalg.norm(aim),
+        cutoff_angle=12.0,
+        beam_width=9.0,
+    )
+    camera = Camera(
+        look_at([0.0, 1.4, 2.9], [0.0, 1.0, -3.0], [0.0, 1.0, 0.0]), fov=70.0, fov_axis="x", width=128, height=96
+    )
+    return assemble("lit-room", "lit-room", meshes, materials, [spot], camera)
 
 
 # --- atrium ---------------------------------------------------------------------------------------
@@ -382,4 +413,5 @@ BUILTIN_SCENES = {
     "atrium-animated": atrium_animated,
     "atrium-dense": atrium_dense,
     "parts": parts,
+    "lit-room": lit_room,
 }

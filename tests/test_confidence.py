@@ -1,0 +1,81 @@
+"""How sure a comparison is (evalkit/metrics/confidence.py): the mean ratio's interval covers the
+truth as often as it says, the z-test finds a bias the noise cannot explain and nothing where
+there is none, and a render's own account of its noise (per-pixel variance of the mean, the
+frames' image means) is what its frames give."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import render_with, run_evalkit
+
+from evalkit.core.exr import read_exr
+from evalkit.metrics.confidence import mean_ratio, within, z_test
+
+
+def test_the_interval_covers_the_true_ratio_as_often_as_it_says():
+    rng = np.random.default_rng(3)
+    truth, covered, trials = 1.02, 0, 400
+    ref_var = np.full((8, 8, 3), 1e-4)  # the reference's pixels: independent, known variance
+    for _ in range(trials):
+        frames = truth * 0.5 + rng.normal(0, 0.05, (16, 3))  # 16 frames' image means, true mean 0.51
+        ref = 0.5 + rng.normal(0, 1e-2, (8, 8, 3))  # its noise: what ref_var says
+        r = mean_ratio(frames, ref, ref_var)["all"]
+        covered += r["lo"] <= truth <= r["hi"]
+    assert 0.92 <= covered / trials <= 0.98
+
+
+def test_one_frame_says_nothing_of_its_noise():
+    r = mean_ratio(np.ones((1, 3)), np.ones((4, 4, 3)), np.zeros((4, 4, 3)))
+    assert r["all"]["lo"] is None and not within(r["all"], 0.5)
+
+
+def test_the_z_test_finds_a_bias_the_noise_cannot_explain_and_nothing_else():
+    rng = np.random.default_rng(5)
+    ref, var = np.full((64, 64, 3), 0.5), np.full((64, 64, 3), 1e-4)
+    test = ref + rng.normal(0, np.sqrt(2e-4), ref.shape)  # both images' noise, no bias
+    clean = z_test(test, var, ref, var)
+    assert clean["outside"] <= 2 and clean["tested"] == 64 * 64 * 3
+    biased = test.copy()
+    biased[:8, :8] += 0.1  # 7 standard deviations in a corner
+    found = z_test(biased, var, ref, var)
+    assert found["outside_share"] == pytest.approx(8 * 8 / (64 * 64), rel=0.1)
+    assert found["map"][:8, :8].min() > found["threshold"]
+
+
+def test_a_render_accounts_for_its_noise_frame_by_frame(gl):
+    # Frame f's pixel values are what f + 1 frames add to f frames (a render is deterministic):
+    # their spread, in float64, against the renderer's running account in float32.
+    kw = dict(bounces=1, directions=4, resolution=32, width=12, height=10, spp=2, seed=4)
+    means = [render_with(gl, "cornell-box", frames=f, **kw) for f in (1, 2, 3, 4)]
+    values = np.stack([(f + 1) * m.images["indirect"].astype(np.float64) for f, m in enumerate(means)])
+    values[1:] -= np.stack([(f + 1) * m.images["indirect"].astype(np.float64) for f, m in enumerate(means[:-1])])
+    last = means[-1]
+    expected = values.var(axis=0, ddof=1) / len(values)
+    assert np.allclose(last.variances["indirect"], expected, rtol=2e-3, atol=1e-9)
+    assert np.allclose(last.frame_means["indirect"], values.mean(axis=(1, 2)), rtol=1e-4)
+    assert means[0].variances is None and means[0].frame_means["direct"].shape == (1, 3)
+    assert np.allclose(last.frame_means["total"], last.frame_means["direct"] + last.frame_means["indirect"])
+
+
+def test_render_files_and_compare_carry_the_confidence(tmp_path):
+    out, ref = tmp_path / "render", tmp_path / "ref"
+    args = ("--bounces", "1", "--width", "16", "--height", "16")
+    done = run_evalkit(
+        "render", "cornell-box", "--method", "perfect", "--directions", "8", "--resolution", "32", "--frames", "4",
+        *args, "--out", str(out),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    image, meta = read_exr(out / "indirect.exr")
+    assert len(meta["frame_means"]) == 4 and (out / "indirect_variance.exr").is_file()
+    done = run_evalkit(
+        "reference", "cornell-box", "--spp", "64", *args, "--store", str(tmp_path / "s"), "--out", str(ref)
+    )
+    assert done.returncode == 0, done.stderr
+    done = run_evalkit("compare", str(out / "indirect.exr"), str(ref / "indirect.exr"), "--metrics", "mse", "--json")
+    assert done.returncode == 0, done.stderr
+    assert "mean ratio" in done.stdout and "z-test" in done.stdout
+    result = json.loads(done.stdout.splitlines()[-1])
+    assert result["mean_ratio"]["frames"] == 4 and result["z_test"]["tested"] > 0
