@@ -73,7 +73,7 @@ def lit_room() -> Scene:
     aim = np.array([0.2, 1.0, 0.1])
     spot = Light(
         "spot",
-        (60.0, 60.0, 60.0),
+        (2400.0, 2400.0, 2400.0),
         position=np.array([1.8, 0.2, 2.5]),
         direction=aim / np.linalg.norm(aim),
         cutoff_angle=12.0,
