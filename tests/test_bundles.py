@@ -16,6 +16,7 @@ from evalkit.core.scene import Material, Mesh, assemble, load_scene
 from evalkit.core.scene.colour import sample_texture
 from evalkit.core.scene.tessellate import box
 from gpu_impl.bundles import NodeBudgetExceeded
+from gpu_impl.methods.imperfect import splat_centres
 from gpu_impl.scene_buffers import GpuScene
 
 # Matching tolerance for perfect bundles: float32 depth of a point within the bounding sphere.
@@ -357,9 +358,7 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
         k, cell = divmod(line, 64 * 64)
         origin = bundles.line_origins(k)[cell]
         t = int(points["triangle"][p])
-        b = np.array([points["barycentrics"][p] & 0xFFFF, points["barycentrics"][p] >> 16]) / 65535.0
-        p0, p1, p2 = arrays.positions[arrays.faces[t]]
-        centre = p0 + b[0] * (p1 - p0) + b[1] * (p2 - p0)
+        centre = splat_centres(points[p], arrays)
         n, d = arrays.tri_normal[t], directions.directions[k]
         q = origin + np.dot(n, centre - origin) / np.dot(n, d) * d
         snap = 4 / 256 * bundles.pixel_size() / abs(np.dot(n, d))  # four rasterizer steps on the plane

@@ -177,15 +177,21 @@ class SplatTracer(BundleTracer):
         return np.frombuffer(raw, dtype=SPLAT_POINT).copy()
 
     def splat_fields(self, refs: np.ndarray) -> dict:
-        # Each node's splat point: its triangle, and its centre as shaders/bundle.glsl places it
-        # (in float64 here, in scene space).
+        # Each node's splat point: its triangle and its centre.
         points = self.read_points()[refs]
-        a = self.gpu_scene.arrays
-        triangle = points["triangle"].astype(np.int64)
-        b = np.stack([points["barycentrics"] & 0xFFFF, points["barycentrics"] >> 16], axis=1) / 65535.0
-        p0, p1, p2 = (a.positions[a.faces[triangle, i]] for i in range(3))
-        centre = p0 + b[:, :1] * (p1 - p0) + b[:, 1:] * (p2 - p0)
-        return {"splat_triangle": triangle.astype(np.int32), "splat_centre": centre}
+        return {
+            "splat_triangle": points["triangle"].astype(np.int32),
+            "splat_centre": splat_centres(points, self.gpu_scene.arrays),
+        }
+
+
+def splat_centres(points: np.ndarray, arrays) -> np.ndarray:
+    """The centres (P, 3) float64, in scene space, of `SPLAT_POINT` records, as shaders/bundle.glsl
+    places them: the triangle's first corner plus its two unorm16 barycentrics along its edges."""
+    triangle = points["triangle"].astype(np.int64)
+    b = np.stack([points["barycentrics"] & 0xFFFF, points["barycentrics"] >> 16], axis=-1) / 65535.0
+    p0, p1, p2 = (arrays.positions[arrays.faces[triangle, i]] for i in range(3))
+    return p0 + b[..., :1] * (p1 - p0) + b[..., 1:] * (p2 - p0)
 
 
 class ComputeSplatTracer(SplatTracer):
