@@ -1,5 +1,5 @@
 # The two commands of the README. Both install what is missing first (scripts/setup.sh).
-.PHONY: setup demo test lint test-slow references studies fuzz check
+.PHONY: setup demo test lint test-slow references studies fuzz fuzz-soak check
 
 setup:
 	@scripts/setup.sh
@@ -33,6 +33,12 @@ studies: setup
 # Fuzz the importers with fresh random examples, many more than CI's derandomized few.
 fuzz: setup
 	HYPOTHESIS_PROFILE=fuzz FUZZ_EXAMPLES=2000 .venv/bin/python -m pytest -q tests/test_fuzz_importers.py
+
+# The fuzzers for a set time in worker processes, crashes and hangs counted (default an hour):
+# make fuzz-soak SOAK_SECONDS=600. Failing examples are saved in out/fuzz-soak/.
+SOAK_SECONDS = 3600
+fuzz-soak: setup
+	.venv/bin/python tests/fuzz_soak.py --seconds $(SOAK_SECONDS)
 
 # The declared accuracy thresholds (evalkit/thresholds.toml): table, out/check/junit.xml, exit 1 on a regression.
 check: setup

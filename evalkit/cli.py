@@ -18,7 +18,7 @@ import numpy as np
 
 from evalkit.check import calibrate, evaluate, junit_xml
 from evalkit.core.bundleset import BundleSet, DirectionSet
-from evalkit.core.errors import InputError
+from evalkit.core.errors import InputError, check_output
 from evalkit.core.exr import read_exr, write_exr
 from evalkit.core.scene import builtin_names, load_scene
 from evalkit.core.scene.summary import scene_summary
@@ -202,6 +202,7 @@ def _reference(args) -> int:
             variant=args.variant,
             store=Path(args.store),
             progress=lambda line: print(f"progress    {line}", flush=True),
+            wait=args.wait,
         )
     except ValueError as e:
         raise InputError("evalkit reference", str(e)) from None
@@ -802,22 +803,47 @@ def build_parser() -> argparse.ArgumentParser:
         help="Mitsuba variant (default: cuda_ad_rgb with a GPU, else llvm_ad_rgb, else scalar_rgb)",
     )
     p.add_argument("--store", default=str(DEFAULT_STORE), help=f"reference store (default {DEFAULT_STORE})")
+    p.add_argument(
+        "--wait", action="store_true", help="wait for another process rendering this reference, then reuse it"
+    )
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_reference)
     return parser
 
 
+# Each command's output arguments: (argument, is a folder).
+OUTPUTS = {
+    _bundles: [("out", False)],
+    _render: [("out", True)],
+    _compare: [("maps", True)],
+    _study: [("out", True)],
+    _check: [("out", True), ("junit", False)],
+    _tune: [("out", True)],
+    _demo: [("out", True)],
+    _reference: [("out", True)],
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        # Every output path is checked before anything is loaded or rendered.
+        for name, folder in OUTPUTS.get(args.run, ()):
+            if getattr(args, name, None):
+                check_output(getattr(args, name), folder)
         return args.run(args)
     except InputError as e:
         if args.verbose:
             traceback.print_exc()
         print(f"evalkit: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # the machine, not the input: a full disk, a read-only or vanished folder
+        if args.verbose:
+            traceback.print_exc()
+        print(f"evalkit: error: {e.filename or 'evalkit'}: {e.strerror or e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("evalkit: interrupted", file=sys.stderr)
         return 130

@@ -47,6 +47,10 @@ from gpu_impl.timing import PassTimer
 # How much a buffer grows past a measured count, so the next frame's rotated directions (a
 # slightly different count) rarely need it to grow again.
 CAPACITY_SLACK = 1.125
+# The share of the free memory a build may take: the rest is for the process and the driver. On
+# llvmpipe the raster pass of atrium-dense (2.4 M triangles, K=256, R=1024) took 1.4 GiB beyond
+# its buffers, and with 80 % the memory cgroup killed it (docs/MEASURED_FACTS.md).
+MEMORY_HEADROOM = 0.5
 SCAN_BLOCK = SCAN_PER_THREAD * LOCAL_SIZE  # values one workgroup of shaders/prefix_sum.glsl scans
 
 
@@ -105,6 +109,7 @@ class BundleTracer:
         self.defines = {"NODE_REFERENCE": self.node_reference}
         self.buffers: dict = {}
         self._scan_sums: list = []
+        self._check_budget(self.fixed_bytes, self.fixed_items)  # before anything is allocated
         lists = 4 * (self.list_count + 1)
         self._ensure("FRAMES", BUNDLE_FRAME.itemsize * self.K)
         self._ensure("COUNTERS", 4 * len(COUNTERS))
@@ -158,6 +163,11 @@ class BundleTracer:
         """What the tracer holds whatever the node count: frames and the per-list arrays."""
         return BUNDLE_FRAME.itemsize * self.K + 4 * (self.list_count + 1) * 2
 
+    @property
+    def fixed_items(self) -> str:
+        """What `fixed_bytes` holds, in words."""
+        return f"the {self.list_count:,} lists' counts and offsets"
+
     # -- memory --------------------------------------------------------------------------
 
     @property
@@ -173,6 +183,7 @@ class BundleTracer:
 
     def _ensure(self, name: str, nbytes: int):
         """Buffer ``name`` with room for at least ``nbytes`` (its contents are not kept when it grows)."""
+        self._check_buffer(nbytes, name)
         buffer = self.buffers.get(name)
         if buffer is None or buffer.size < nbytes:
             if buffer is not None:
@@ -180,13 +191,40 @@ class BundleTracer:
             buffer = self.buffers[name] = self.gl.buffer(reserve=max(4, int(nbytes)))
         return buffer
 
+    def memory_limit(self) -> tuple[int, str]:
+        """The most the tracer may hold: the node budget, or less where the memory the machine (or
+        the GPU) has free beside what the tracer holds is less (so a build that does not fit is
+        an error, not a kill). Returns (bytes, the limit in words)."""
+        budget = (self.node_budget, f"the node budget of {format_bytes(self.node_budget)}")
+        room = self.gl.free_memory()
+        if room is None:
+            return budget
+        held = self.memory_bytes
+        machine = held + int(room[0] * MEMORY_HEADROOM)
+        if machine >= self.node_budget:
+            return budget
+        free = f"{format_bytes(room[0])} free by {room[1]}"
+        return machine, f"what fits in memory ({format_bytes(held)} held and half of the {free})"
+
     def _check_budget(self, needed: int, what: str) -> None:
-        if needed > self.node_budget:
+        limit, words = self.memory_limit()
+        if needed > limit:
+            lower = "lower K, R, N or the splat size"
+            advice = f"raise --node-budget to at least {format_bytes(needed)} or {lower}"
             raise NodeBudgetExceeded(
                 self.gpu_scene.scene.name,
-                f"{self.describe()} need {format_bytes(needed)} for {what}, over the node budget of "
-                f"{format_bytes(self.node_budget)}; raise --node-budget to at least {format_bytes(needed)} "
-                "or lower K, R, N or the splat size",
+                f"{self.describe()} need {format_bytes(needed)} for {what}, over {words}; "
+                + (advice if limit == self.node_budget else lower),
+            )
+
+    def _check_buffer(self, nbytes: int, name: str) -> None:
+        """One buffer past the largest a shader can index would be indexed past its end."""
+        largest = self.gl.max_storage_bytes
+        if nbytes > largest:
+            raise NodeBudgetExceeded(
+                self.gpu_scene.scene.name,
+                f"{self.describe()} need {format_bytes(nbytes)} in one buffer ({name}), over the largest a "
+                f"shader can index here ({format_bytes(largest)}); lower K, R, N or the splat size",
             )
 
     def _grow(self, names: tuple[str, ...], node_bytes: int, nodes: int, what: str) -> None:
@@ -197,7 +235,12 @@ class BundleTracer:
             return
         others = self.memory_bytes - current
         self._check_budget(others + node_bytes * nodes, f"{nodes:,} {what} and what else the build holds")
-        slack = min(int(nodes * CAPACITY_SLACK), (self.node_budget - others) // node_bytes)
+        for name in names:
+            self._check_buffer(node_bytes // len(names) * nodes, name)
+        fits = min(
+            (self.memory_limit()[0] - others) // node_bytes, self.gl.max_storage_bytes // (node_bytes // len(names))
+        )
+        slack = min(int(nodes * CAPACITY_SLACK), fits)
         for name in names:
             self._ensure(name, node_bytes // len(names) * slack)
 
@@ -419,7 +462,9 @@ class LinkedListTracer(BundleTracer):
     def _grow_linked(self, nodes: int) -> None:
         """Linked-list buffers for ``nodes`` nodes (a guess, or a measured count)."""
         nodes = max(1, nodes)
-        budget_nodes = max(1, (self.node_budget - self.fixed_bytes) // LINKED_NODE_BYTES)
+        # Never more than fits: a first guess over the machine's memory would be touched, and
+        # killed for, as the raster pass fills it; an overflowing pass is counted and refused.
+        budget_nodes = max(1, (self.memory_limit()[0] - self.fixed_bytes) // LINKED_NODE_BYTES)
         self.capacity = min(nodes, budget_nodes, self.gl.max_storage_bytes // 4)
         for name in ("NEXT", "LIST_DEPTH", "LIST_REF"):
             if name in self.buffers and self.buffers[name].size != 4 * self.capacity:
@@ -476,6 +521,7 @@ class LinkedListTracer(BundleTracer):
             if nodes <= self.capacity:
                 return reruns, nodes
             self._check_budget(self.fixed_bytes + nodes * LINKED_NODE_BYTES, f"{nodes:,} nodes in linked lists")
+            self._check_buffer(4 * nodes, "NEXT")
             self._grow_linked(max(nodes, int(nodes * CAPACITY_SLACK)))
             self.bind()
             reruns += 1

@@ -20,6 +20,7 @@ from gpu_impl.layout import LOCAL_SIZE, MAX_GROUPS
 from gpu_impl.shader_source import COMPILED, program_sources, variant_key
 
 GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
+GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX = 0x9049  # in KiB
 
 
 def _default_raster_threads() -> int:
@@ -41,6 +42,8 @@ class GLContext:
         os.environ.setdefault("LP_NUM_THREADS", str(_default_raster_threads()))
         if device_index is None:
             env = os.environ.get("EVALKIT_GL_DEVICE", os.environ.get("GLCONTEXT_DEVICE_INDEX", "0"))
+            if not env.strip().isdigit():
+                raise InputError("EVALKIT_GL_DEVICE", f"'{env}' is not an EGL device index (0, 1, ...)")
             device_index = int(env)
         self.device_index = device_index
         try:
@@ -63,6 +66,18 @@ class GLContext:
         buffer it can allocate (tests/test_gl_context.py checks this), so there the limit is the
         32-bit byte offset."""
         return 2**32 - 1 if self.is_llvmpipe else int(self.ctx.info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"])
+
+    def free_memory(self) -> tuple[int, str] | None:
+        """(bytes, where the figure comes from) that new buffers can take now, or None where the
+        driver does not say. llvmpipe's buffers are system memory (`system_free_memory`); the
+        NVIDIA driver reports its free video memory through GL_NVX_gpu_memory_info."""
+        if self.is_llvmpipe:
+            return system_free_memory()
+        if "GL_NVX_gpu_memory_info" in self.ctx.extensions:
+            kib = gl_integer(GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX)
+            if kib:
+                return 1024 * kib, "GL_NVX_gpu_memory_info"
+        return None
 
     def program(self, name: str, **defines):
         """The program in ``shaders/<name>.glsl`` (its stages selected by ``#if defined
@@ -156,6 +171,75 @@ class GLContext:
 
     def __exit__(self, *exc) -> None:
         self.release()
+
+
+def system_free_memory(proc: str = "/proc", cgroups: str = "/sys/fs/cgroup") -> tuple[int, str] | None:
+    """MemAvailable of /proc/meminfo, or less where this process's memory cgroup (a container, a
+    batch job; cgroup v2 ``memory.max`` or v1 ``memory.limit_in_bytes``) leaves less below its
+    limit: what can be allocated before the kernel kills the process. None where neither is
+    readable."""
+    try:
+        with open(f"{proc}/meminfo") as f:
+            fields = dict(line.split(":", 1) for line in f if ":" in line)
+        free, source = int(fields["MemAvailable"].split()[0]) * 1024, "MemAvailable"
+    except (OSError, KeyError, ValueError):
+        return None
+    for limit, usage in _cgroup_memory_files(proc, cgroups):
+        try:
+            with open(limit) as f:
+                cap = f.read().strip()
+            with open(usage) as f:
+                used = int(f.read())
+        except (OSError, ValueError):
+            continue
+        if cap.isdigit() and int(cap) < 2**60 and int(cap) - used < free:  # v1 says "no limit" as ~2^63
+            free, source = max(0, int(cap) - used), f"the memory cgroup's {os.path.basename(limit)}"
+        break
+    return free, source
+
+
+def _cgroup_memory_files(proc: str, cgroups: str):
+    """(limit file, usage file) of this process's memory cgroup, its own folder first, then the
+    mount's root (where a cgroup namespace puts a container's own)."""
+    try:
+        with open(f"{proc}/self/cgroup") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return
+    for line in lines:
+        _, controllers, path = line.split(":", 2)
+        if controllers == "":  # v2: one unified hierarchy
+            names, folders = ("memory.max", "memory.current"), (f"{cgroups}{path}", cgroups)
+        elif "memory" in controllers.split(","):
+            names, folders = (
+                ("memory.limit_in_bytes", "memory.usage_in_bytes"),
+                (f"{cgroups}/memory{path}", f"{cgroups}/memory"),
+            )
+        else:
+            continue
+        for folder in folders:
+            if os.path.isfile(os.path.join(folder, names[0])):
+                yield os.path.join(folder, names[0]), os.path.join(folder, names[1])
+                break
+
+
+def gl_integer(pname: int) -> int | None:
+    """glGetIntegerv(pname) in the current context, for the queries moderngl does not expose;
+    None when the entry point cannot be found."""
+    import ctypes
+
+    try:
+        egl = ctypes.CDLL("libEGL.so.1")
+    except OSError:
+        return None
+    egl.eglGetProcAddress.restype = ctypes.c_void_p
+    egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+    address = egl.eglGetProcAddress(b"glGetIntegerv")
+    if not address:
+        return None
+    value = ctypes.c_int(0)
+    ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.POINTER(ctypes.c_int))(address)(pname, ctypes.byref(value))
+    return value.value
 
 
 _DEFAULT: GLContext | None = None

@@ -297,14 +297,14 @@ class Renderer:
             return True
         items = self.tracer.irradiance_items
         needed = 12 * self.defines["NODE_SIDES"] * items
-        if self.tracer.memory_bytes + needed > self.settings.node_budget:
+        limit, words = self.tracer.memory_limit()
+        if self.tracer.memory_bytes + needed > limit:
             if mode == "precomputed":
                 raise NodeBudgetExceeded(
                     self.scene.name,
                     f"precomputed irradiance for {items:,} splat points needs "
                     f"{format_bytes(needed)} beside the bundles' {format_bytes(self.tracer.memory_bytes)}, "
-                    f"over the node budget of {format_bytes(self.settings.node_budget)}; raise "
-                    f"--node-budget or use --lighting lazy",
+                    f"over {words}; raise --node-budget or use --lighting lazy",
                 )
             return True
         if mode == "auto" and self.irradiance_of != build and alive * self.settings.bounces < items:

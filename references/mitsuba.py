@@ -24,6 +24,11 @@ Store layout: ``STORE/<scene>-<hash16>/b<B>_<W>x<H>_spp<S>_seed<N>/`` with ``dir
 ``indirect.exr``, ``total.exr``, ``<image>_variance.exr`` and ``manifest.json``. The key holds every
 parameter that changes the images; the Mitsuba variant is recorded but not keyed (the same seed
 gives the same image on llvm and scalar).
+
+One writer per entry: rendering holds the entry folder's lock (`evalkit.core.lock`), so two
+processes that need the same reference (two studies sharing a store, a study's workers) never
+render it twice; the second refuses in one line, or with ``wait`` waits and then reuses it.
+Entries are locked one by one, so different references of one store render side by side.
 """
 
 from __future__ import annotations
@@ -38,9 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-from evalkit.core.atomic import write_text
+from evalkit.core.atomic import atomic_path, write_text
 from evalkit.core.errors import InputError
 from evalkit.core.exr import read_exr, write_exr
+from evalkit.core.lock import folder_lock
 from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene import Scene
 from evalkit.core.scene.mitsuba_io import to_mitsuba_dict
@@ -93,10 +99,12 @@ def reference(
     variant: str | None = None,
     store: Path = DEFAULT_STORE,
     progress=print,
+    wait: bool = False,
 ) -> Reference:
     """The stored reference with these parameters, rendered (or resumed) first if it is missing.
 
     ``chunks`` (default ``min(32, spp)``) must divide ``spp``; ``progress`` gets one line per chunk.
+    Another process rendering the same entry is an `InputError`, or with ``wait`` is waited for.
     """
     width, height = int(width or scene.camera.width), int(height or scene.camera.height)
     if bounces < 0 or spp < 2 or width < 1 or height < 1:
@@ -110,9 +118,14 @@ def reference(
     entry = store_entry(scene.name, scene_hash, bounces, spp, width, height, seed, store)
     if (entry / "manifest.json").is_file():
         return load_reference(entry, reused=True)
+    with folder_lock(entry, "reference render", wait=wait, progress=progress):
+        if (entry / "manifest.json").is_file():  # finished by the process this one waited for
+            return load_reference(entry, reused=True)
+        return _render_entry(scene, scene_hash, entry, bounces, spp, width, height, seed, chunks, variant, progress)
 
+
+def _render_entry(scene, scene_hash, entry, bounces, spp, width, height, seed, chunks, variant, progress) -> Reference:
     mi, mi_scene, integrators = _mitsuba_scene(scene, bounces, spp // chunks, width, height, variant)
-    entry.mkdir(parents=True, exist_ok=True)
     state_path = entry / "progress.npz"
     done, sums, squares = 0, np.zeros((3, height, width, 3)), np.zeros((3, height, width, 3))
     if state_path.is_file():
@@ -131,9 +144,8 @@ def reference(
         sums += means
         squares += means * means
         done = chunk + 1
-        tmp = entry / "progress.tmp.npz"
-        np.savez(tmp, done=done, chunks=chunks, sums=sums, squares=squares)
-        os.replace(tmp, state_path)
+        with atomic_path(state_path) as tmp:
+            np.savez(tmp, done=done, chunks=chunks, sums=sums, squares=squares)
         elapsed = time.perf_counter() - start
         per_chunk = elapsed / (done - resumed_at)
         progress(

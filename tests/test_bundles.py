@@ -16,6 +16,7 @@ from evalkit.core.scene import Material, Mesh, assemble, load_scene
 from evalkit.core.scene.colour import sample_texture
 from evalkit.core.scene.tessellate import box
 from gpu_impl.bundles import NodeBudgetExceeded
+from gpu_impl.context import GLContext
 from gpu_impl.methods.imperfect import splat_centres
 from gpu_impl.scene_buffers import GpuScene
 
@@ -216,13 +217,54 @@ def test_node_budget_is_a_clear_error_with_the_memory_needed(gl):
     with pytest.raises(
         NodeBudgetExceeded,
         match=r"analytic: perfect bundles \(K=8, R=32\) need [\d.]+ KiB for [\d,]+ nodes in "
-        r"linked lists, over the node budget of 64.00 KiB",
+        r"linked lists, over the node budget of 128.00 KiB",
     ):
-        build(gl, nested_boxes(), K=8, R=32, node_budget=64 * 1024)
+        build(gl, nested_boxes(), K=8, R=32, node_budget=128 * 1024)
+    with pytest.raises(NodeBudgetExceeded, match=r"need 96.38 KiB for the 8,192 lists' counts and offsets, over"):
+        build(gl, nested_boxes(), K=8, R=32, node_budget=64 * 1024)  # checked before they are allocated
     with pytest.raises(
         NodeBudgetExceeded, match=r"imperfect bundles \(K=8, R=32, N=20000\) need .* for 160,000 splat points"
     ):
         build(gl, nested_boxes(), "imperfect", K=8, R=32, points=20000, node_budget=1 << 20)
+
+
+def test_a_build_over_the_machines_free_memory_is_refused_before_it_allocates_it(gl, monkeypatch):
+    # A node budget far above what the machine has free: the build must never hold more buffers
+    # than fit (the kernel would kill the process), and ends in the one-line error instead.
+    total = 256 * 1024
+    made, peak = [], [0]
+
+    def held():
+        return sum(size for b, size in made if type(b.mglo).__name__ != "InvalidObject")
+
+    def buffer(self, data=None, reserve=0):
+        b = real_buffer(self, data, reserve)
+        made.append((b, b.size))
+        peak[0] = max(peak[0], held())
+        return b
+
+    real_buffer = GLContext.buffer
+    monkeypatch.setattr(GLContext, "buffer", buffer)
+    monkeypatch.setattr(GLContext, "free_memory", lambda self: (total - held(), "the test"))
+    for method in ("perfect", "imperfect"):
+        made.clear()
+        peak[0] = 0
+        with pytest.raises(NodeBudgetExceeded) as e:
+            build(gl, nested_boxes(), method, K=8, R=64, points=20000, node_budget=1 << 40)
+        assert "over what fits in memory (" in str(e.value) and "free by the test" in str(e.value), e.value
+        assert "lower K, R, N or the splat size" in str(e.value) and "--node-budget" not in str(e.value)
+        assert peak[0] <= total, str((method, peak[0], [size for b, size in made]))
+    monkeypatch.setattr(GLContext, "free_memory", lambda self: (1 << 40, "plenty"))
+    assert build(gl, nested_boxes(), K=8, R=64).node_count > total // 12  # where there is room, it builds
+
+
+def test_a_buffer_past_what_a_shader_can_index_is_an_error_not_a_crash(gl, monkeypatch):
+    # llvmpipe indexes buffers up to 4 GiB; atrium-dense at K=256, R=1024 needed a bigger node
+    # buffer, and its resolve pass crashed the process (SIGSEGV) before this check.
+    monkeypatch.setattr(GLContext, "max_storage_bytes", property(lambda self: 256 * 1024))
+    for method in ("perfect", "imperfect"):
+        with pytest.raises(NodeBudgetExceeded, match=r"in one buffer \(\w+\), over the largest a shader can index"):
+            build(gl, nested_boxes(), method, K=8, R=64, points=20000, node_budget=1 << 40)
 
 
 def test_same_seed_same_lists_and_atlas_batching_changes_nothing(gl):

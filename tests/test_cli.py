@@ -76,7 +76,7 @@ def test_scene_info_gltf_with_warnings(tmp_path):
 
 BAD_INPUTS = {
     "nan.obj": ("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n", "NaN or Inf"),
-    "range.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "does not exist"),
+    "range.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "line 4: face v index 9"),
     "empty.obj": ("", "empty"),
     "garbage.ply": ("\x00\x01garbage", "cannot be read|no triangle geometry"),
     "bad.xml": ("<scene><shape>\n</scene>", "malformed XML"),

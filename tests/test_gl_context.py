@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from evalkit.core.errors import InputError
-from gpu_impl.context import GLContext
+from gpu_impl.context import GLContext, gl_integer, system_free_memory
 from gpu_impl.layout import BINDINGS, RECORDS, SHADER_CONSTANTS, glsl_literal
 from gpu_impl.shader_source import SHADER_DIR, SHADER_VARIANTS, is_program
 
@@ -88,3 +88,42 @@ def test_llvmpipe_indexes_storage_past_its_reported_limit(gl):
 def test_bad_device_index_is_one_clear_error():
     with pytest.raises(InputError, match="EGL device 97"):
         GLContext(device_index=97)
+
+
+def test_free_memory_is_what_the_system_says(gl):
+    free, source = gl.free_memory()  # llvmpipe: system memory
+    with open("/proc/meminfo") as f:
+        available = next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+    assert 0 < free <= available * 1.05 and ("MemAvailable" in source or "cgroup" in source)
+    assert gl_integer(0x0D33) == gl.limit("GL_MAX_TEXTURE_SIZE")  # the query path GL_NVX_gpu_memory_info takes
+
+
+@pytest.mark.parametrize(
+    "cgroup, files, expected",
+    [
+        ("0::/job\n", {"job/memory.max": "3221225472", "job/memory.current": "1073741824"}, 2 << 30),
+        ("0::/job\n", {"job/memory.max": "max", "job/memory.current": "1073741824"}, 16 << 30),
+        ("0::/outside\n", {"memory.max": "2147483648", "memory.current": "0"}, 2 << 30),  # a namespace's root
+        (
+            "4:memory:/job\n0::/\n",
+            {"memory/job/memory.limit_in_bytes": "1073741824", "memory/job/memory.usage_in_bytes": "0"},
+            1 << 30,
+        ),  # fmt: skip
+        (
+            "4:memory:/\n",
+            {"memory/memory.limit_in_bytes": "9223372036854771712", "memory/memory.usage_in_bytes": "5"},
+            16 << 30,
+        ),  # fmt: skip
+    ],
+)
+def test_free_memory_is_capped_by_the_memory_cgroup(tmp_path, cgroup, files, expected):
+    # A container or batch job's limit kills the process long before MemAvailable runs out.
+    (tmp_path / "proc" / "self").mkdir(parents=True)
+    (tmp_path / "proc" / "meminfo").write_text("MemTotal: 33554432 kB\nMemAvailable: 16777216 kB\n")
+    (tmp_path / "proc" / "self" / "cgroup").write_text(cgroup)
+    for name, text in files.items():
+        (tmp_path / "cg" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "cg" / name).write_text(text + "\n")
+    free, source = system_free_memory(str(tmp_path / "proc"), str(tmp_path / "cg"))
+    assert free == expected
+    assert ("cgroup" in source) == (expected < 16 << 30), source

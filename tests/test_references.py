@@ -4,12 +4,17 @@ keys, reuses and resumes, the committed CI references are current and right, and
 from __future__ import annotations
 
 import json
+import shutil
+import threading
+import time
 
 import numpy as np
 import pytest
 from conftest import relmse, run_evalkit
 
+from evalkit.core.errors import InputError
 from evalkit.core.exr import read_exr
+from evalkit.core.lock import folder_lock
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.builtin import furnace_radiance
 from evalkit.core.scene.mitsuba_io import to_mitsuba_dict
@@ -97,6 +102,56 @@ def test_store_keys_reuses_and_resumes(tmp_path):
         assert np.array_equal(resumed.images[name], straight.images[name])
         assert np.array_equal(resumed.variances[name], straight.variances[name])
     assert np.allclose(straight.images["indirect"], straight.images["total"] - straight.images["direct"], atol=1e-6)
+
+
+def test_a_store_entry_has_one_writer_and_a_waiting_process_reuses_its_work(tmp_path):
+    scene = load_scene("furnace")
+    args = dict(bounces=1, spp=8, width=16, height=16, seed=3, chunks=4)
+    finished = reference(scene, store=tmp_path / "done", progress=lambda line: None, **args)
+    entry = tmp_path / "shared" / finished.path.relative_to(tmp_path / "done")
+    with folder_lock(entry, "reference render"):  # another process rendering this entry
+        with pytest.raises(InputError, match="another reference render is writing here .*--wait"):
+            reference(scene, store=tmp_path / "shared", progress=lambda line: None, **args)
+        r = run_evalkit(
+            "reference", "furnace", "--spp", "8", "--chunks", "4", "--width", "16", "--height", "16", "--seed", "3",
+            "--store", str(tmp_path / "shared"), "--out", str(tmp_path / "out"),
+        )  # fmt: skip
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert "another reference render is writing here" in r.stderr
+    assert not (entry / "manifest.json").exists()
+
+    # With wait, the second process blocks until the first finishes, then reuses its entry.
+    def first_finishes(held):
+        with folder_lock(entry, "reference render"):
+            held.set()
+            time.sleep(0.5)
+            shutil.copytree(finished.path, entry, dirs_exist_ok=True)
+
+    held = threading.Event()
+    writer = threading.Thread(target=first_finishes, args=(held,))
+    writer.start()
+    held.wait()
+    lines = []
+    waited = reference(scene, store=tmp_path / "shared", progress=lines.append, wait=True, **args)
+    writer.join()
+    assert waited.reused and any(line.startswith(f"waiting for {entry}") for line in lines), lines
+    assert np.array_equal(waited.images["indirect"], finished.images["indirect"])
+
+
+def test_a_store_entry_without_a_whole_manifest_is_not_trusted(tmp_path):
+    scene = load_scene("furnace")
+    args = dict(bounces=1, spp=8, width=16, height=16, seed=3, chunks=4)
+    whole = reference(scene, store=tmp_path, progress=lambda line: None, **args)
+    manifest = whole.path / "manifest.json"
+    text = manifest.read_text()
+    manifest.unlink()  # killed after its images, before its manifest: rendered again
+    again = reference(scene, store=tmp_path, progress=lambda line: None, **args)
+    assert not again.reused and manifest.read_text() == text.replace(
+        f'"render_s": {whole.manifest["render_s"]}', f'"render_s": {again.manifest["render_s"]}'
+    )
+    manifest.write_text(text[: len(text) // 2])  # torn by something other than the toolkit: one line
+    with pytest.raises(InputError, match=r"manifest.json: malformed JSON"):
+        reference(scene, store=tmp_path, progress=lambda line: None, **args)
 
 
 @pytest.mark.parametrize("name,bounces", CI_REFERENCES)

@@ -16,3 +16,24 @@ class InputError(Exception):
         self.source = str(source)
         self.problem = " ".join(str(problem).split())  # one line, whatever the library said
         super().__init__(f"{self.source}: {self.problem}")
+
+
+def check_output(path: str | os.PathLike, folder: bool) -> None:
+    """Raise `InputError` now if ``path`` cannot become an output folder (``folder``) or file:
+    checked before any work, so that a render is not lost to a path that was never writable."""
+    path = os.path.abspath(path)
+    if os.path.exists(path):
+        if folder and not os.path.isdir(path):
+            raise InputError(path, "exists and is not a folder; outputs go into a folder (give another --out)")
+        if not folder and os.path.isdir(path):
+            raise InputError(path, "is a folder; the output is a file (give a file name)")
+        if not os.access(path if folder else os.path.dirname(path), os.W_OK):
+            raise InputError(path, "is not writable")
+        return
+    parent = os.path.dirname(path)
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise InputError(path, f"cannot be made: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK):
+        raise InputError(path, f"cannot be made: {parent} is not writable")

@@ -7,6 +7,7 @@ its own still says where it came from.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 
@@ -29,7 +30,11 @@ def write_exr(path: str | os.PathLike, rgb: np.ndarray, provenance: dict) -> Non
     for key, value in provenance.items():
         header[PREFIX + key] = value if isinstance(value, str) else json.dumps(value)
     with atomic_path(path) as tmp:
-        OpenEXR.File(header, {"RGB": rgb}).write(os.fspath(tmp))
+        try:
+            OpenEXR.File(header, {"RGB": rgb}).write(os.fspath(tmp))
+        except RuntimeError as e:  # OpenEXR's word for every failed write; the system's error, as an OSError
+            code = errno.ENOSPC if "No space left" in str(e) else errno.EIO
+            raise OSError(code, os.strerror(code), os.fspath(path)) from e
 
 
 def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:

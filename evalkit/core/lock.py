@@ -4,7 +4,8 @@ The lock is a `fcntl.flock` on that file, which the kernel releases when its pro
 it ends (exit, Ctrl-C, SIGKILL), so a lock is never left held by a process that is gone. The file
 says who holds it (pid, host, start time, command) so that a second process can say so in its
 error. A holder that exits normally empties the file; a file found with a holder's line in it but
-no lock on it was left by a process that died, and is taken over with a warning.
+no lock on it was left by a process that died, and is taken over with a warning. The new holder
+removes the temporary files a killed writer left in the folder (evalkit/core/atomic.py).
 
 Two `evalkit study` processes on one folder would both run its unfinished rows and both append
 them: the same run twice in ``results.jsonl``.
@@ -20,6 +21,7 @@ import sys
 import time
 from pathlib import Path
 
+from evalkit.core.atomic import remove_temporaries
 from evalkit.core.errors import InputError
 
 LOCK_NAME = ".evalkit.lock"
@@ -47,6 +49,8 @@ def folder_lock(folder: str | os.PathLike, what: str, wait: bool = False, progre
         left = _holder(f)
         if left:
             progress(f"warning: {folder}: took over the lock of a {what} that ended without releasing it ({left})")
+        if remove_temporaries(folder):  # a killed writer's half-written files, never read
+            progress(f"{folder}: removed the temporary files of a {what} that was killed mid-write")
         f.seek(0)
         f.truncate()
         f.write(f"pid {os.getpid()} on {socket.gethostname()} since {time.strftime('%Y-%m-%d %H:%M:%S')}: ")

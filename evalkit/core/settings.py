@@ -140,7 +140,8 @@ class RenderSettings:
     shadow_slope_bias: float = setting(2.0, "slope-scaled shadow depth bias, in texels", minimum=0)
     node_budget: int = setting(
         DEFAULT_NODE_BUDGET,
-        "the most memory for nodes, what they are built from and their precomputed light",
+        "the most memory for nodes, what they are built from and their precomputed light; never more than "
+        "half of what the machine (llvmpipe) or the GPU has free",
         minimum=1,
         unit="byte",
     )

@@ -50,7 +50,10 @@ def reference_for(scene: Scene, run: dict, measure: dict, out: Path, progress=pr
     if (committed / "manifest.json").is_file():
         return load_reference(committed)
     store = Path(measure["reference_store"]) if measure["reference_store"] else out / "references"
-    return reference(scene, **args, store=store, progress=lambda line: progress(f"reference {scene.name}: {line}"))
+    # A run needing a reference another run (or study) is rendering waits for it, then reuses it.
+    return reference(
+        scene, **args, store=store, wait=True, progress=lambda line: progress(f"reference {scene.name}: {line}")
+    )
 
 
 def exact_bundles(scene: Scene, run: dict, out: Path) -> BundleSet:

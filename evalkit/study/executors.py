@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from evalkit.core.atomic import write_text
+from evalkit.core.atomic import remove_temporaries, write_text
 from evalkit.core.errors import InputError
 from evalkit.core.lock import folder_lock
 from evalkit.report import write_report
@@ -48,6 +48,9 @@ def run_study(
 
 
 def _run_study(study, out: Path, workers, executor, scheduler, progress, command) -> list[dict]:
+    for folder in (out / "cache", out / "images"):  # the study's own; runs/<id> start empty
+        if folder.is_dir():
+            remove_temporaries(folder)
     done = {r["run_id"]: r for r in read_rows(out, progress) if r.get("status") == "ok"}
     todo = [r for r in study.runs if run_id(r) not in done]
     progress(

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import importlib.metadata
 import platform
+import shutil
 import time
 import traceback
 from pathlib import Path
 
 import numpy as np
 
+from evalkit.core.atomic import write_text
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene, load_scene
@@ -57,13 +59,15 @@ def execute_run(run: dict, measure: dict, out: str) -> dict:
     out = Path(out)
     key = run_id(run)
     folder = out / "runs" / key
-    folder.mkdir(parents=True, exist_ok=True)
+    # A run without its row starts from an empty folder: nothing a killed attempt left survives.
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
     row = {"run_id": key, **run, "status": "ok", **{f"version_{k}": v for k, v in versions().items()}}
     start = time.perf_counter()
     try:
         row.update(_measure(run, measure, out, folder))
     except Exception as e:  # noqa: BLE001 -- a study reports a failed run and goes on
-        (folder / "error.txt").write_text(traceback.format_exc())
+        write_text(folder / "error.txt", traceback.format_exc())
         row["status"] = f"error: {type(e).__name__}: {e}".splitlines()[0]
     row["run_s"] = round(time.perf_counter() - start, 3)
     return row

@@ -77,19 +77,19 @@ class SplatTracer(BundleTracer):
     point_bytes = SPLAT_POINT.itemsize  # per point, whatever the node count
 
     def __init__(self, gl, gpu_scene, settings, **hooks):
-        super().__init__(gl, gpu_scene, settings, **hooks)
+        # Its own settings first: the shared constructor checks the fixed memory, points included.
         own = METHOD.settings_of(settings)
         self.N, self.sampler, self.splatter, self.merge = own.points, own.sampler, own.splatter, own.merge
         self.lighting = own.lighting
-        if 3 * self.K * self.N >= 2**31:
-            raise ValueError(f"K={self.K}, N={self.N} exceed the 32-bit point indices")
+        if 3 * settings.directions * self.N >= 2**31:
+            raise ValueError(f"K={settings.directions}, N={self.N} exceed the 32-bit point indices")
         # The radius at which N disks cover the scene's area once: the unit of splat_scale.
         unit = math.sqrt(gpu_scene.arrays.tri_area.sum() / (math.pi * self.N))
         self.splat_radius = own.splat_radius if own.splat_radius is not None else own.splat_scale * unit
         self.splat_scale = self.splat_radius / unit
         if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
             raise ValueError(f"the splat radius must be positive and finite, got {self.splat_radius}")
-        self._check_budget(self.fixed_bytes, what=f"{self.K * self.N:,} {self.points_are} and the list offsets")
+        super().__init__(gl, gpu_scene, settings, **hooks)
         self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N).clear()  # triangle 0 for a warm-up draw
 
     points_are = "splat points"
@@ -100,6 +100,10 @@ class SplatTracer(BundleTracer):
     @property
     def fixed_bytes(self) -> int:
         return super().fixed_bytes + self.point_bytes * self.K * self.N
+
+    @property
+    def fixed_items(self) -> str:
+        return f"{self.K * self.N:,} {self.points_are} and the list offsets"
 
     @property
     def irradiance_items(self) -> int:

@@ -21,6 +21,7 @@ import numpy as np
 from evalkit.core.errors import InputError
 from evalkit.core.scene.assemble import assemble, default_sun
 from evalkit.core.scene.colour import rgb, srgb_to_linear
+from evalkit.core.scene.mesh_lines import check_obj, check_ply
 from evalkit.core.scene.model import Material, Mesh, Scene
 
 
@@ -30,6 +31,14 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
         raise InputError(path, "file not found")
     if os.path.getsize(path) == 0:
         raise InputError(path, "the file is empty")
+    extension = os.path.splitext(path)[1].lower()
+    if extension in (".obj", ".ply"):  # text records checked to the line first (mesh_lines)
+        with open(path, "rb") as f:
+            data = f.read()
+        if extension == ".obj":
+            check_obj(path, data.decode("utf-8", "replace"))
+        else:
+            check_ply(path, data)
     import trimesh
 
     try:
@@ -76,6 +85,8 @@ def _mesh(path, node, geometry, transform, materials, material_index, warnings) 
     if len(faces) == 0:
         warnings.append(f"'{node}' has no faces; it is left out")
         return None
+    if faces.ndim != 2 or faces.shape[1] != 3:  # e.g. a binary PLY whose faces all have two vertices
+        raise InputError(path, f"mesh '{node}': faces came back with shape {faces.shape}, not (n, 3) triangles")
     if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
         worst = int(faces.min()) if faces.min() < 0 else int(faces.max())
         raise InputError(path, f"mesh '{node}': face index {worst} is out of range for {len(vertices)} vertices")

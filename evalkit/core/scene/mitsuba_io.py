@@ -9,11 +9,16 @@ Import rules:
   any ``to_uv`` transform come out right. ``diffuse`` and ``twosided(diffuse)`` map exactly; every
   other BSDF is approximated as diffuse with a warning, once per BSDF, recorded in the scene;
 - emitters: area, point, spot, directional, constant and envmap; anything else, and media, are
-  named in a warning.
+  named in a warning;
+- the scene's integrator, its sensor's sampler and its film (but the film's width and height) are
+  not used: the toolkit renders with its own settings and references with its own path tracer.
+  They are named in a warning, and a file that Mitsuba cannot load because of them alone (an
+  integrator that needs a polarized variant, a spectral film) is loaded without them.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import xml.etree.ElementTree as ElementTree
 
@@ -41,12 +46,60 @@ def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Sc
         ElementTree.parse(path)
     except ElementTree.ParseError as e:
         raise InputError(path, f"malformed XML: {e}") from None
+    root = ElementTree.parse(path).getroot()
+    unused = _render_settings(root)
     mi = mitsuba(variant)
     try:
         mi_scene = mi.load_file(path)
     except Exception as e:  # Mitsuba reports every load problem as a RuntimeError with its own text
-        raise InputError(path, f"Mitsuba could not load it: {_last_line(e)}") from None
-    return from_mitsuba_scene(mi, mi_scene, name=os.path.splitext(os.path.basename(path))[0], source=path)
+        if not unused:
+            raise InputError(path, f"Mitsuba could not load it: {_last_line(e)}") from None
+        # Loaded again without what the toolkit does not use; the first error names the file's
+        # own lines, so it is the one reported if that fails too.
+        try:
+            with _resolving_from(mi, os.path.dirname(os.path.abspath(path))):
+                mi_scene = mi.load_string(ElementTree.tostring(root, encoding="unicode"))
+        except Exception:
+            raise InputError(path, f"Mitsuba could not load it: {_last_line(e)}") from None
+    name = os.path.splitext(os.path.basename(path))[0]
+    return from_mitsuba_scene(mi, mi_scene, name=name, source=path, notes=unused)
+
+
+def _render_settings(root) -> list[str]:
+    """Takes the scene's integrators, its sensors' samplers and their films (all but width and
+    height) out of ``root``; returns a warning naming each."""
+    notes = []
+    for integrator in root.findall("integrator"):
+        root.remove(integrator)
+        notes.append(
+            f"the scene's integrator '{integrator.get('type')}' is not used (bundle settings render; "
+            "references use Mitsuba's path integrator with --bounces)"
+        )
+    for sensor in root.iter("sensor"):
+        for sampler in sensor.findall("sampler"):
+            sensor.remove(sampler)
+            notes.append(f"the sensor's sampler '{sampler.get('type')}' is not used (--spp sets the samples)")
+        for film in sensor.findall("film"):
+            kept = [c for c in film if c.tag == "integer" and c.get("name") in ("width", "height")]
+            if film.get("type") != "hdrfilm" or len(kept) != len(film):
+                notes.append(f"the sensor's film '{film.get('type')}' is not used but for its width and height")
+            film.attrib = {"type": "hdrfilm"}
+            film[:] = kept
+    return notes
+
+
+@contextlib.contextmanager
+def _resolving_from(mi, folder: str):
+    """Mitsuba's file resolver with ``folder`` first, as `mi.load_file` has it for relative paths."""
+    resolver = mi.file_resolver()
+    resolver.prepend(folder)
+    try:
+        yield
+    finally:
+        paths = [resolver[i] for i in range(1, len(resolver))]
+        resolver.clear()
+        for p in paths:
+            resolver.append(p)
 
 
 def load_mitsuba_dict(scene_dict: dict, name: str, source: str | None = None, variant: str | None = None) -> Scene:
@@ -60,9 +113,9 @@ def load_mitsuba_dict(scene_dict: dict, name: str, source: str | None = None, va
     return from_mitsuba_scene(mi, mi_scene, name=name, source=source)
 
 
-def from_mitsuba_scene(mi, mi_scene, name: str, source: str) -> Scene:
-    """Read a loaded ``mi.Scene`` into a `Scene`."""
-    warnings: list[str] = []
+def from_mitsuba_scene(mi, mi_scene, name: str, source: str, notes: list[str] = ()) -> Scene:
+    """Read a loaded ``mi.Scene`` into a `Scene`; ``notes`` start its warnings."""
+    warnings: list[str] = list(notes)
     materials: list[Material] = []
     material_index: dict[tuple, int] = {}
     meshes: list[Mesh] = []
