@@ -1,28 +1,31 @@
 # The two commands of the README. Both install what is missing first (scripts/setup.sh).
-.PHONY: setup demo test lint test-slow references studies fuzz fuzz-soak check
+.PHONY: setup setup-test demo test lint test-slow references studies fuzz fuzz-soak check
 
 setup:
 	@scripts/setup.sh
+
+setup-test:
+	@scripts/setup.sh test
 
 demo: setup
 	.venv/bin/evalkit demo --out out/demo
 
 # The linter and formatter first (a second's work), then the suite.
-test: setup lint
+test: setup-test lint
 	.venv/bin/python -m pytest -m "not slow" -q
 
 lint: setup
 	.venv/bin/ruff check .
 	.venv/bin/ruff format --check .
 
-test-slow: setup
+test-slow: setup-test
 	.venv/bin/python -m pytest -m slow -q
 
 # The small references committed for CI (references/store); about 10 minutes on 2 cores.
 CI_REFERENCES = cornell-box furnace
 references: setup
 	for scene in $(CI_REFERENCES); do for b in 1 3; do \
-	  .venv/bin/evalkit reference $$scene --bounces $$b --spp 16384 --width 128 --height 128 --out out/references/$$scene-b$$b || exit 1; \
+	  .venv/bin/evalkit reference $$scene --bounces $$b --spp 16384 --width 128 --height 128 --store references/store --out out/references/$$scene-b$$b || exit 1; \
 	done; done
 
 # The shipped studies (studies/*.toml), each into out/studies/<name>/ with its report; resumable.

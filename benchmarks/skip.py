@@ -36,7 +36,7 @@ from gpu_impl.api import bundle_tracer, render
 from gpu_impl.context import GLContext
 from gpu_impl.layout import NODE
 from gpu_impl.scene_buffers import GpuScene
-from references.mitsuba import DEFAULT_STORE, load_reference, store_entry
+from references.mitsuba import COMMITTED_STORE, load_reference, store_entry
 
 
 def texture_variant(gl, repeats: int) -> dict:
@@ -97,7 +97,7 @@ def early_stop(gl, repeats: int, frames: int) -> dict:
 
 def bundle_reuse(gl, repeats: int, frames: int) -> dict:
     scene = load_scene("cornell-box")
-    ref = load_reference(store_entry(scene.name, scene.content_hash(), 3, 16384, 128, 128, 0, DEFAULT_STORE))
+    ref = load_reference(store_entry(scene.name, scene.content_hash(), 3, 16384, 128, 128, 0, COMMITTED_STORE))
     base = RenderSettings(bounces=3, directions=32, resolution=128, width=128, height=128, frames=frames, spp=16)
     times, errors = {r: [] for r in (False, True)}, {r: [] for r in (False, True)}
     for seed in range(repeats):

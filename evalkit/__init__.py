@@ -20,6 +20,9 @@ _EXPORTS = {
     "RenderSettings": "evalkit.core.settings",
     "load_scene": "evalkit.core.scene",
     "DirectionSet": "evalkit.core.bundleset",
+    "reference": "references.mitsuba",
+    "compare_images": "evalkit.metrics.images",
+    "mean_ratio": "evalkit.metrics.confidence",
 }
 
 

@@ -7,6 +7,7 @@ so a person can look.
 
 from __future__ import annotations
 
+import html
 import os
 import shutil
 import time
@@ -16,9 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
+from evalkit.core.atomic import write_text
 from evalkit.core.errors import InputError
 from evalkit.core.exr import write_exr
 from evalkit.figures import error_map_png
+from evalkit.pages import page
+from evalkit.report import run_viewers
 from evalkit.study.artefacts import prepare_artefacts
 from evalkit.study.run import execute_run
 from evalkit.thresholds import Case
@@ -63,12 +67,22 @@ def evaluate(case: Case, out: str | os.PathLike) -> Outcome:
         )
     if not passed:
         message = "FAILED: " + message
-        _keep_for_inspection(rows, folder)
+        _keep_for_inspection(case, rows, folder, message)
     return Outcome(case, passed, values, message, seconds, folder, rows)
 
 
-def _keep_for_inspection(rows: list[dict], folder: Path) -> None:
-    """Beside each run's test images: the reference and the error maps as EXR and PNG."""
+def _keep_for_inspection(case: Case, rows: list[dict], folder: Path, message: str) -> None:
+    """Beside each run's test images: the reference and the error maps as EXR and PNG, and
+    report.html with them in the image viewer."""
+    viewers = [
+        part
+        for row in rows
+        if row.get("reference")
+        for part in run_viewers(folder, row, case.measure["images"], f"{row['method']}, seed {row['seed']}")
+    ]
+    parts = [f"<h1>evalkit check: {html.escape(case.name)}</h1><p>{html.escape(message)}</p>"]
+    parts.append(f"<p>why: {html.escape(case.why)}<br>calibration: {html.escape(case.calibration)}</p>")
+    write_text(folder / "report.html", page(f"evalkit check: {case.name}", parts + viewers))
     for row in rows:
         run = folder / "runs" / row["run_id"]
         if not row.get("reference"):
@@ -96,7 +110,8 @@ def junit_xml(outcomes: list[Outcome], path: str | os.PathLike) -> None:
         case = ET.SubElement(suite, "testcase", classname="evalkit.check", name=o.case.name, time=f"{o.seconds:.3f}")
         if not o.passed:
             failure = ET.SubElement(case, "failure", message=o.message)
-            failure.text = f"{o.message}\nwhy: {o.case.why}\ncalibration: {o.case.calibration}\nlook at: {o.folder}"
+            look = o.folder / "report.html"
+            failure.text = f"{o.message}\nwhy: {o.case.why}\ncalibration: {o.case.calibration}\nlook at: {look}"
         ET.SubElement(case, "system-out").text = o.message
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     ET.ElementTree(suite).write(path, encoding="utf-8", xml_declaration=True)

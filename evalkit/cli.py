@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import traceback
 from pathlib import Path
@@ -17,15 +18,17 @@ from pathlib import Path
 import numpy as np
 
 from evalkit.check import calibrate, evaluate, junit_xml
+from evalkit.core import cache
 from evalkit.core.bundleset import BundleSet, DirectionSet
+from evalkit.core.display import tonemap
 from evalkit.core.errors import InputError, check_output
 from evalkit.core.exr import read_exr, write_exr
 from evalkit.core.scene import builtin_names, load_scene
 from evalkit.core.scene.summary import scene_summary
-from evalkit.core.settings import DEPTH_TOLERANCE, IMAGES, PRESETS, RenderSettings, declared
+from evalkit.core.settings import DEPTH_TOLERANCE, PRESETS, RenderSettings, declared
 from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
-from evalkit.figures import error_map_png
+from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png
 from evalkit.metrics.bundles import compare_bundles, resolution_advice
 from evalkit.metrics.confidence import mean_ratio, z_test
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
@@ -38,7 +41,7 @@ from gpu_impl.bundles import format_bytes
 from gpu_impl.registry import KINDS, METHODS, all_units, owners, resolve
 from gpu_impl.renderer import write_render
 from references.embree import ExactTracer
-from references.mitsuba import DEFAULT_STORE, export_reference, reference
+from references.mitsuba import STORE_VARIABLE, export_reference, reference
 
 
 def _doctor(args) -> int:
@@ -49,6 +52,12 @@ def _doctor(args) -> int:
     if args.json:
         print(json.dumps({"ok": ok, **results}))
     return 0 if ok else 1
+
+
+ADVICE_SOURCES = [
+    Path(__file__).parent / "metrics" / "bundles.py",
+    Path(__file__).parent.parent / "references" / "embree.py",
+]
 
 
 def _scene_info(args) -> int:
@@ -83,7 +92,13 @@ def _scene_info(args) -> int:
         f"features    textures={f['textures']} emitters={f['emitters']} environment={f['environment']} "
         f"lights={','.join(f['light_types']) or '-'}"
     )
-    advice = resolution_advice(scene, ExactTracer(scene), seed=args.seed)
+    # Embree's probes up to R = 2048 take a minute on a large scene: kept in the user cache, keyed by
+    # the scene's content and the code that makes the advice.
+    key = f"advice-{scene.content_hash()}-seed{args.seed}-{cache.code_hash(*ADVICE_SOURCES)}"
+    advice = cache.load("facts", key)
+    if advice is None:
+        advice = resolution_advice(scene, ExactTracer(scene), seed=args.seed)
+        cache.store("facts", key, advice)
     probed = ", ".join(f"{100 * e:.1f} % at R={r}" for r, e in advice["error_rate"].items())
     verdict = f"R >= {advice['recommended']}" if advice["recommended"] else f"more than R={max(advice['error_rate'])}"
     print(
@@ -190,6 +205,7 @@ def _compare_bundles(args) -> int:
 
 def _reference(args) -> int:
     scene = load_scene(args.scene).at(args.time)
+    bar = ProgressLine(quiet=args.json)
     try:
         ref = reference(
             scene,
@@ -200,12 +216,14 @@ def _reference(args) -> int:
             seed=args.seed,
             chunks=args.chunks,
             variant=args.variant,
-            store=Path(args.store),
-            progress=lambda line: print(f"progress    {line}", flush=True),
+            store=args.store and Path(args.store),
+            progress=bar,
             wait=args.wait,
         )
     except ValueError as e:
         raise InputError("evalkit reference", str(e)) from None
+    finally:
+        bar.close()
     written = export_reference(ref, args.out)
     m = ref.manifest
     print(
@@ -215,9 +233,8 @@ def _reference(args) -> int:
     )
     how = "reused" if ref.reused else f"rendered in {m['render_s']:.1f} s"
     print(f"store       {ref.path} ({how})")
-    for name in IMAGES:
-        img, var = ref.images[name], ref.variances[name]
-        print(f"{name:12}mean {img.mean():.6g}, mean std. error {np.sqrt(var).mean():.3g}")
+    for line in _image_lines(ref.images, ref.variances):
+        print(line)
     for w in m["warnings"]:
         print(f"warning     {w}")
     print(f"written     {args.out}: {', '.join(p.name for p in written)}")
@@ -226,13 +243,65 @@ def _reference(args) -> int:
     return 0
 
 
+class ProgressLine:
+    """Counters ("frame 3/16: ...", "chunk 5/32: ...") on one line rewritten in place on a
+    terminal, with the time left the line carries; nothing under --json or without a terminal (a
+    log keeps the summary). Other lines (waiting for a lock, resuming) are printed as notes."""
+
+    COUNTER = re.compile(r"^(frame|chunk) \d+/\d+")
+
+    def __init__(self, quiet: bool = False):
+        self.live = not quiet and sys.stdout.isatty()
+        self.shown = False
+
+    def __call__(self, line: str) -> None:
+        if not self.COUNTER.match(line):
+            self.close()
+            print(f"note        {line}", flush=True)
+        elif self.live:
+            print(f"\r\033[Kprogress    {line}", end="", flush=True)
+            self.shown = True
+
+    def close(self) -> None:
+        if self.shown:
+            print("\r\033[K", end="", flush=True)
+            self.shown = False
+
+
+def _image_lines(images: dict, variances: dict | None) -> list[str]:
+    """Each image's per-channel mean and, with its variance, the mean per-pixel standard error:
+    what render, reference and view print alike."""
+    lines = []
+    for name, image in images.items():
+        line = f"{name:12}mean {_vec(image.reshape(-1, 3).mean(axis=0))}"
+        if variances is not None and name in variances:
+            line += f", pixel std. error {_vec(np.sqrt(variances[name]).reshape(-1, 3).mean(axis=0))}"
+        lines.append(line)
+    return lines
+
+
+def _view(args) -> int:
+    image, provenance = read_exr(args.image)
+    save_png(tonemap(image, args.exposure), Path(args.png))
+    variance_path = Path(args.image).with_name(Path(args.image).stem + "_variance.exr")
+    variances = {"image": read_exr(variance_path)[0]} if variance_path.is_file() else None
+    print(f"image       {args.image}: {image.shape[1]}x{image.shape[0]}, {provenance.get('image', 'no provenance')}")
+    for line in _image_lines({Path(args.image).stem: image}, variances and {Path(args.image).stem: variances["image"]}):
+        print(line)
+    print(f"written     {args.png}: exposure {args.exposure:g} stops, clipped to [0, 1], sRGB")
+    return 0
+
+
 def _render(args) -> int:
     scene = load_scene(args.scene)
     settings = settings_from_args(args, RENDER_FLAGS + UNIT_FLAGS)
+    bar = ProgressLine(quiet=args.json)
     try:
-        result = render(scene, settings, progress=lambda line: print(f"progress    {line}", flush=True))
+        result = render(scene, settings, progress=bar)
     except ValueError as e:
         raise InputError("evalkit render", str(e)) from None
+    finally:
+        bar.close()
     written = write_render(result, args.out)
     p, t = result.params, result.timings
     print(
@@ -246,8 +315,8 @@ def _render(args) -> int:
     for name, ms in t["median_ms"].items():
         print(f"  {name:22}{'n/a' if ms is None else f'{ms:10.2f}'}")
     print(f"wall        {t['wall_s']:.2f} s")
-    for name in IMAGES:
-        print(f"{name:12}mean {_vec(result.images[name].reshape(-1, 3).mean(axis=0))}")
+    for line in _image_lines(result.images, result.variances):
+        print(line)
     for w in result.warnings:
         print(f"warning     {w}")
     print(f"written     {args.out}: {', '.join(path.name for path in written)}")
@@ -425,7 +494,8 @@ def _check(args) -> int:
     if args.case:
         unknown = set(args.case) - {c.name for c in cases}
         if unknown:
-            raise InputError(args.thresholds, f"no case named {', '.join(sorted(unknown))}")
+            known = ", ".join(c.name for c in cases)
+            raise InputError(args.thresholds, f"no case named {', '.join(sorted(unknown))}; known: {known}")
         cases = [c for c in cases if c.name in args.case]
     if args.calibrate:
         lo, _, hi = args.calibrate.partition("-")
@@ -681,6 +751,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_compare)
 
+    p = sub.add_parser("view", help="an EXR as an sRGB PNG at an exposure, with its per-channel statistics")
+    p.add_argument("image", metavar="IMAGE.exr")
+    p.add_argument("--png", required=True, metavar="OUT.png")
+    p.add_argument(
+        "--exposure", type=float, default=REPORT_EXPOSURE, help=f"stops (default {REPORT_EXPOSURE:g}, as reports)"
+    )
+    p.set_defaults(run=_view)
+
     p = sub.add_parser(
         "study", help="run a study (a TOML grid of runs): results table, plots and an HTML report; resumable"
     )
@@ -802,7 +880,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="Mitsuba variant (default: cuda_ad_rgb with a GPU, else llvm_ad_rgb, else scalar_rgb)",
     )
-    p.add_argument("--store", default=str(DEFAULT_STORE), help=f"reference store (default {DEFAULT_STORE})")
+    p.add_argument(
+        "--store",
+        default=None,
+        help=f"reference store (default: the committed CI store where it has the reference, else ${STORE_VARIABLE}, "
+        "else $XDG_CACHE_HOME/evalkit/references, else ~/.cache/evalkit/references)",
+    )
     p.add_argument(
         "--wait", action="store_true", help="wait for another process rendering this reference, then reuse it"
     )
@@ -822,6 +905,7 @@ OUTPUTS = {
     _tune: [("out", True)],
     _demo: [("out", True)],
     _reference: [("out", True)],
+    _view: [("png", False)],
 }
 
 

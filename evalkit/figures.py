@@ -1,5 +1,6 @@
-"""Pictures of images and errors for people to look at: tonemapped 8-bit sRGB PNGs and per-pixel
-error maps in magma. The report, `evalkit check` and `evalkit compare --maps` all draw them here."""
+"""Pictures of images and errors for people to look at: tonemapped 8-bit sRGB PNGs (the tonemap is
+evalkit.core.display's) and per-pixel error maps in magma. `evalkit view`, `evalkit check` and
+`evalkit compare --maps` draw them here."""
 
 from __future__ import annotations
 
@@ -21,13 +22,6 @@ def pyplot():
     return plt
 
 
-def tonemap(image: np.ndarray, exposure: float = REPORT_EXPOSURE) -> np.ndarray:
-    """Linear RGB -> 8-bit sRGB: scale by 2^exposure, clip to [0, 1], the sRGB curve."""
-    x = np.clip(image * 2.0**exposure, 0.0, 1.0)
-    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return (srgb * 255 + 0.5).astype(np.uint8)
-
-
 def save_png(rgb8: np.ndarray, path: Path) -> None:
     from PIL import Image
 
@@ -35,11 +29,17 @@ def save_png(rgb8: np.ndarray, path: Path) -> None:
     Image.fromarray(rgb8).save(path)
 
 
+def error_map_vmax(values: np.ndarray) -> float:
+    """The top of an error map's colour scale: its 99th percentile (a few hot pixels would leave
+    the rest of the map black)."""
+    return float(max(np.quantile(values, 0.99), 1e-12))
+
+
 def error_map_png(values: np.ndarray, path: Path, vmax: float | None = None) -> float:
-    """A per-pixel error map in magma, 0 .. vmax (default: its 99th percentile); returns vmax."""
+    """A per-pixel error map in magma, 0 .. vmax (default `error_map_vmax`); returns vmax."""
     import matplotlib
 
-    vmax = float(vmax if vmax is not None else max(np.quantile(values, 0.99), 1e-12))
+    vmax = float(vmax if vmax is not None else error_map_vmax(values))
     rgba = matplotlib.colormaps["magma"](np.clip(values / vmax, 0, 1))
     save_png((rgba[..., :3] * 255 + 0.5).astype(np.uint8), path)
     return vmax

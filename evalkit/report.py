@@ -1,10 +1,12 @@
 """The HTML report of a study: what was run and how (command, versions, reduced sizes), the results
-table, plots, the bias/variance split over seeds, the hole model, tonemapped images beside their
-references and error maps, and the warnings the scenes raised. Everything it shows is in the
-study folder: report.html, plots/*.png, images/*.png, results.csv."""
+table, plots, the bias/variance split over seeds, the hole model, each shown run's images beside
+their reference and error maps in the HDR viewer (evalkit/viewer), and the warnings the scenes
+raised. Everything it shows is in the study folder: report.html, plots/*.png, viewer/*.js (the
+images as half floats), results.csv."""
 
 from __future__ import annotations
 
+import hashlib
 import html
 import json
 import math
@@ -13,12 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from evalkit.core.exr import read_exr
-from evalkit.figures import REPORT_EXPOSURE, error_map_png, pyplot, save_png, tonemap
+from evalkit.figures import REPORT_EXPOSURE, error_map_vmax, pyplot
 from evalkit.metrics.hole_model import DEFAULT_NODE_COST, analyse, hole_rate_model
 from evalkit.metrics.images import bias_variance
-from evalkit.pages import format_value, is_number, page, table_html
+from evalkit.pages import format_value, is_number, page, results_table_html, table_html
 from evalkit.study.spec import PARAMETERS, Study, parameters, run_id
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
+from evalkit.viewer import group_html, image_data
 from references.mitsuba import load_reference
 
 IMAGE_CAP = 12
@@ -174,32 +177,109 @@ def bias_variance_rows(study: Study, rows: list[dict], out: Path) -> list[dict]:
     return result
 
 
-def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: list[dict]) -> Path:
+def findings(study: Study, ok: list[dict], rows: list[dict]) -> list[str]:
+    """A few sentences of what the rows say: how many runs finished; per [[plot]] and panel, the
+    runs with the least y and the least x; with ``pareto``, how the bundle settings compare with
+    Mitsuba at matched x."""
+    failed = len(rows) - len(ok)
+    lines = [f"{len(ok)} of {len(rows)} runs finished" + (f"; {failed} failed (listed below)." if failed else ".")]
+    shown = varying(study)
+
+    def described(row: dict) -> str:
+        return ", ".join(f"{k}={row[k]}" for k in shown if k in row) or row["run_id"]
+
+    for spec in study.plots:
+        x, y = spec["x"], spec["y"] if isinstance(spec["y"], str) else spec["y"][0]
+        facet = spec.get("facet", "scene")
+        usable = [r for r in ok if is_number(r.get(x)) and is_number(r.get(y))]
+        for panel in dict.fromkeys(r.get(facet) for r in usable):
+            members = [r for r in usable if r.get(facet) == panel]
+            best, quickest = min(members, key=lambda r: r[y]), min(members, key=lambda r: r[x])
+            lines.append(
+                f"{facet} {panel}: the least {y}, {format_value(best[y])}, at {x} {format_value(best[x])} "
+                f"({described(best)}); the least {x}, {format_value(quickest[x])}, with {y} "
+                f"{format_value(quickest[y])} ({described(quickest)})."
+            )
+        ratios = [m["ratio"] for m in matched_time_rows(ok, x, y) if "ratio" in m] if spec.get("pareto") else []
+        if ratios:
+            lines.append(
+                f"At matched {x}, {sum(r < 1 for r in ratios)} of {len(ratios)} bundle settings have less {y} than "
+                f"Mitsuba (ratios {format_value(min(ratios))} to {format_value(max(ratios))}; below 1: the bundles "
+                "are the more accurate)."
+            )
+    return lines
+
+
+def column_groups(columns: list[str]) -> dict[str, list[str]]:
+    """The results table's columns by kind: settings, bundle metrics, image metrics, timings."""
+    groups: dict[str, list[str]] = {"settings": [], "bundle metrics": [], "image metrics": [], "timings": []}
+    for c in columns:
+        if c == "run_id" or c in PARAMETERS:
+            groups["settings"].append(c)
+        elif c.startswith("ms_") or c.endswith(("_s", "_ms")):
+            groups["timings"].append(c)
+        elif c.split("_")[0] in ("direct", "indirect", "total"):
+            groups["image metrics"].append(c)
+        else:
+            groups["bundle metrics"].append(c)
+    return groups
+
+
+def run_viewers(out: Path, row: dict, images: list[str], label: str) -> list[str]:
+    """One viewer per measured image of a run (its folder ``out/runs/<run_id>``): the test image,
+    its reference and the relMSE and FLIP maps, their data under ``out/viewer/``."""
+    ref = load_reference(row["reference"])
+    ref_key = hashlib.sha256(str(row["reference"]).encode()).hexdigest()[:12]
+    viewers = []
+    for image in images:
+        test = read_exr(out / "runs" / row["run_id"] / f"{image}.exr")[0]
+        # A finished reference never changes: its data, shared by runs, is written once.
+        viewed = [
+            {"name": f"{row['run_id']}-{image}", "label": f"{row['method']} {image}"},
+            {"name": f"ref-{ref_key}-{image}", "label": f"reference {image}", "immutable": True},
+        ]
+        pixels = [test, ref.images[image]]
+        for metric in ("relmse", "flip"):
+            path = out / "runs" / row["run_id"] / f"{image}_{metric}_map.npy"
+            if path.is_file():
+                values = np.load(path)
+                caption = f"{metric} map ({metric} {format_value(row.get(f'{image}_{metric}'))})"
+                name = f"{row['run_id']}-{image}-{metric}"
+                viewed.append({"name": name, "label": caption, "vmax": error_map_vmax(values)})
+                pixels.append(values)
+        for entry, values in zip(viewed, pixels):
+            entry["src"] = image_data(out, entry["name"], values, entry.get("immutable", False))
+        size = (test.shape[1], test.shape[0])
+        viewers.append(group_html(viewed, size, exposure=REPORT_EXPOSURE, caption=f"{label}: {image}"))
+    return viewers
+
+
+def plot_columns(spec: dict) -> list[str]:
+    """The result columns a [[plot]] draws from."""
+    named = [spec["x"], spec["y"], spec.get("group") or [], spec.get("facet", "scene")]
+    return [c for item in named for c in ([item] if isinstance(item, str) else item)]
+
+
+def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: list[dict], progress=print) -> Path:
+    """report.html: the answer first (what the study found, its plots with their Pareto and
+    matched-time tables), then the bias/variance split, the hole model and the images, the full
+    results table, and last how it was made (command, versions, metric definitions)."""
     ok = [r for r in rows if r.get("status") == "ok"]
     parts = [
         f"<h1>{html.escape(study.title)}</h1>",
         f"<p>{html.escape(study.description)}</p>" if study.description else "",
-        f"<p><b>Reduced sizes:</b> {html.escape(study.reduced)}</p>" if study.reduced else "",
-        f"<p><b>Command:</b> <code>{html.escape(meta['command'])}</code><br><b>Finished:</b> {meta['finished']}, "
-        f"{len(ok)} of {len(rows)} runs ok ({meta['executor']}, {meta['workers']} worker(s))</p>",
-        "<p><b>Versions:</b> "
-        + ", ".join(f"{html.escape(k)} {html.escape(str(v))}" for k, v in meta["versions"].items())
-        + (f", GL {html.escape(str(ok[0].get('gl_renderer')))}" if ok and ok[0].get("gl_renderer") else "")
-        + "</p>",
-        f"<p>Metric definitions: relMSE = mean (t - r)^2 / (r^2 + 0.01); SMAPE = mean |t - r| / (|t| + |r| + 0.01); "
-        f"FLIP is HDR-FLIP at 67 ppd; Delta E 2000 after exposure {REPORT_EXPOSURE:g} and clipping to [0, 1]. "
-        f"Bundle rates are against Embree's exact bundles on the same lines (evalkit/metrics/bundles.py). "
-        f"Images below: exposure {REPORT_EXPOSURE:g}, sRGB.</p>",
+        "<h2>What the study found</h2><ul>"
+        + "".join(f"<li>{html.escape(s)}</li>" for s in findings(study, ok, rows))
+        + "</ul>",
     ]
-    if failed:
-        parts.append("<h2>Failed runs</h2>" + table_html(failed, ["run_id", *varying(study), "status"]))
-    columns = study.report.get("columns") or ["run_id", *varying(study), *metric_columns(ok)]
-    parts.append(
-        "<h2>Results</h2><p>Every column of every run is in <a href='results.csv'>results.csv</a>.</p>"
-        + table_html(ok, [c for c in columns if any(c in r for r in ok)])
-    )
-
     for i, spec in enumerate(study.plots):
+        missing = [c for c in plot_columns(spec) if ok and not any(c in r for r in ok)]
+        if missing:  # a misspelled column would draw an empty plot
+            known = ", ".join(sorted({c for r in ok for c in r}))
+            problem = f"[[plot]] {i + 1}: no column {', '.join(missing)} in the results; the columns are {known}"
+            progress(f"warning: {study.path or study.name}: {problem}")
+            parts.append(f"<h2>Plot {i + 1}</h2><p><b>Not drawn:</b> {html.escape(problem)}</p>")
+            continue
         title = plot(ok, spec, out / "plots" / f"plot{i}.png")
         parts.append(f"<h2>{html.escape(title)}</h2><img src='plots/plot{i}.png'>")
         if spec.get("pareto"):
@@ -241,36 +321,31 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
         : study.report.get("images", IMAGE_CAP)
     ]
     if shown:
-        parts.append("<h2>Images</h2><p>Test, reference, relMSE map and FLIP map (magma, 0 to the value given).</p>")
+        parts.append(
+            "<h2>Images</h2><p>Per run: the test image, the reference and the relMSE and FLIP maps (magma, 0 to "
+            "the 99th percentile), in one viewer with HDR values: keys 1-9 or Left/Right switch images, Space "
+            "flips back, E / Shift+E change the exposure, + / - / 0 zoom (the wheel zooms at the cursor, drag "
+            "pans); the table lists every image's value at the cursor.</p>"
+        )
         for r in shown:
-            ref = load_reference(r["reference"])
-            for image in study.measure["images"]:
-                key = f"{r['run_id']}_{image}"
-                save_png(
-                    tonemap(read_exr(out / "runs" / r["run_id"] / f"{image}.exr")[0]), out / "images" / f"{key}.png"
-                )
-                save_png(tonemap(ref.images[image]), out / "images" / f"{key}_ref.png")
-                cells = [
-                    f"<figure><img src='images/{key}.png'>"
-                    f"<figcaption>{html.escape(r['method'])} {image}</figcaption></figure>",
-                    f"<figure><img src='images/{key}_ref.png'><figcaption>reference {image}</figcaption></figure>",
-                ]
-                for metric in ("relmse", "flip"):
-                    path = out / "runs" / r["run_id"] / f"{image}_{metric}_map.npy"
-                    if path.is_file():
-                        vmax = error_map_png(np.load(path), out / "images" / f"{key}_{metric}.png")
-                        cells.append(
-                            f"<figure><img src='images/{key}_{metric}.png'><figcaption>{metric} "
-                            f"{format_value(r.get(f'{image}_{metric}'))} (0..{vmax:.3g})</figcaption></figure>"
-                        )
-                label = ", ".join(f"{k}={r[k]}" for k in varying(study) if k in r)
-                parts.append(f"<div class='row'><p>{html.escape(label)}</p>{''.join(cells)}</div>")
+            label = ", ".join(f"{k}={r[k]}" for k in varying(study) if k in r)
+            parts += run_viewers(out, r, study.measure["images"], label)
         if len(ok) > len(shown):
             parts.append(
                 f"<p>{len(shown)} of {len(ok)} runs shown "
                 f"(the first seed, at most {study.report.get('images', IMAGE_CAP)}).</p>"
             )
 
+    if failed:
+        parts.append("<h2>Failed runs</h2>" + table_html(failed, ["run_id", *varying(study), "status"]))
+    columns = study.report.get("columns") or ["run_id", *varying(study), *metric_columns(ok)]
+    columns = [c for c in columns if any(c in r for r in ok)]
+    parts.append(
+        "<h2>Results</h2><p>One row per run; click a column's name to sort by it, a group's name to hide or "
+        "show its columns. A setting a run's method does not have is left empty. Every column of every run "
+        "is in <a href='results.csv'>results.csv</a>.</p>"
+        + results_table_html(ok, column_groups(columns), collapsed=("timings",))
+    )
     parts.append(_thresholds_section({r["scene"] for r in rows}))
 
     warnings = sorted({(r["scene"], w) for r in ok for w in (r.get("warnings") or "").split(" | ") if w})
@@ -281,6 +356,20 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
             if warnings
             else "<p>None: no scene needed an approximation.</p>"
         )
+    )
+    parts.append(
+        "<h2>How it was made</h2>"
+        + (f"<p><b>Reduced sizes:</b> {html.escape(study.reduced)}</p>" if study.reduced else "")
+        + f"<p><b>Command:</b> <code>{html.escape(meta['command'])}</code><br><b>Finished:</b> {meta['finished']}, "
+        f"{len(ok)} of {len(rows)} runs ok ({meta['executor']}, {meta['workers']} worker(s))</p>"
+        "<p><b>Versions:</b> "
+        + ", ".join(f"{html.escape(k)} {html.escape(str(v))}" for k, v in meta["versions"].items())
+        + (f", GL {html.escape(str(ok[0].get('gl_renderer')))}" if ok and ok[0].get("gl_renderer") else "")
+        + "</p>"
+        f"<p>Metric definitions: relMSE = mean (t - r)^2 / (r^2 + 0.01); SMAPE = mean |t - r| / (|t| + |r| + 0.01); "
+        f"FLIP is HDR-FLIP at 67 ppd; Delta E 2000 after exposure {REPORT_EXPOSURE:g} and clipping to [0, 1]. "
+        f"Bundle rates are against Embree's exact bundles on the same lines (evalkit/metrics/bundles.py). "
+        f"The viewers open at exposure {REPORT_EXPOSURE:g}, sRGB.</p>"
     )
     path = out / "report.html"
     path.write_text(page(study.title, parts))

@@ -47,7 +47,9 @@ def load_thresholds(path: str | os.PathLike = DEFAULT_THRESHOLDS) -> list[Case]:
         where = f"{path}: case {i + 1} ({c.get('name', 'unnamed')})"
         unknown = set(c) - CASE_KEYS
         if unknown:
-            raise InputError(where, f"unknown key(s) {', '.join(sorted(unknown))}")
+            raise InputError(
+                where, f"unknown key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(CASE_KEYS))}"
+            )
         missing = {"name", "metric", "kind", "why", "calibration"} - set(c)
         if missing:
             raise InputError(where, f"missing {', '.join(sorted(missing))}")

@@ -31,6 +31,9 @@ def _default_raster_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+_DEFAULT = None  # the process's GLContext (default_context)
+
+
 class GLContext:
     """A headless EGL OpenGL 4.5 core context (moderngl), made once and reused.
 
@@ -55,6 +58,13 @@ class GLContext:
                 f"EGL device {device_index}", f"no OpenGL 4.5 context ({e}); `evalkit doctor` says what to install"
             ) from None
         self._programs: dict = {}
+        # GL calls go to the context current on the thread, and making a context makes it current:
+        # a second one would take the GL calls of objects made on the first (seen as buffers that
+        # cannot be mapped, and a hung pass). So the process's first context is the one the
+        # one-call API uses too (`default_context`).
+        global _DEFAULT
+        if _DEFAULT is None:
+            _DEFAULT = self
 
     @property
     def is_llvmpipe(self) -> bool:
@@ -163,6 +173,9 @@ class GLContext:
         }
 
     def release(self) -> None:
+        global _DEFAULT
+        if _DEFAULT is self:
+            _DEFAULT = None
         self.ctx.release()
         self._programs.clear()
 
@@ -242,16 +255,11 @@ def gl_integer(pname: int) -> int | None:
     return value.value
 
 
-_DEFAULT: GLContext | None = None
-
-
 def default_context() -> GLContext:
-    """The process's context, made at its first use (making one is slow) and kept: what the
-    one-call API (`gpu_impl.api`) and studies render with when given none."""
-    global _DEFAULT
-    if _DEFAULT is None:
-        _DEFAULT = GLContext()
-    return _DEFAULT
+    """The process's context: the first `GLContext` made and not released, else one made now
+    (making one is slow) and kept. What the one-call API (`gpu_impl.api`) and studies render with
+    when given none. A process should hold one context: see `GLContext.__init__`."""
+    return _DEFAULT if _DEFAULT is not None else GLContext()
 
 
 def set_uniforms(program, values: dict) -> None:

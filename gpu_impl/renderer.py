@@ -31,6 +31,7 @@ import numpy as np
 
 from evalkit.core.atomic import write_text
 from evalkit.core.bundleset import DirectionSet
+from evalkit.core.display import fields_html, image_html
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene
 from evalkit.core.settings import IMAGES, RenderSettings
@@ -63,6 +64,23 @@ class RenderResult:
     variances: dict[str, np.ndarray] | None = None
     frame_means: dict[str, np.ndarray] = field(default_factory=dict)
 
+    def _repr_html_(self) -> str:
+        """In a notebook: the images (tonemapped, exposure 0) and what made them."""
+        p = self.params
+        pictures = "".join(
+            image_html(image, f"{name}, mean {tuple(round(float(m), 4) for m in image.reshape(-1, 3).mean(0))}")
+            for name, image in self.images.items()
+        )
+        fields = {
+            "bundles": f"{p.get('method')}, K={p.get('directions')}, R={p.get('resolution')}",
+            "image": f"{p.get('width')}x{p.get('height')}, {p.get('bounces')} bounce(s), seed {p.get('seed')}",
+            "frames": f"{p.get('frames_rendered')}, {p.get('paths_per_pixel')} paths per pixel",
+            "wall s": self.timings.get("wall_s"),
+            "nodes per frame": f"{self.stats.get('nodes_median', 0):,} (median)",
+            **{f"warning {i + 1}": w for i, w in enumerate(self.warnings)},
+        }
+        return f"<div>{pictures}</div>" + fields_html("RenderResult", fields)
+
 
 class Renderer:
     """Renders one scene with one set of `RenderSettings` on one GL context, frame after frame,
@@ -79,7 +97,7 @@ class Renderer:
         settings = self.settings = self.resolved.settings
         self.gl, self.scene = gl, scene
         cam = scene.camera
-        self.width, self.height = int(settings.width or cam.width), int(settings.height or cam.height)
+        self.width, self.height = cam.film_size(settings.width, settings.height)
         s = settings.supersampling
         self.gbuffer_size = (self.width * s, self.height * s)
         self.paths = self.gbuffer_size[0] * self.gbuffer_size[1] * settings.spp
@@ -198,13 +216,16 @@ class Renderer:
                 **timer.milliseconds(),
             }
             frames.append(passes)
-            if progress is not None:
-                frame_ms = _sum_ms(v for k, v in passes.items() if "." not in k)
-                progress(f"frame {f + 1}/{st.frames}: {stats['nodes']:,} nodes, {frame_ms:.1f} ms")
             # The pass timer's read waits for the frame's GPU work, so this is the frame's time.
             # The first frame (shadow maps) is left out of the estimate of the next once others exist.
             frame_s.append(time.perf_counter() - frame_start)
             next_frame = float(np.median(frame_s[1:] or frame_s))
+            if progress is not None:
+                frame_ms = _sum_ms(v for k, v in passes.items() if "." not in k)
+                progress(
+                    f"frame {f + 1}/{st.frames}: {stats['nodes']:,} nodes, {frame_ms:.1f} ms, "
+                    f"about {next_frame * (st.frames - f - 1):.0f} s left"
+                )
             if st.time_budget and time.perf_counter() - start + next_frame > st.time_budget:
                 break
         self.frames_rendered = len(frames)

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from evalkit.core.atomic import atomic_path, write_text
+from evalkit.core.cache import CACHE_VARIABLE, cache_root
 from evalkit.core.errors import InputError
 from evalkit.core.exr import read_exr, write_exr
 from evalkit.core.lock import folder_lock
@@ -52,7 +53,9 @@ from evalkit.core.scene import Scene
 from evalkit.core.scene.mitsuba_io import to_mitsuba_dict
 from evalkit.core.settings import IMAGES
 
-DEFAULT_STORE = Path(__file__).resolve().parent / "store"
+# The small references CI uses, committed (make references). Read first; written only when named.
+COMMITTED_STORE = Path(__file__).resolve().parent / "store"
+STORE_VARIABLE = "EVALKIT_REFERENCE_STORE"
 STORE_FORMAT = 1
 DEFAULT_CHUNKS = 32
 TIMED_STREAM = 2**31  # the chunk index of `timed_render`'s samples: references use 0 .. chunks - 1
@@ -77,10 +80,22 @@ def store_entry(
     width: int,
     height: int,
     seed: int,
-    store: Path = DEFAULT_STORE,
+    store: Path,
 ) -> Path:
     """The store folder of one reference."""
     return Path(store) / f"{scene_name}-{scene_hash[:16]}" / f"b{bounces}_{width}x{height}_spp{spp}_seed{seed}"
+
+
+def user_store() -> Path:
+    """Where references of your own scenes go, never the checkout: ``$EVALKIT_REFERENCE_STORE``,
+    else the user cache's ``references/`` (`evalkit.core.cache`: ``$EVALKIT_CACHE``, else
+    ``$XDG_CACHE_HOME/evalkit``, else ``~/.cache/evalkit``)."""
+    if os.environ.get(STORE_VARIABLE):
+        return Path(os.environ[STORE_VARIABLE])
+    root = cache_root()
+    if root is None:
+        raise InputError(STORE_VARIABLE, f"{CACHE_VARIABLE}=off leaves references no store; give --store or set it")
+    return root / "references"
 
 
 def chunk_seed(seed: int, chunk: int) -> int:
@@ -97,16 +112,18 @@ def reference(
     seed: int = 0,
     chunks: int | None = None,
     variant: str | None = None,
-    store: Path = DEFAULT_STORE,
+    store: Path | None = None,
     progress=print,
     wait: bool = False,
 ) -> Reference:
     """The stored reference with these parameters, rendered (or resumed) first if it is missing.
 
-    ``chunks`` (default ``min(32, spp)``) must divide ``spp``; ``progress`` gets one line per chunk.
+    ``chunks`` (default ``min(32, spp)``) must divide ``spp``; ``progress`` gets one line per chunk
+    (None: quiet).
     Another process rendering the same entry is an `InputError`, or with ``wait`` is waited for.
+    ``store`` None: the committed CI store when it has the entry, else `user_store`.
     """
-    width, height = int(width or scene.camera.width), int(height or scene.camera.height)
+    width, height = scene.camera.film_size(width, height)
     if bounces < 0 or spp < 2 or width < 1 or height < 1:
         raise ValueError(f"need bounces >= 0, spp >= 2 and a positive size, got {bounces}, {spp}, {width}x{height}")
     chunks = int(chunks or min(DEFAULT_CHUNKS, spp))
@@ -115,6 +132,10 @@ def reference(
             f"{chunks} chunks must be at least 2 and divide spp={spp} (the variance comes from the chunks)"
         )
     scene_hash = scene.content_hash()
+    progress = progress or (lambda line: None)
+    if store is None:
+        committed = store_entry(scene.name, scene_hash, bounces, spp, width, height, seed, COMMITTED_STORE)
+        store = COMMITTED_STORE if (committed / "manifest.json").is_file() else user_store()
     entry = store_entry(scene.name, scene_hash, bounces, spp, width, height, seed, store)
     if (entry / "manifest.json").is_file():
         return load_reference(entry, reused=True)

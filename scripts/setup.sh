@@ -1,12 +1,17 @@
 #!/usr/bin/env bash
 # Idempotent set-up: the Debian packages the toolkit needs (when missing), then the Python side
-# in .venv inside the checkout. Run by `make demo` and `make test`; safe to run again.
+# in .venv inside the checkout. Run by `make demo`, and as `setup.sh test` by `make test`, which
+# also needs a browser for the report viewer's tests; safe to run again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # libllvm19: Mitsuba's llvm_ad_rgb variant (LLVM 15/16 abort the process, 14 is refused).
 # libegl1, libgl1, libgl1-mesa-dri: headless OpenGL 4.5 through EGL, llvmpipe when there is no GPU.
 debs=(libllvm19 libegl1 libgl1 libgl1-mesa-dri)
+# chromium, chromium-driver: headless Chromium driven by Selenium (tests/test_viewer.py).
+if [ "${1:-}" = "test" ]; then
+    debs+=(chromium chromium-driver)
+fi
 missing=()
 for p in "${debs[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -28,6 +28,13 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ERROR_OUTPUT = Path(REPO) / "error_output"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def user_cache(tmp_path_factory):
+    """The user cache (imported scenes, references of other scenes) is a folder of the session's."""
+    os.environ.pop("EVALKIT_REFERENCE_STORE", None)
+    os.environ["EVALKIT_CACHE"] = str(tmp_path_factory.mktemp("user-cache"))
+
+
 @pytest.fixture(scope="session")
 def mi():
     return mitsuba()
@@ -85,10 +92,15 @@ def describe_interval(r: dict) -> str:
     return f"{r['ratio']:.4f} [{r['lo']:.4f}, {r['hi']:.4f}]"
 
 
-def run_evalkit(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-    """`evalkit ARGS` in a child process, as a user runs it."""
+def run_evalkit(*args: str, timeout: float = 600, env: dict | None = None) -> subprocess.CompletedProcess:
+    """`evalkit ARGS` in a child process, as a user runs it (``env``: its whole environment)."""
     return subprocess.run(
-        [sys.executable, "-m", "evalkit.cli", *args], capture_output=True, text=True, timeout=timeout, cwd=REPO
+        [sys.executable, "-m", "evalkit.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=REPO,
+        env=env,
     )
 
 

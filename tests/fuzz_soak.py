@@ -14,6 +14,7 @@ import argparse
 import itertools
 import json
 import multiprocessing
+import os
 import sys
 import tempfile
 import time
@@ -41,6 +42,7 @@ def example(seed: int, index: int) -> tuple[str, str, bytes]:
 
 
 def worker(seed: int, connection, folder: str) -> None:
+    os.environ["EVALKIT_CACHE"] = "off"  # every example imported, none kept
     while True:
         index = connection.recv()
         ext, _, data = example(seed, index)

@@ -3,15 +3,25 @@ with one line on stderr and no traceback."""
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import re
+import subprocess
+import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
-from conftest import run_evalkit
+from conftest import REPO, run_evalkit
+from PIL import Image
 
 from evalkit import doctor
+from evalkit.cli import ProgressLine
+from evalkit.core.display import tonemap
+from evalkit.core.exr import read_exr
 from evalkit.core.mitsuba_env import find_libllvm, llvm_major
+from evalkit.core.scene import load_scene
 
 
 def last_json(stdout: str) -> dict:
@@ -107,3 +117,93 @@ def test_bad_input_is_one_line_exit_2_no_traceback(tmp_path, name):
 def test_verbose_shows_the_traceback(tmp_path):
     done = run_evalkit("--verbose", "scene", "info", str(tmp_path / "missing.obj"))
     assert done.returncode == 2 and "Traceback" in done.stderr
+
+
+@pytest.mark.parametrize(
+    "given, size",
+    [
+        ((None, None), (128, 96)),
+        ((48, None), (48, 36)),
+        ((None, 48), (64, 48)),
+        ((40, 40), (40, 40)),
+        ((5, None), (5, 4)),
+    ],
+)
+def test_one_side_of_the_film_keeps_the_cameras_aspect(given, size):
+    # lit-room's camera is 128x96: --width 48 alone is 48x36, the same framing.
+    assert load_scene("lit-room").camera.film_size(*given) == size
+
+
+def test_render_and_reference_print_the_same_statistics_and_view_writes_a_png(tmp_path):
+    r = run_evalkit("render", "lit-room", "--method", "perfect", "--directions", "4", "--resolution", "32",
+                    "--frames", "2", "--width", "48", "--out", str(tmp_path / "render"))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    image, _ = read_exr(tmp_path / "render" / "total.exr")
+    assert image.shape == (36, 48, 3)
+    ref = run_evalkit("reference", "lit-room", "--spp", "8", "--chunks", "4", "--width", "48",
+                      "--out", str(tmp_path / "ref"))  # fmt: skip
+    assert ref.returncode == 0, ref.stderr
+    assert read_exr(tmp_path / "ref" / "total.exr")[0].shape == (36, 48, 3)
+    pattern = (
+        r"^total       mean \([\d.e+-]+, [\d.e+-]+, [\d.e+-]+\), pixel std. error \([\d.e+-]+, [\d.e+-]+, [\d.e+-]+\)$"
+    )
+    for out in (r.stdout, ref.stdout):
+        assert re.search(pattern, out, re.M), out
+
+    v = run_evalkit("view", str(tmp_path / "render" / "total.exr"), "--exposure", "2", "--png", str(tmp_path / "t.png"))
+    assert v.returncode == 0, v.stderr
+    assert re.search(pattern, v.stdout, re.M), v.stdout
+    png = np.asarray(Image.open(tmp_path / "t.png"))
+    assert np.array_equal(png, tonemap(image, 2.0))
+
+
+def test_progress_is_one_line_on_a_terminal_and_quiet_without_one(monkeypatch, capsys):
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
+    bar = ProgressLine()
+    for i in (1, 2, 3):
+        bar(f"chunk {i}/3: 2 spp, {i}.0 s, about {3 - i} s left")
+    bar("resuming /store/entry at chunk 2 of 3")  # not a counter: a note of its own
+    bar.close()
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1 and out.count("\r\033[Kprogress    chunk") == 3 and "about 0 s left" in out
+    assert "note        resuming /store/entry" in out
+    quiet = ProgressLine(quiet=True)  # --json
+    quiet("frame 1/2: 10 nodes, 1.0 ms, about 1 s left")
+    quiet.close()
+    assert capsys.readouterr().out == ""
+
+
+def test_the_readme_python_quick_start_runs(tmp_path):
+    # The README's Python block, run as a user pastes it: it cannot rot unnoticed.
+    readme = Path(REPO, "README.md").read_text()
+    block = re.search(r"## Python\n.*?```python\n(.*?)```", readme, re.S).group(1)
+    (tmp_path / "quick_start.py").write_text(block)
+    r = subprocess.run([sys.executable, str(tmp_path / "quick_start.py")], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert re.search(r"^\{'relmse': [\d.]+, 'flip': [\d.]+\}$", r.stdout, re.M), r.stdout
+    assert re.search(r"^indirect mean / Mitsuba's: [\d.]+, 95 % interval \[[\d.]+, [\d.]+\]$", r.stdout, re.M)
+
+
+def test_the_notebook_runs_and_its_results_show_themselves(tmp_path, monkeypatch):
+    # docs/quick_start.ipynb, cell by cell as a kernel runs it: each cell's last expression is
+    # what the notebook displays, through its _repr_html_.
+    notebook = json.loads(Path(REPO, "docs", "quick_start.ipynb").read_text())
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    shown = []
+    for cell in notebook["cells"]:
+        if cell["cell_type"] != "code":
+            continue
+        tree = ast.parse("".join(cell["source"]))
+        last = tree.body.pop() if tree.body and isinstance(tree.body[-1], ast.Expr) else None
+        exec(compile(tree, "quick_start.ipynb", "exec"), namespace)
+        if last is not None:
+            value = eval(compile(ast.Expression(last.value), "quick_start.ipynb", "eval"), namespace)
+            shown.append(value._repr_html_())
+    assert [type(namespace[n]).__name__ for n in ("result", "bundles", "rows")] == [
+        "RenderResult",
+        "BundleSet",
+        "StudyRows",
+    ]
+    assert len(shown) == 4 and "data:image/png;base64," in shown[0] and "RenderResult" in shown[0]
+    assert "lines by nodes on them" in shown[1] and "hole_rate" in shown[2] and "class='ek-table" in shown[3]

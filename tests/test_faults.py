@@ -163,13 +163,8 @@ def test_a_study_killed_at_24_random_points_resumes_to_the_same_rows(tmp_path):
 def test_an_egl_that_cannot_start_is_one_line_naming_the_device(tmp_path, environment, problem):
     # A device index past the machine's, one that is not a number, and no EGL vendor library at
     # all (what a display-only or missing driver looks like to libglvnd).
-    r = subprocess.run(
-        [sys.executable, "-m", "evalkit.cli", "render", "cornell-box", "--method", "perfect", "--out", str(tmp_path)],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        env={**os.environ, **environment},
-        timeout=120,
+    r = run_evalkit(
+        "render", "cornell-box", "--method", "perfect", "--out", str(tmp_path), env={**os.environ, **environment}
     )
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert problem in r.stderr and not list(tmp_path.iterdir())

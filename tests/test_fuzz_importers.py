@@ -72,6 +72,11 @@ def mutate(data: bytes, ops) -> bytes:
     return data
 
 
+@pytest.fixture(autouse=True)
+def no_cache(monkeypatch):
+    monkeypatch.setenv("EVALKIT_CACHE", "off")  # every example imported, none kept
+
+
 def load_or_one_line_error(path) -> Scene | None:
     def hang(signum, frame):
         raise TimeoutError(f"loading {path} took over {HANG_SECONDS} s")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from evalkit.core.errors import InputError
-from gpu_impl.context import GLContext, gl_integer, system_free_memory
+from gpu_impl.context import GLContext, default_context, gl_integer, system_free_memory
 from gpu_impl.layout import BINDINGS, RECORDS, SHADER_CONSTANTS, glsl_literal
 from gpu_impl.shader_source import SHADER_DIR, SHADER_VARIANTS, is_program
 
@@ -127,3 +127,9 @@ def test_free_memory_is_capped_by_the_memory_cgroup(tmp_path, cgroup, files, exp
     free, source = system_free_memory(str(tmp_path / "proc"), str(tmp_path / "cg"))
     assert free == expected
     assert ("cgroup" in source) == (expected < 16 << 30), source
+
+
+def test_the_one_call_api_uses_the_processs_first_context(gl):
+    # A second context would be made current and take the GL calls of objects made on this one
+    # (buffers that could not be mapped, a hung pass, when a notebook test rendered in-process).
+    assert default_context() is gl

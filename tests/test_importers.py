@@ -113,6 +113,11 @@ def test_mitsuba_dict_envmap_roundtrip(mi):
             '<transform name="to_world"><scale x="0" y="0" z="1"/></transform></shape>',
             "zero area",
         ),
+        (  # found by `make fuzz-soak`: a zero radius made the normals' transform singular (LinAlgError)
+            '<shape type="rectangle"/><shape type="sphere"><float name="radius" value="0"/>'
+            '<emitter type="area"><rgb name="radiance" value="1,1,1"/></emitter></shape>',
+            "zero area",
+        ),
     ],
 )
 def test_mitsuba_errors_are_one_line_and_name_the_file(tmp_path, body, message):

@@ -4,6 +4,7 @@ keys, reuses and resumes, the committed CI references are current and right, and
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import threading
 import time
@@ -12,13 +13,21 @@ import numpy as np
 import pytest
 from conftest import relmse, run_evalkit
 
+from evalkit.core.cache import CACHE_VARIABLE
 from evalkit.core.errors import InputError
 from evalkit.core.exr import read_exr
 from evalkit.core.lock import folder_lock
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.builtin import furnace_radiance
 from evalkit.core.scene.mitsuba_io import to_mitsuba_dict
-from references.mitsuba import DEFAULT_STORE, load_reference, reference, store_entry, timed_render
+from references.mitsuba import (
+    COMMITTED_STORE,
+    STORE_VARIABLE,
+    load_reference,
+    reference,
+    store_entry,
+    timed_render,
+)
 
 # Same seed, same spp, same integrator: only the export can differ (tessellated spheres,
 # float32 round-off). relMSE uses eps = 0.01 (conftest.relmse).
@@ -163,7 +172,7 @@ def test_committed_ci_references_are_current(name, bounces):
         spp=16384,
         width=128,
         height=128,
-        store=DEFAULT_STORE,
+        store=COMMITTED_STORE,
         progress=lambda line: pytest.fail(f"the committed reference is stale and would be re-rendered: {line}"),
     )
     assert ref.reused and ref.manifest["scene_hash"] == scene.content_hash()
@@ -209,7 +218,7 @@ def test_cli_reference_writes_images_and_manifest(tmp_path):
     )
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout.strip().splitlines()[-1])
-    assert result["spp"] == 8 and not result["reused"] and "progress    chunk 4/4" in r.stdout
+    assert result["spp"] == 8 and not result["reused"] and "chunk 4/4" not in r.stdout  # no terminal: no counters
     names = {p.name for p in (tmp_path / "out").iterdir()}
     assert names == {f"{n}{s}.exr" for n in ("direct", "indirect", "total") for s in ("", "_variance")} | {
         "manifest.json"
@@ -229,12 +238,29 @@ def test_cli_reference_writes_images_and_manifest(tmp_path):
     assert bad.returncode == 2 and "divide spp=10" in bad.stderr and bad.stderr.count("\n") == 1
 
 
+def test_references_of_other_scenes_go_to_the_user_cache_never_the_checkout(tmp_path):
+    args = ["reference", "furnace", "--spp", "8", "--chunks", "4", "--width", "8", "--height", "8"]
+    env = {k: v for k, v in os.environ.items() if k not in (STORE_VARIABLE, CACHE_VARIABLE)}
+    cached = run_evalkit(*args, "--out", str(tmp_path / "a"), env={**env, "XDG_CACHE_HOME": str(tmp_path / "cache")})
+    assert cached.returncode == 0, cached.stderr
+    assert f"store       {tmp_path / 'cache' / 'evalkit' / 'references' / 'furnace-'}" in cached.stdout
+    chosen = run_evalkit(*args, "--out", str(tmp_path / "b"), env={**env, STORE_VARIABLE: str(tmp_path / "mine")})
+    assert f"store       {tmp_path / 'mine' / 'furnace-'}" in chosen.stdout
+    assert not list(COMMITTED_STORE.rglob("*8x8*"))  # nothing new in the checkout
+    # The committed CI references are still found first.
+    committed = run_evalkit(
+        "reference", "furnace", "--spp", "16384", "--width", "128", "--height", "128", "--out", str(tmp_path / "c"),
+        env={**env, STORE_VARIABLE: str(tmp_path / "mine")},
+    )  # fmt: skip
+    assert f"store       {COMMITTED_STORE}" in committed.stdout and "(reused)" in committed.stdout
+
+
 def test_timed_renders_use_their_sample_count(mi):
     """`timed_render` (error against time in studies): more samples, less error, more time; a
     1-spp warm-up must not leave the sampler at 1 spp."""
 
     scene = load_scene("cornell-box")
-    ref = load_reference(store_entry(scene.name, scene.content_hash(), 1, 16384, 128, 128, 0, DEFAULT_STORE))
+    ref = load_reference(store_entry(scene.name, scene.content_hash(), 1, 16384, 128, 128, 0, COMMITTED_STORE))
     errors, seconds = [], []
     for spp in (2, 32):
         images, s, info = timed_render(scene, 1, spp, 128, 128, seed=0)

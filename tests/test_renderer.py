@@ -23,7 +23,7 @@ from evalkit.core.settings import RenderSettings
 from evalkit.metrics.confidence import mean_ratio
 from gpu_impl.lights import EmitterSamples
 from gpu_impl.registry import resolve
-from references.mitsuba import DEFAULT_STORE, load_reference, reference, store_entry
+from references.mitsuba import COMMITTED_STORE, load_reference, reference, store_entry
 
 
 def render(gl, scene, **settings):
@@ -126,7 +126,7 @@ def test_furnace_light_lost_at_low_resolution_falls_as_it_grows(gl):
 def cornell_reference(bounces):
     scene = load_scene("cornell-box")
     return scene, load_reference(
-        store_entry(scene.name, scene.content_hash(), bounces, 16384, 128, 128, 0, DEFAULT_STORE)
+        store_entry(scene.name, scene.content_hash(), bounces, 16384, 128, 128, 0, COMMITTED_STORE)
     )
 
 

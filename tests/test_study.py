@@ -64,6 +64,7 @@ def test_grids_expand_to_the_union_of_their_products():
         ({"grid": [{"stop_early": [1]}]}, "stop_early = 1 must be true or false"),
         ({"grid": [{"colour": [1]}]}, "unknown run parameter"),
         ({"measure": {"metrics": ["psnr"]}}, "unknown psnr"),
+        ({"measure": {"image": ["total"]}}, r"unknown key\(s\) image; known: bundles, render, images, metrics, "),
         ({"plots": []}, "unknown key"),
         ({"plot": [{"x": "wall_s"}]}, "needs x and y"),
     ],
@@ -149,8 +150,24 @@ def test_the_report_shows_tables_plots_images_and_the_bias_variance_split(tiny_s
     ):
         assert text in report, text
     assert (out / "plots" / "plot0.png").stat().st_size > 1000
-    assert len(list((out / "images").glob("*.png"))) >= 4
+    # The answer first, the full table after it, how it was made last.
+    order = ["What the study found", "Pareto front", "Images", "<h2>Results", "How it was made"]
+    assert [report.index(text) for text in order] == sorted(report.index(text) for text in order)
+    assert "scene cornell-box: the least indirect_relmse, " in report and "class='ek-table" in report
+    # Each shown run's image, its error maps and the reference, as half floats for the viewer.
+    assert len(list((out / "viewer").glob("*.js"))) >= 4 and "class='ek-viewer'" in report
     assert json.loads((out / "study.json").read_text())["versions"]["drjit"] == "1.5.0"
+
+
+def test_a_misspelled_plot_column_is_named_with_the_columns_there_are(tiny_study, tmp_path):
+    out, rows, _ = tiny_study
+    shutil.copytree(out, tmp_path / "copy")
+    lines = []
+    spec = {**TINY, "plot": [{"x": "wall_s", "y": "hole_rat", "group": "method"}]}
+    run_study(study_from_dict(spec), tmp_path / "copy", progress=lines.append)
+    (warning,) = [line for line in lines if "[[plot]] 1" in line]
+    assert "no column hole_rat in the results; the columns are " in warning and "hole_rate" in warning
+    assert "<b>Not drawn:</b> [[plot]] 1: no column hole_rat" in (tmp_path / "copy" / "report.html").read_text()
 
 
 def test_a_second_start_resumes_and_recomputes_nothing(tiny_study):

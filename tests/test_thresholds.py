@@ -72,6 +72,8 @@ def test_check_prints_a_table_writes_junit_and_keeps_failures_for_inspection(tmp
         "indirect_flip_map.png",
     ):
         assert (run / name).is_file(), name
+    report = (tmp_path / "out" / "impossible" / "report.html").read_text()  # the images in the viewer
+    assert "FAILED: indirect_relmse" in report and report.count("class='ek-viewer'") == 1
     r = run_evalkit("check", str(table), "--case", "loose", "--out", str(tmp_path / "out2"))
     assert r.returncode == 0 and "1 of 1 cases pass" in r.stdout
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evalkit.core.atomic import atomic_path
+from evalkit.core.display import bars_html, fields_html
 from evalkit.core.errors import InputError
 
 # The frame's radius is the bounding sphere's times this, so that round-off in the projection
@@ -293,6 +294,16 @@ class BundleSet:
         if np.any(same_list & (self.depth[1:] < self.depth[:-1])):
             return "a list is not sorted by depth"
         return None
+
+    def _repr_html_(self) -> str:
+        """In a notebook: the counts and a histogram of list lengths (nodes per bundle line)."""
+        s = self.summary()
+        fields = {k: s[k] for k in ("method", "directions", "resolution", "seed", "frame", "nodes", "empty_lists")}
+        lengths = np.bincount(self.list_lengths())
+        shown = min(len(lengths), 16)  # 0 .. 14 nodes, then the rest together
+        labels = [str(n) for n in range(shown - 1)] + [f"{shown - 1}+" if len(lengths) > shown else str(shown - 1)]
+        counts = [int(c) for c in lengths[: shown - 1]] + [int(lengths[shown - 1 :].sum())]
+        return fields_html("BundleSet", fields) + bars_html("lines by nodes on them", labels, counts)
 
     def summary(self) -> dict:
         """Counts and provenance, JSON-ready (as `evalkit bundles --json` prints them)."""

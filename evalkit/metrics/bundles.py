@@ -43,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from evalkit.core.bundleset import BundleSet, DirectionSet
+from evalkit.core.display import fields_html
 from evalkit.core.settings import DEPTH_TOLERANCE, RenderSettings
 
 DEFAULT_SELF_HIT_BIAS = RenderSettings().self_hit_bias
@@ -71,7 +72,23 @@ def frame_mismatch(test: BundleSet, exact: BundleSet) -> str | None:
     return None
 
 
-def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = DEPTH_TOLERANCE) -> dict:
+class BundleComparison(dict):
+    """`compare_bundles`' result: a dict (JSON-ready) that a notebook shows as a table."""
+
+    def _repr_html_(self) -> str:
+        rates = ("agreement", "hole_rate", "leak_rate", "offset_rate", "spurious_rate", "redundant_rate")
+        fields = {
+            "bundles": f"{self['test_method']} against {self['exact_method']}, K={self['directions']}, "
+            f"R={self['resolution']}",
+            "nodes": f"{self['test_nodes']:,} (exact {self['exact_nodes']:,})",
+            **{k: self[k] for k in rates},
+            "depth error (frame radii)": f"rms {self['depth_error']['rms']:.3g}, max {self['depth_error']['max']:.3g}",
+            "depth tolerance": f"{self['depth_tolerance']:g} frame radii",
+        }
+        return fields_html("Bundle comparison", fields)
+
+
+def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = DEPTH_TOLERANCE) -> BundleComparison:
     """Hole, spurious and redundant nodes and depth errors of ``test`` against ``exact``, in
     aggregate and per direction (see the module docstring). ``depth_tolerance`` is in units of the
     frame radius. Raises ValueError when the two sets do not share their lines."""
@@ -152,62 +169,66 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
     leaks, offsets, offset_depth = _leaks_and_offsets(
         test, exact, tau, splat_radius, cluster, starts, hole_per_cluster, spurious_node | redundant_node
     )
-    return {
-        "test_method": test.method,
-        "exact_method": exact.method,
-        "directions": K,
-        "resolution": exact.resolution,
-        "depth_tolerance": depth_tolerance,
-        "depth_tolerance_absolute": tau,
-        "radius": exact.radius,
-        "exact_nodes": n_exact,
-        "test_nodes": n_test,
-        "matched": int(matched_per_cluster.sum()),
-        "holes": holes,
-        "spurious": spurious,
-        "redundant": redundant,
-        "agreement": 1.0 - holes / max(n_exact, 1),
-        "hole_rate": holes / max(n_exact, 1),
-        "spurious_rate": spurious / max(n_test, 1),
-        "spurious_per_crossing": spurious / max(n_exact, 1),
-        "redundant_rate": redundant / max(n_test, 1),
-        "same_prim_rate": float(same_prim.mean()) if len(same_prim) else 1.0,
-        "leaks": leaks,
-        "offsets": offsets,
-        "leak_rate": leaks / max(n_exact, 1),
-        "offset_rate": offsets / max(n_exact, 1),
-        # How far offset surfaces lie from the exact crossing along the line, in frame radii and
-        # (imperfect bundles) splat radii: quantiles over the offsets.
-        "offset_depth": {
-            "splat_radius": splat_radius,
-            **{
-                f"{unit}_{q}": (float(np.quantile(offset_depth / scale, level)) if len(offset_depth) else None)
-                for unit, scale in (("radii", exact.radius), ("splat_radii", splat_radius or np.nan))
-                for q, level in (("p50", 0.5), ("p90", 0.9), ("max", 1.0))
+    return BundleComparison(
+        {
+            "test_method": test.method,
+            "exact_method": exact.method,
+            "directions": K,
+            "resolution": exact.resolution,
+            "depth_tolerance": depth_tolerance,
+            "depth_tolerance_absolute": tau,
+            "radius": exact.radius,
+            "exact_nodes": n_exact,
+            "test_nodes": n_test,
+            "matched": int(matched_per_cluster.sum()),
+            "holes": holes,
+            "spurious": spurious,
+            "redundant": redundant,
+            "agreement": 1.0 - holes / max(n_exact, 1),
+            "hole_rate": holes / max(n_exact, 1),
+            "spurious_rate": spurious / max(n_test, 1),
+            "spurious_per_crossing": spurious / max(n_exact, 1),
+            "redundant_rate": redundant / max(n_test, 1),
+            "same_prim_rate": float(same_prim.mean()) if len(same_prim) else 1.0,
+            "leaks": leaks,
+            "offsets": offsets,
+            "leak_rate": leaks / max(n_exact, 1),
+            "offset_rate": offsets / max(n_exact, 1),
+            # How far offset surfaces lie from the exact crossing along the line, in frame radii and
+            # (imperfect bundles) splat radii: quantiles over the offsets.
+            "offset_depth": {
+                "splat_radius": splat_radius,
+                **{
+                    f"{unit}_{q}": (float(np.quantile(offset_depth / scale, level)) if len(offset_depth) else None)
+                    for unit, scale in (("radii", exact.radius), ("splat_radii", splat_radius or np.nan))
+                    for q, level in (("p50", 0.5), ("p90", 0.9), ("max", 1.0))
+                },
             },
-        },
-        "depth_error": {  # of matched test nodes, in units of the frame radius
-            "mean": float(relative_error.mean()),
-            "rms": float(np.sqrt(np.mean(relative_error**2))),
-            "p99": float(np.quantile(relative_error, 0.99)),
-            "max": float(relative_error.max()),
-        },
-        "per_direction": {
-            "exact_nodes": exact_k.tolist(),
-            "test_nodes": test_k.tolist(),
-            "hole_rate": (holes_k / np.maximum(exact_k, 1)).tolist(),
-            "spurious_rate": (spurious_k / np.maximum(test_k, 1)).tolist(),
-            "redundant_rate": (redundant_k / np.maximum(test_k, 1)).tolist(),
-        },
-        "per_slope": {  # |cos| between direction and surface normal, bins [SLOPE_BINS[i], SLOPE_BINS[i + 1])
-            "bins": list(SLOPE_BINS),
-            "exact_nodes": exact_s.tolist(),
-            "test_nodes": test_s.tolist(),
-            "hole_rate": (holes_s / np.maximum(exact_s, 1)).tolist(),
-            "spurious_rate": (np.bincount(t_slope[spurious_node], minlength=bins) / np.maximum(test_s, 1)).tolist(),
-            "redundant_rate": (np.bincount(t_slope[redundant_node], minlength=bins) / np.maximum(test_s, 1)).tolist(),
-        },
-    }
+            "depth_error": {  # of matched test nodes, in units of the frame radius
+                "mean": float(relative_error.mean()),
+                "rms": float(np.sqrt(np.mean(relative_error**2))),
+                "p99": float(np.quantile(relative_error, 0.99)),
+                "max": float(relative_error.max()),
+            },
+            "per_direction": {
+                "exact_nodes": exact_k.tolist(),
+                "test_nodes": test_k.tolist(),
+                "hole_rate": (holes_k / np.maximum(exact_k, 1)).tolist(),
+                "spurious_rate": (spurious_k / np.maximum(test_k, 1)).tolist(),
+                "redundant_rate": (redundant_k / np.maximum(test_k, 1)).tolist(),
+            },
+            "per_slope": {  # |cos| between direction and surface normal, bins [SLOPE_BINS[i], SLOPE_BINS[i + 1])
+                "bins": list(SLOPE_BINS),
+                "exact_nodes": exact_s.tolist(),
+                "test_nodes": test_s.tolist(),
+                "hole_rate": (holes_s / np.maximum(exact_s, 1)).tolist(),
+                "spurious_rate": (np.bincount(t_slope[spurious_node], minlength=bins) / np.maximum(test_s, 1)).tolist(),
+                "redundant_rate": (
+                    np.bincount(t_slope[redundant_node], minlength=bins) / np.maximum(test_s, 1)
+                ).tolist(),
+            },
+        }
+    )
 
 
 def _leaks_and_offsets(test, exact, tau, splat_radius, cluster, starts, hole_per_cluster, unmatched):
@@ -265,7 +286,7 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
     random film positions, and as many second vertices, one cosine-distributed bounce further.
     Returns position, normal (shading, facing the arriving ray) and geometric normal, (M, 3)."""
     rng = np.random.default_rng(seed)
-    w, h = width or scene.camera.width, height or scene.camera.height
+    w, h = scene.camera.film_size(width, height)
     cam = scene.camera.frame(np.zeros(3), w, h)
     film = rng.random((count, 2))
     tx, ty = cam["tan_half"]

@@ -12,12 +12,12 @@ from pathlib import Path
 from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.scene import Scene, load_scene
 from references.embree import ExactTracer
-from references.mitsuba import DEFAULT_STORE, Reference, load_reference, reference, store_entry
+from references.mitsuba import COMMITTED_STORE, Reference, load_reference, reference, store_entry
 
 
 def film_size(scene: Scene, run: dict) -> tuple[int, int]:
     """The run's image size: its width and height, or the scene camera's where it leaves them out."""
-    return int(run["width"] or scene.camera.width), int(run["height"] or scene.camera.height)
+    return scene.camera.film_size(run["width"], run["height"])
 
 
 def prepare_artefacts(runs: list[dict], measure: dict, out: Path, progress=print) -> None:
@@ -46,7 +46,7 @@ def reference_for(scene: Scene, run: dict, measure: dict, out: Path, progress=pr
         height=height,
         seed=int(measure["reference_seed"]),
     )
-    committed = store_entry(scene.name, scene.content_hash(), store=DEFAULT_STORE, **args)
+    committed = store_entry(scene.name, scene.content_hash(), store=COMMITTED_STORE, **args)
     if (committed / "manifest.json").is_file():
         return load_reference(committed)
     store = Path(measure["reference_store"]) if measure["reference_store"] else out / "references"

@@ -24,10 +24,22 @@ from tqdm import tqdm
 from evalkit.core.atomic import remove_temporaries, write_text
 from evalkit.core.errors import InputError
 from evalkit.core.lock import folder_lock
-from evalkit.report import write_report
+from evalkit.pages import results_table_html
+from evalkit.report import column_groups, metric_columns, write_report
 from evalkit.study.artefacts import prepare_artefacts
 from evalkit.study.run import execute_run, versions
-from evalkit.study.spec import Study, run_id
+from evalkit.study.spec import PARAMETERS, Study, run_id
+
+
+class StudyRows(list):
+    """`run_study`'s rows (a list of dicts), which a notebook shows as the report's results table
+    (settings, bundle metrics, image metrics and timings; a setting a run's method lacks left empty)."""
+
+    def _repr_html_(self) -> str:
+        ok = [r for r in self if r.get("status") == "ok"]
+        columns = ["run_id", *[c for c in PARAMETERS if len({json.dumps(r.get(c)) for r in ok}) > 1]]
+        columns += metric_columns(ok)
+        return f"<b>{len(ok)} of {len(self)} runs ok</b>" + results_table_html(ok, column_groups(columns))
 
 
 def run_study(
@@ -39,7 +51,7 @@ def run_study(
     progress=print,
     command: str | None = None,
     wait: bool = False,
-) -> list[dict]:
+) -> StudyRows:
     """Run every run not finished yet, append its row, then write results.csv and the report.
     Returns every row (finished earlier or now), in the study's order. Another study writing to
     ``out`` is an `InputError`, or with ``wait`` waited for."""
@@ -48,7 +60,7 @@ def run_study(
 
 
 def _run_study(study, out: Path, workers, executor, scheduler, progress, command) -> list[dict]:
-    for folder in (out / "cache", out / "images"):  # the study's own; runs/<id> start empty
+    for folder in (out / "cache", out / "viewer"):  # the study's own; runs/<id> start empty
         if folder.is_dir():
             remove_temporaries(folder)
     done = {r["run_id"]: r for r in read_rows(out, progress) if r.get("status") == "ok"}
@@ -81,8 +93,8 @@ def _run_study(study, out: Path, workers, executor, scheduler, progress, command
         "finished": time.strftime("%Y-%m-%d %H:%M:%S"),
     }
     write_text(out / "study.json", json.dumps(meta, indent=2) + "\n")
-    write_report(study, rows, out, meta, failed)
-    return rows
+    write_report(study, rows, out, meta, failed, progress)
+    return StudyRows(rows)
 
 
 def read_rows(out: Path, progress=print) -> list[dict]:

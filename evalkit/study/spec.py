@@ -144,7 +144,8 @@ def measure_settings(table: dict, where: str) -> dict:
     """A [measure] table over `MEASURE_DEFAULTS`, checked."""
     measure = {**MEASURE_DEFAULTS, **table}
     if set(measure) - set(MEASURE_DEFAULTS):
-        raise InputError(where, f"[measure]: unknown key(s) {', '.join(sorted(set(measure) - set(MEASURE_DEFAULTS)))}")
+        unknown = ", ".join(sorted(set(measure) - set(MEASURE_DEFAULTS)))
+        raise InputError(where, f"[measure]: unknown key(s) {unknown}; known: {', '.join(MEASURE_DEFAULTS)}")
     bad = set(measure["metrics"]) - set(METRICS)
     if bad:
         raise InputError(where, f"[measure] metrics: unknown {', '.join(sorted(bad))}; known: {', '.join(METRICS)}")

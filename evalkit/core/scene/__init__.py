@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+from evalkit.core import cache
 from evalkit.core.errors import InputError
 from evalkit.core.scene.assemble import assemble
 from evalkit.core.scene.builtin import BUILTIN_SCENES
@@ -20,15 +21,28 @@ def builtin_names() -> list[str]:
 
 
 def load_scene(spec: str | os.PathLike) -> Scene:
-    """A built-in scene by name (`builtin_names`), a Mitsuba XML file, or an OBJ/PLY/glTF/GLB file."""
+    """A built-in scene by name (`builtin_names`), a Mitsuba XML file, or an OBJ/PLY/glTF/GLB file;
+    from the user cache when nothing it reads has changed since (`evalkit.core.cache`)."""
     spec = os.fspath(spec)
-    if spec in BUILTIN_SCENES:
-        return BUILTIN_SCENES[spec]()
     ext = os.path.splitext(spec)[1].lower()
-    if ext in MITSUBA_EXTENSIONS:
-        return load_mitsuba_file(spec)
-    if ext in MESH_EXTENSIONS:
+    if spec in BUILTIN_SCENES:
+        importer = BUILTIN_SCENES[spec]
+    elif ext in MITSUBA_EXTENSIONS + MESH_EXTENSIONS and os.path.isfile(spec):
+        importer = load_mitsuba_file if ext in MITSUBA_EXTENSIONS else load_mesh_file
+    elif ext in MITSUBA_EXTENSIONS:
+        return load_mitsuba_file(spec)  # its one-line error
+    elif ext in MESH_EXTENSIONS:
         return load_mesh_file(spec)
+    else:
+        importer = None
+    if importer is not None:
+        key = cache.scene_key(spec, builtin=spec in BUILTIN_SCENES)
+        scene = cache.load("scenes", key) if key else None
+        if scene is None:
+            scene = importer(spec) if spec not in BUILTIN_SCENES else importer()
+            if key:
+                cache.store("scenes", key, scene)
+        return scene
     if not os.path.exists(spec):
         raise InputError(spec, f"not a built-in scene ({', '.join(builtin_names())}) and no such file")
     raise InputError(

@@ -205,9 +205,14 @@ def _canonical_order(positions, faces, normals, uvs):
 def _transform(local, to_world: np.ndarray):
     pos, faces, normals, uv = local
     world = pos @ to_world[:3, :3].T + to_world[:3, 3]
+    det = np.linalg.det(to_world[:3, :3])
+    if not (np.isfinite(det) and det != 0):
+        # A zero radius or scale (found by tests/fuzz_soak.py): every triangle is degenerate, and
+        # `assemble` removes and counts them; there are no normals to transform.
+        return world, faces, None, uv
     n = normals @ np.linalg.inv(to_world[:3, :3])  # inverse transpose, applied to row vectors
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    if np.linalg.det(to_world[:3, :3]) < 0:  # a mirroring transform flips the winding
+    if det < 0:  # a mirroring transform flips the winding
         faces = faces[:, ::-1]
     return world, faces, n, uv
 
@@ -361,6 +366,7 @@ def to_mitsuba_dict(scene: Scene, mi, spp: int = 64, width: int | None = None, h
     rasterizer need (docs/MEASURED_FACTS.md). Positions are in scene space (recentred).
     """
     cam = scene.camera
+    width, height = cam.film_size(width, height)
     d: dict = {
         "type": "scene",
         "sensor": {
@@ -373,8 +379,8 @@ def to_mitsuba_dict(scene: Scene, mi, spp: int = 64, width: int | None = None, h
             "sampler": {"type": "independent", "sample_count": int(spp)},
             "film": {
                 "type": "hdrfilm",
-                "width": int(width or cam.width),
-                "height": int(height or cam.height),
+                "width": width,
+                "height": height,
                 "rfilter": {"type": "box"},
                 "pixel_format": "rgb",
                 "component_format": "float32",

@@ -141,6 +141,17 @@ class Camera:
     def position(self) -> np.ndarray:
         return self.to_world[:3, 3]
 
+    def film_size(self, width: int | None = None, height: int | None = None) -> tuple[int, int]:
+        """The image size asked for: both sides as given; one side, with the other following the
+        camera's aspect so that the framing stays; neither, the camera's own."""
+        if width and height:
+            return int(width), int(height)
+        if width:
+            return int(width), max(1, round(width * self.height / self.width))
+        if height:
+            return max(1, round(height * self.width / self.height)), int(height)
+        return self.width, self.height
+
     def frame(self, centre: np.ndarray, width: int, height: int) -> dict:
         """The camera relative to ``centre`` for a ``width`` x ``height`` film: origin, to_world
         (3x3, Mitsuba's camera space: +x left, +y up, +z forward), tan of the half field of view
