@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evalkit.core.atomic import write_text
+from evalkit.core.atomic import atomic_path, write_text
 from evalkit.core.errors import InputError
 from evalkit.core.exr import write_exr
 from evalkit.figures import error_map_png
@@ -114,7 +114,8 @@ def junit_xml(outcomes: list[Outcome], path: str | os.PathLike) -> None:
             failure.text = f"{o.message}\nwhy: {o.case.why}\ncalibration: {o.case.calibration}\nlook at: {look}"
         ET.SubElement(case, "system-out").text = o.message
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    ET.ElementTree(suite).write(path, encoding="utf-8", xml_declaration=True)
+    with atomic_path(path) as tmp:
+        ET.ElementTree(suite).write(tmp, encoding="utf-8", xml_declaration=True)
 
 
 def calibrate(case: Case, seeds: list[int], out: str | os.PathLike) -> dict:

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from evalkit.core.atomic import atomic_path
+
 REPORT_EXPOSURE = 0.0
 
 
@@ -26,7 +28,15 @@ def save_png(rgb8: np.ndarray, path: Path) -> None:
     from PIL import Image
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(rgb8).save(path)
+    with atomic_path(path) as tmp:
+        Image.fromarray(rgb8).save(tmp)
+
+
+def save_figure(fig, path: Path, dpi: int = 90) -> None:
+    """A matplotlib figure as a PNG, whole or not at all."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi)
 
 
 def error_map_vmax(values: np.ndarray) -> float:

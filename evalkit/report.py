@@ -10,12 +10,14 @@ import hashlib
 import html
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
+from evalkit.core.atomic import write_text
 from evalkit.core.exr import read_exr
-from evalkit.figures import REPORT_EXPOSURE, error_map_vmax, pyplot
+from evalkit.figures import REPORT_EXPOSURE, error_map_vmax, pyplot, save_figure
 from evalkit.metrics.hole_model import DEFAULT_NODE_COST, analyse, hole_rate_model
 from evalkit.metrics.images import bias_variance
 from evalkit.pages import format_value, is_number, page, results_table_html, table_html
@@ -150,8 +152,7 @@ def plot(rows: list[dict], spec: dict, path: Path) -> str:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path)
     plt.close(fig)
     return spec.get("title") or f"{', '.join(ys)} against {spec['x']}"
 
@@ -225,9 +226,11 @@ def column_groups(columns: list[str]) -> dict[str, list[str]]:
     return groups
 
 
-def run_viewers(out: Path, row: dict, images: list[str], label: str) -> list[str]:
+def run_viewers(out: Path, row: dict, images: list[str], label: str, page_folder: Path | None = None) -> list[str]:
     """One viewer per measured image of a run (its folder ``out/runs/<run_id>``): the test image,
-    its reference and the relMSE and FLIP maps, their data under ``out/viewer/``."""
+    its reference and the relMSE and FLIP maps, their data under ``out/viewer/``, for a page in
+    ``page_folder`` (default ``out``)."""
+    prefix = os.path.relpath(out, page_folder or out)
     ref = load_reference(row["reference"])
     ref_key = hashlib.sha256(str(row["reference"]).encode()).hexdigest()[:12]
     viewers = []
@@ -248,7 +251,8 @@ def run_viewers(out: Path, row: dict, images: list[str], label: str) -> list[str
                 viewed.append({"name": name, "label": caption, "vmax": error_map_vmax(values)})
                 pixels.append(values)
         for entry, values in zip(viewed, pixels):
-            entry["src"] = image_data(out, entry["name"], values, entry.get("immutable", False))
+            src = image_data(out, entry["name"], values, entry.get("immutable", False))
+            entry["src"] = src if prefix == "." else f"{prefix}/{src}"
         size = (test.shape[1], test.shape[0])
         viewers.append(group_html(viewed, size, exposure=REPORT_EXPOSURE, caption=f"{label}: {image}"))
     return viewers
@@ -372,7 +376,7 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
         f"The viewers open at exposure {REPORT_EXPOSURE:g}, sRGB.</p>"
     )
     path = out / "report.html"
-    path.write_text(page(study.title, parts))
+    write_text(path, page(study.title, parts))
     return path
 
 
@@ -383,7 +387,7 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
     # The rows of a method with splats: those that have a splat scale.
     splats = [r for r in rows if is_number(r.get("splat_scale")) and is_number(r.get("leak_rate"))]
     fits = analyse(splats, node_cost)
-    (out / "hole_model.json").write_text(json.dumps(fits, indent=2) + "\n")
+    write_text(out / "hole_model.json", json.dumps(fits, indent=2) + "\n")
     if not fits:
         return "<h2>Hole model</h2><p>Not fitted: it needs runs with splats at two splat scales or more.</p>"
     panels = sorted({(f["scene"], f["sampler"]) for f in fits})
@@ -432,7 +436,7 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
             a.grid(True, which="both", alpha=0.3)
             a.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "plots" / "hole_model.png", dpi=90)
+    save_figure(fig, out / "plots" / "hole_model.png")
     plt.close(fig)
     columns = [
         "scene",

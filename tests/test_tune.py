@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
 
 import numpy as np
 import pytest
@@ -181,4 +182,9 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
         for kind in ("time", "error"):
             assert len(result["models"][method][kind]["residuals"]) == len(METHODS[method].tune.calibration) + 1
     assert json.loads((tmp_path / "tune.json").read_text())["recommended"] == rec
-    assert "<h1>evalkit tune: cornell-box, 1 s</h1>" in (tmp_path / "report.html").read_text()
+    report = (tmp_path / "report.html").read_text()
+    assert "<h1>evalkit tune: cornell-box, 1 s</h1>" in report
+    # Each checked render in the image viewer, its data in the check study's folder.
+    assert report.count("class='ek-viewer'") == 2 and "check/viewer/" in report
+    sources = re.findall(r"&quot;src&quot;: &quot;([^&]+)&quot;", report)
+    assert sources and all((tmp_path / src).is_file() for src in sources)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from evalkit.core.atomic import remove_temporaries, write_text
+from evalkit.core.atomic import atomic_path, remove_temporaries, write_text
 from evalkit.core.errors import InputError
 from evalkit.core.lock import folder_lock
 from evalkit.pages import results_table_html
@@ -126,7 +126,7 @@ def read_rows(out: Path, progress=print) -> list[dict]:
 
 def write_csv(rows: list[dict], path: Path) -> None:
     columns = list(dict.fromkeys(k for row in rows for k in row))
-    with open(path, "w", newline="") as f:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
         writer = csv.DictWriter(f, columns)
         writer.writeheader()
         writer.writerows(rows)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evalkit.core.atomic import write_text
+from evalkit.core.atomic import atomic_path, write_text
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene, load_scene
@@ -108,7 +108,8 @@ def _measure(run: dict, measure: dict, out: Path, folder: Path) -> dict:
         for metric in metrics.values():
             row[f"{name}_{metric.name}"] = metric.value
             if metric.name in ("relmse", "flip"):
-                np.save(folder / f"{name}_{metric.name}_map.npy", metric.map.astype(np.float32))
+                with atomic_path(folder / f"{name}_{metric.name}_map.npy") as tmp:
+                    np.save(tmp, metric.map.astype(np.float32))
     return row
 
 

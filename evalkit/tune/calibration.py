@@ -11,6 +11,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from evalkit.core.atomic import write_text
 from evalkit.core.errors import InputError
 from evalkit.pages import is_number
 from evalkit.study.executors import read_rows, run_study
@@ -190,7 +191,7 @@ def tune(
     result["tune_s"] = time.perf_counter() - start
     result["report"] = str(out / "report.html")
     out.mkdir(parents=True, exist_ok=True)
-    (out / "tune.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_text(out / "tune.json", json.dumps(result, indent=2) + "\n")
     write_tune_report(result, rows, models, out / "report.html")
     return result
 

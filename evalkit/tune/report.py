@@ -8,9 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from evalkit.core.atomic import write_text
 from evalkit.core.errors import InputError
-from evalkit.figures import pyplot
+from evalkit.figures import pyplot, save_figure
 from evalkit.pages import page
+from evalkit.report import run_viewers
+from evalkit.study.executors import read_rows
 from evalkit.tune.optimise import optimise
 from gpu_impl.registry import settings_symbols
 
@@ -71,7 +74,7 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
     ax.legend(fontsize=7)
     fig.tight_layout()
     png = path.with_suffix(".png")
-    fig.savefig(png, dpi=110)
+    save_figure(fig, png, dpi=110)
     plt.close(fig)
     rec, calibration = result["recommended"], result["calibration"]
     grid = result.get("grid")
@@ -108,7 +111,9 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
             if grid
             else []
         ),
-        f"</table><p><img src='{png.name}'></p><h2>Fitted models</h2>",
+        f"</table><p><img src='{png.name}'></p>",
+        *_check_viewers(result, path.parent),
+        "<h2>Fitted models</h2>",
         *[f"<p><b>Warning</b>: {html.escape(w)}</p>" for w in result["warnings"]],
     ]
     for method, m in result["models"].items():
@@ -119,7 +124,22 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
                 f"<p><b>{method} {kind}</b>: {constants}; log residuals per run {residuals} "
                 f"(rms {fitted['rms_log_residual']:.2f})</p>"
             )
-    path.write_text(page(f"evalkit tune: {result['scene']}", parts))
+    write_text(path, page(f"evalkit tune: {result['scene']}", parts))
+
+
+def _check_viewers(result: dict, folder: Path) -> list[str]:
+    """The checked renders in the image viewer, beside the reference and error maps (their runs
+    are in the check study's folder)."""
+    if "measured" not in result:
+        return []
+    check = folder / "check"
+    rows = {r["run_id"]: r for r in read_rows(check, progress=lambda line: None)}
+    image = result["metric"].split("_", 1)[0]
+    parts = ["<h2>The checked renders</h2>"]
+    for candidate in result["candidates"]:
+        row = rows[candidate["measured"]["run_id"]]
+        parts += run_viewers(check, row, [image], settings_text(candidate), page_folder=folder)
+    return parts
 
 
 def settings_text(settings: dict) -> str:
