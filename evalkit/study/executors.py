@@ -134,7 +134,8 @@ def write_csv(rows: list[dict], path: Path) -> None:
 
 def _execute(todo: list[dict], measure: dict, out: Path, workers: int, executor: str, scheduler: str | None):
     """Rows of the runs as they finish, with a progress bar."""
-    bar = tqdm(total=len(todo), unit="run", file=sys.stderr, disable=not todo)
+    # One progress line with the time left, on a terminal; a log (no terminal) keeps the summary.
+    bar = tqdm(total=len(todo), unit="run", file=sys.stderr, disable=not todo or not sys.stderr.isatty())
     try:
         if executor == "dask":
             yield from _dask(todo, measure, out, workers, scheduler, bar)
