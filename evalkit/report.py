@@ -181,13 +181,16 @@ def bias_variance_rows(study: Study, rows: list[dict], out: Path) -> list[dict]:
 def findings(study: Study, ok: list[dict], rows: list[dict]) -> list[str]:
     """A few sentences of what the rows say: how many runs finished; per [[plot]] and panel, the
     runs with the least y and the least x; with ``pareto``, how the bundle settings compare with
-    Mitsuba at matched x."""
+    Mitsuba at matched x. A study without plots: each measured image metric, run by run (the
+    least, where there are more than six runs)."""
     failed = len(rows) - len(ok)
     lines = [f"{len(ok)} of {len(rows)} runs finished" + (f"; {failed} failed (listed below)." if failed else ".")]
-    shown = varying(study)
+    # A run is named by the parameters that vary and that every run has (a unit's own settings
+    # would name every imperfect run at length beside a perfect one).
+    shown = [k for k in varying(study) if all(k in r for r in ok)]
 
     def described(row: dict) -> str:
-        return ", ".join(f"{k}={row[k]}" for k in shown if k in row) or row["run_id"]
+        return ", ".join(f"{k}={row[k]}" for k in shown) or row["run_id"]
 
     for spec in study.plots:
         x, y = spec["x"], spec["y"] if isinstance(spec["y"], str) else spec["y"][0]
@@ -208,6 +211,14 @@ def findings(study: Study, ok: list[dict], rows: list[dict]) -> list[str]:
                 f"Mitsuba (ratios {format_value(min(ratios))} to {format_value(max(ratios))}; below 1: the bundles "
                 "are the more accurate)."
             )
+    columns = [] if study.plots else [f"{i}_{m}" for i in study.measure["images"] for m in study.measure["metrics"]]
+    for column in columns:
+        usable = [r for r in ok if is_number(r.get(column))]
+        if usable:
+            best = min(usable, key=lambda r: r[column])
+            each = "; ".join(f"{described(r)}: {format_value(r[column])}" for r in usable)
+            least = f"the least {format_value(best[column])} ({described(best)})"
+            lines.append(f"{column}: {each if len(usable) <= 6 else least}.")
     return lines
 
 

@@ -13,7 +13,7 @@ from conftest import run_evalkit
 
 from evalkit.core.errors import InputError
 from evalkit.core.lock import LOCK_NAME, folder_lock
-from evalkit.report import matched_time_rows
+from evalkit.report import findings, matched_time_rows
 from evalkit.study.executors import run_study
 from evalkit.study.spec import RUN_DEFAULTS, load_study, run_id, study_from_dict
 
@@ -137,7 +137,7 @@ def test_a_study_writes_one_row_per_run_with_parameters_metrics_timings_and_vers
 
 
 def test_the_report_shows_tables_plots_images_and_the_bias_variance_split(tiny_study):
-    out, _, _ = tiny_study
+    out, rows, _ = tiny_study
     report = (out / "report.html").read_text()
     for text in (
         "Results",
@@ -154,6 +154,12 @@ def test_the_report_shows_tables_plots_images_and_the_bias_variance_split(tiny_s
     order = ["What the study found", "Pareto front", "Images", "<h2>Results", "How it was made"]
     assert [report.index(text) for text in order] == sorted(report.index(text) for text in order)
     assert "scene cornell-box: the least indirect_relmse, " in report and "class='ek-table" in report
+    # Without plots, what the study found is each measured image metric run by run.
+    spec = {**TINY, "plot": [], "grid": [{"method": ["perfect", "imperfect"], "seed": 0}]}
+    seed0 = [r for r in rows if r["seed"] == 0 and r["method"] != "mitsuba"]
+    found = findings(study_from_dict(spec), seed0, seed0)
+    perfect, imperfect = (f"{r['indirect_relmse']:.4g}" for r in seed0)
+    assert found[1] == f"indirect_relmse: method=perfect: {perfect}; method=imperfect: {imperfect}."
     # Each shown run's image, its error maps and the reference, as half floats for the viewer.
     assert len(list((out / "viewer").glob("*.js"))) >= 4 and "class='ek-viewer'" in report
     assert json.loads((out / "study.json").read_text())["versions"]["drjit"] == "1.5.0"
