@@ -283,10 +283,11 @@ def _image_lines(images: dict, variances: dict | None) -> list[str]:
 def _view(args) -> int:
     image, provenance = read_exr(args.image)
     save_png(tonemap(image, args.exposure), Path(args.png))
-    variance_path = Path(args.image).with_name(Path(args.image).stem + "_variance.exr")
-    variances = {"image": read_exr(variance_path)[0]} if variance_path.is_file() else None
+    name = Path(args.image).stem
+    variance_path = Path(args.image).with_name(f"{name}_variance.exr")
+    variances = {name: read_exr(variance_path)[0]} if variance_path.is_file() else None
     print(f"image       {args.image}: {image.shape[1]}x{image.shape[0]}, {provenance.get('image', 'no provenance')}")
-    for line in _image_lines({Path(args.image).stem: image}, variances and {Path(args.image).stem: variances["image"]}):
+    for line in _image_lines({name: image}, variances):
         print(line)
     print(f"written     {args.png}: exposure {args.exposure:g} stops, clipped to [0, 1], sRGB")
     return 0
@@ -884,7 +885,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--store",
         default=None,
         help=f"reference store (default: the committed CI store where it has the reference, else ${STORE_VARIABLE}, "
-        "else $XDG_CACHE_HOME/evalkit/references, else ~/.cache/evalkit/references)",
+        "else the user cache's references/: $EVALKIT_CACHE, else $XDG_CACHE_HOME/evalkit, else ~/.cache/evalkit)",
     )
     p.add_argument(
         "--wait", action="store_true", help="wait for another process rendering this reference, then reuse it"

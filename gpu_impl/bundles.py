@@ -240,7 +240,9 @@ class BundleTracer:
         fits = min(
             (self.memory_limit()[0] - others) // node_bytes, self.gl.max_storage_bytes // (node_bytes // len(names))
         )
-        slack = min(int(nodes * CAPACITY_SLACK), fits)
+        # Room for every node, checked above, whatever the free memory says a moment later (the
+        # passes write all of them); the slack only where it fits.
+        slack = max(nodes, min(int(nodes * CAPACITY_SLACK), fits))
         for name in names:
             self._ensure(name, node_bytes // len(names) * slack)
 
