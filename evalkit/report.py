@@ -6,6 +6,7 @@ images as half floats), results.csv."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import html
 import json
@@ -24,15 +25,22 @@ from evalkit.pages import format_value, is_number, page, results_table_html, tab
 from evalkit.study.spec import PARAMETERS, Study, parameters, run_id
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 from evalkit.viewer import group_html, image_data
-from references.mitsuba import load_reference
+from references.mitsuba import Reference, load_reference
 
 IMAGE_CAP = 12
 
 
-def varying(study: Study) -> list[str]:
-    """The run parameters that take more than one value in the study (a setting a run's units do
-    not have counts as a value of its own)."""
-    return [k for k in PARAMETERS if len({json.dumps(r.get(k)) for r in study.runs}) > 1]
+@functools.lru_cache(maxsize=8)
+def stored_reference(entry: str) -> Reference:
+    """A finished store entry, read once however many runs of a report share it (an entry never
+    changes once its manifest is written)."""
+    return load_reference(entry)
+
+
+def varying(runs: list[dict]) -> list[str]:
+    """The run parameters that take more than one value over ``runs`` (a study's runs, or rows; a
+    setting a run's units do not have counts as a value of its own)."""
+    return [k for k in PARAMETERS if len({json.dumps(r.get(k)) for r in runs}) > 1]
 
 
 def metric_columns(rows: list[dict]) -> list[str]:
@@ -168,11 +176,11 @@ def bias_variance_rows(study: Study, rows: list[dict], out: Path) -> list[dict]:
     for members in groups.values():
         if len(members) < 2:
             continue
-        ref = load_reference(members[0]["reference"])
+        ref = stored_reference(members[0]["reference"])
         for image in study.measure["images"]:
             stack = [read_exr(out / "runs" / m["run_id"] / f"{image}.exr")[0] for m in members]
             bv = bias_variance(stack, ref.images[image], ref.variances[image])
-            entry = {k: members[0].get(k) for k in varying(study) if k != "seed"}
+            entry = {k: members[0].get(k) for k in varying(study.runs) if k != "seed"}
             entry.update({"image": image, **{k: v for k, v in bv.items() if k != "per_seed_relmse"}})
             result.append(entry)
     return result
@@ -187,7 +195,7 @@ def findings(study: Study, ok: list[dict], rows: list[dict]) -> list[str]:
     lines = [f"{len(ok)} of {len(rows)} runs finished" + (f"; {failed} failed (listed below)." if failed else ".")]
     # A run is named by the parameters that vary and that every run has (a unit's own settings
     # would name every imperfect run at length beside a perfect one).
-    shown = [k for k in varying(study) if all(k in r for r in ok)]
+    shown = [k for k in varying(study.runs) if all(k in r for r in ok)]
 
     def described(row: dict) -> str:
         return ", ".join(f"{k}={row[k]}" for k in shown) or row["run_id"]
@@ -242,7 +250,7 @@ def run_viewers(out: Path, row: dict, images: list[str], label: str, page_folder
     its reference and the relMSE and FLIP maps, their data under ``out/viewer/``, for a page in
     ``page_folder`` (default ``out``)."""
     prefix = os.path.relpath(out, page_folder or out)
-    ref = load_reference(row["reference"])
+    ref = stored_reference(row["reference"])
     ref_key = hashlib.sha256(str(row["reference"]).encode()).hexdigest()[:12]
     viewers = []
     for image in images:
@@ -307,7 +315,7 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
             ]
             parts.append(
                 "<p>Pareto front per panel (no run is both faster and more accurate):</p>"
-                + table_html(front, ["run_id", *varying(study), spec["x"], ys[0]])
+                + table_html(front, ["run_id", *varying(study.runs), spec["x"], ys[0]])
             )
             matched = matched_time_rows(ok, spec["x"], ys[0])
             if matched:
@@ -343,7 +351,7 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
             "pans); the table lists every image's value at the cursor.</p>"
         )
         for r in shown:
-            label = ", ".join(f"{k}={r[k]}" for k in varying(study) if k in r)
+            label = ", ".join(f"{k}={r[k]}" for k in varying(study.runs) if k in r)
             parts += run_viewers(out, r, study.measure["images"], label)
         if len(ok) > len(shown):
             parts.append(
@@ -352,8 +360,8 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
             )
 
     if failed:
-        parts.append("<h2>Failed runs</h2>" + table_html(failed, ["run_id", *varying(study), "status"]))
-    columns = study.report.get("columns") or ["run_id", *varying(study), *metric_columns(ok)]
+        parts.append("<h2>Failed runs</h2>" + table_html(failed, ["run_id", *varying(study.runs), "status"]))
+    columns = study.report.get("columns") or ["run_id", *varying(study.runs), *metric_columns(ok)]
     columns = [c for c in columns if any(c in r for r in ok)]
     parts.append(
         "<h2>Results</h2><p>One row per run; click a column's name to sort by it, a group's name to hide or "

@@ -10,6 +10,8 @@ index, from the ``device_index`` argument or the ``EVALKIT_GL_DEVICE`` variable 
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import math
 import os
 
@@ -239,8 +241,17 @@ def _cgroup_memory_files(proc: str, cgroups: str):
 def gl_integer(pname: int) -> int | None:
     """glGetIntegerv(pname) in the current context, for the queries moderngl does not expose;
     None when the entry point cannot be found."""
-    import ctypes
+    get = _gl_get_integerv()
+    if get is None:
+        return None
+    value = ctypes.c_int(0)
+    get(pname, ctypes.byref(value))
+    return value.value
 
+
+@functools.cache
+def _gl_get_integerv():
+    """glGetIntegerv through EGL's loader, looked up once (None where there is no libEGL)."""
     try:
         egl = ctypes.CDLL("libEGL.so.1")
     except OSError:
@@ -248,11 +259,7 @@ def gl_integer(pname: int) -> int | None:
     egl.eglGetProcAddress.restype = ctypes.c_void_p
     egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
     address = egl.eglGetProcAddress(b"glGetIntegerv")
-    if not address:
-        return None
-    value = ctypes.c_int(0)
-    ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.POINTER(ctypes.c_int))(address)(pname, ctypes.byref(value))
-    return value.value
+    return ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.POINTER(ctypes.c_int))(address) if address else None
 
 
 def default_context() -> GLContext:

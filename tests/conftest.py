@@ -19,7 +19,7 @@ from evalkit.figures import error_map_png
 from evalkit.metrics.confidence import mean_ratio
 from evalkit.metrics.images import relmse as metric
 from gpu_impl.api import bundle_tracer, render, trace_bundles
-from gpu_impl.context import GLContext
+from gpu_impl.context import default_context
 from gpu_impl.registry import resolve
 from gpu_impl.shader_source import unlisted_variants
 
@@ -42,8 +42,9 @@ def mi():
 
 @pytest.fixture(scope="session")
 def gl():
-    """One headless GL context for the whole session: making one is slow."""
-    with GLContext() as context:
+    """The process's one GL context (making one is slow), the same the one-call API and in-process
+    studies use whichever test makes it first: a second context would take the first's GL calls."""
+    with default_context() as context:
         yield context
 
 

@@ -25,10 +25,10 @@ from evalkit.core.atomic import atomic_path, remove_temporaries, write_text
 from evalkit.core.errors import InputError
 from evalkit.core.lock import folder_lock
 from evalkit.pages import results_table_html
-from evalkit.report import column_groups, metric_columns, write_report
+from evalkit.report import column_groups, metric_columns, varying, write_report
 from evalkit.study.artefacts import prepare_artefacts
 from evalkit.study.run import execute_run, versions
-from evalkit.study.spec import PARAMETERS, Study, run_id
+from evalkit.study.spec import Study, run_id
 
 
 class StudyRows(list):
@@ -37,8 +37,7 @@ class StudyRows(list):
 
     def _repr_html_(self) -> str:
         ok = [r for r in self if r.get("status") == "ok"]
-        columns = ["run_id", *[c for c in PARAMETERS if len({json.dumps(r.get(c)) for r in ok}) > 1]]
-        columns += metric_columns(ok)
+        columns = ["run_id", *varying(ok), *metric_columns(ok)]
         return f"<b>{len(ok)} of {len(self)} runs ok</b>" + results_table_html(ok, column_groups(columns))
 
 

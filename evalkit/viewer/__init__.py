@@ -12,6 +12,7 @@ listed at the top of viewer.js and in the README.
 from __future__ import annotations
 
 import base64
+import functools
 import html
 import json
 from pathlib import Path
@@ -50,6 +51,7 @@ def image_data(folder: Path, name: str, image: np.ndarray, immutable: bool = Fal
     return src
 
 
+@functools.lru_cache
 def colormap(name: str = "magma") -> list[list[int]]:
     """A matplotlib colour map as COLORMAP_STEPS 8-bit RGB steps (error maps' colours)."""
     from matplotlib import colormaps

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 
 from evalkit.core import cache
@@ -25,21 +26,21 @@ def load_scene(spec: str | os.PathLike) -> Scene:
     from the user cache when nothing it reads has changed since (`evalkit.core.cache`)."""
     spec = os.fspath(spec)
     ext = os.path.splitext(spec)[1].lower()
-    if spec in BUILTIN_SCENES:
-        importer = BUILTIN_SCENES[spec]
-    elif ext in MITSUBA_EXTENSIONS + MESH_EXTENSIONS and os.path.isfile(spec):
-        importer = load_mitsuba_file if ext in MITSUBA_EXTENSIONS else load_mesh_file
+    builtin = spec in BUILTIN_SCENES
+    if builtin:
+        make = BUILTIN_SCENES[spec]
     elif ext in MITSUBA_EXTENSIONS:
-        return load_mitsuba_file(spec)  # its one-line error
+        make = functools.partial(load_mitsuba_file, spec)
     elif ext in MESH_EXTENSIONS:
-        return load_mesh_file(spec)
+        make = functools.partial(load_mesh_file, spec)
     else:
-        importer = None
-    if importer is not None:
-        key = cache.scene_key(spec, builtin=spec in BUILTIN_SCENES)
+        make = None
+    if make is not None:
+        # A file that is not there has no key: its importer says so in one line.
+        key = cache.scene_key(spec, builtin) if builtin or os.path.isfile(spec) else None
         scene = cache.load("scenes", key) if key else None
         if scene is None:
-            scene = importer(spec) if spec not in BUILTIN_SCENES else importer()
+            scene = make()
             if key:
                 cache.store("scenes", key, scene)
         return scene

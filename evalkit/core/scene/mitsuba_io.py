@@ -43,10 +43,9 @@ def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Sc
     if not os.path.isfile(path):
         raise InputError(path, "file not found")
     try:
-        ElementTree.parse(path)
+        root = ElementTree.parse(path).getroot()
     except ElementTree.ParseError as e:
         raise InputError(path, f"malformed XML: {e}") from None
-    root = ElementTree.parse(path).getroot()
     unused = _render_settings(root)
     mi = mitsuba(variant)
     try:
