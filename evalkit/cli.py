@@ -558,7 +558,8 @@ FLAG_TYPES = {"node_budget": parse_bytes}
 # `evalkit render`'s flags: every RenderSettings field (the units' names aside: --method, --strategy
 # and --shadow-maps offer the registered ones) and every registered unit's settings.
 RENDER_FLAGS = [(None, f) for f in declared(RenderSettings) if f.name not in KINDS]
-UNIT_FLAGS = [(unit, f) for unit in all_units() for f in declared(unit.settings)]
+# A setting two units declare (the eye and bidirectional strategies' light_samples) is one flag.
+UNIT_FLAGS = list({f.name: (unit, f) for unit in reversed(all_units()) for f in declared(unit.settings)}.values())[::-1]
 # `evalkit bundles`' flags: the list layout and the node budget, and the bundle methods' settings.
 BUNDLE_FLAGS = [(None, f) for f in declared(RenderSettings) if f.name in ("directions", "resolution", "node_budget")]
 METHOD_FLAGS = [(unit, f) for unit in METHODS for f in declared(unit.settings)]
@@ -570,12 +571,13 @@ def add_setting_flags(parser: argparse.ArgumentParser, flags: list) -> None:
     for unit, f in flags:
         name = FLAG_NAMES.get(f.name, "--" + f.name.replace("_", "-"))
         default = format_bytes(f.default) if f.name in FLAG_TYPES else f.default
-        text = (f"{unit.name}: " if unit else "") + FLAG_HELP.get(f.name, f.metadata["help"])
+        whose = " and ".join(u.name for u in owners(f.name)) if unit else ""
+        text = (f"{whose}: " if unit else "") + FLAG_HELP.get(f.name, f.metadata["help"])
         text += "" if f.default is None or f.name in FLAG_HELP else f" (default {default})"
         if f.type == "bool":
             if f.default and f.name not in FLAG_NAMES:  # a flag that turns off what is on by default
                 name = "--no-" + f.name.replace("_", "-")
-                text = (f"{unit.name}: " if unit else "") + f"turn off: {f.metadata['help']} (on by default)"
+                text = (f"{whose}: " if unit else "") + f"turn off: {f.metadata['help']} (on by default)"
             parser.add_argument(name, dest=f.name, action="store_const", const=not f.default, default=None, help=text)
         else:
             kind = FLAG_TYPES.get(f.name) or _setting_type(f)

@@ -124,6 +124,8 @@ class GLContext:
         framebuffer.use()
         self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         (self.ctx.enable if depth_test else self.ctx.disable)(moderngl.DEPTH_TEST)
+        if mode == moderngl.POINTS:  # splats size themselves (gl_PointSize)
+            self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
         vertex_array.render(mode, **kw)
         self.ctx.disable(moderngl.DEPTH_TEST)
         self.ctx.memory_barrier()

@@ -63,6 +63,14 @@ BINDINGS = {
     # the frames' spread (resolve_images.glsl): per pixel, and per workgroup this frame
     "IMAGE_M2": 31,
     "FRAME_SUMS": 32,
+    # bidirectional paths (strategies/bidirectional.py): each eye path's MIS state, the light paths'
+    # starts and the vertices they leave
+    "PATH_MIS": 33,
+    "LIGHT_PATH_STARTS": 34,
+    "LIGHT_PATH_VERTICES": 35,
+    # light visibility measured (visibility/compare.py): receiver points, and what each pair sees
+    "RECEIVERS": 36,
+    "VISIBLE": 37,
 }
 
 # Bits and enumerations. np.uint32 values are written as GLSL uint literals (1u), Python ints as
@@ -73,15 +81,17 @@ MATERIAL_TWOSIDED = np.uint32(2)
 TRIANGLE_SMOOTH = np.uint32(0x80000000)  # Triangle.material_flags: interpolate vertex normals
 TRIANGLE_MATERIAL = np.uint32(0x7FFFFFFF)  # Triangle.material_flags: the material index
 # Light.position.w; "emitter_sample" is a point drawn on an emissive triangle for next-event
-# estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its normal.
-LIGHT_KINDS = {"point": 0.0, "spot": 1.0, "directional": 2.0, "emitter_sample": 3.0}
+# estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its
+# normal; "light_path_vertex" is a vertex a light path left on a surface (strategies/bidirectional.py),
+# lighting the same way, and reached by connections.
+LIGHT_KINDS = {"point": 0.0, "spot": 1.0, "directional": 2.0, "emitter_sample": 3.0, "light_path_vertex": 4.0}
 ENVIRONMENT_KINDS = {None: 0, "constant": 1, "envmap": 2}  # the ENVIRONMENT define
 # How a node's reference is read (bundle.glsl, NODE_REFERENCE): a triangle or a splat point. Each
 # bundle method's tracer says which of them its nodes hold.
 NODE_TRIANGLE, NODE_SPLAT_POINT = 0, 1
 # How light vertices' shadow maps are looked up (LIGHT_VISIBILITY, shaders/lights.glsl): each light
 # visibility unit's value.
-LIGHT_VISIBILITY_EXACT = 0
+LIGHT_VISIBILITY_EXACT, LIGHT_VISIBILITY_IMPERFECT = 0, 1
 # How imperfect bundles' points are drawn (splat_points.glsl).
 SAMPLERS = {"random": 0, "stratified": 1}
 # The build counters (bundle_build.glsl): nodes appended to linked lists (including any past the
@@ -112,6 +122,7 @@ SHADER_CONSTANTS = {
     "NODE_TRIANGLE": NODE_TRIANGLE,
     "NODE_SPLAT_POINT": NODE_SPLAT_POINT,
     "LIGHT_VISIBILITY_EXACT": LIGHT_VISIBILITY_EXACT,
+    "LIGHT_VISIBILITY_IMPERFECT": LIGHT_VISIBILITY_IMPERFECT,
     "LOCAL_SIZE": LOCAL_SIZE,
     "SCAN_PER_THREAD": SCAN_PER_THREAD,
     "SORT_NETWORK": SORT_NETWORK,
@@ -126,8 +137,21 @@ VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2
 SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4")])  # bundle.glsl: SplatPoint (unorm16 b1, b2)
 BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])  # bundle.glsl: BundleFrame
 LIGHT = np.dtype(
-    [("position", "<f4", 4), ("direction", "<f4", 4), ("intensity", "<f4", 4), ("shape", "<f4", 4)]
+    [
+        ("position", "<f4", 4),
+        ("direction", "<f4", 4),
+        ("intensity", "<f4", 4),
+        ("shape", "<f4", 4),
+        ("paths", "<f4", 4),
+    ]
 )  # lights.glsl: Light
+# Where a light path starts and what its first vertex leaves (light_paths.glsl).
+LIGHT_PATH_START = np.dtype(
+    [("position", "<f4", 4), ("normal", "<f4", 4), ("radiance", "<f4", 4), ("geometric", "<f4", 4)]
+)  # light_paths.glsl: LightPathStart
+LIGHT_PATH_VERTEX = np.dtype(
+    [("position", "<f4", 4), ("normal", "<f4", 4), ("intensity", "<f4", 4)]
+)  # light_paths.glsl: LightPathVertex
 SHADOW_VIEW = np.dtype(
     [("to_clip", "<f4", (4, 4)), ("tile", "<f4", 4), ("origin", "<f4", 4), ("axis", "<f4", 4)]
 )  # lights.glsl
@@ -162,6 +186,8 @@ RECORDS = {
     "BundleFrame": (BUNDLE_FRAME, "FRAMES"),
     "SplatPoint": (SPLAT_POINT, "POINTS"),
     "Light": (LIGHT, "LIGHTS"),
+    "LightPathStart": (LIGHT_PATH_START, "LIGHT_PATH_STARTS"),
+    "LightPathVertex": (LIGHT_PATH_VERTEX, "LIGHT_PATH_VERTICES"),
     "ShadowView": (SHADOW_VIEW, "SHADOW_VIEWS"),
     "Path": (PATH, "PATHS"),
     "PathSums": (PATH_SUMS, "PATH_SUMS"),

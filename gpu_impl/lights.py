@@ -37,6 +37,8 @@ CUBE_FACES = (
     (0, 0, -1),
 )  # lights.glsl: shadow_view_of
 GUARD_TEXELS = 2
+# The texture unit of the fixed lights' seen triangles (light paths; the renderer uses 0 and 1).
+TRIANGLES_UNIT = 2
 # A light vertex sits this far (times the bounding radius) in front of its surface, so that the
 # surface lies behind it and its shadow views leave that surface out (shaders/shadow_maps.glsl).
 LIGHT_VERTEX_OFFSET = 1e-5
@@ -45,12 +47,16 @@ LIGHT_VERTEX_OFFSET = 1e-5
 class LightVertices(NamedTuple):
     """A frame's light vertices, in scene space: positions and unit surface normals (M, 3), the
     intensity each sends along its normal (M, 3; it falls as the cosine away from it), and the
-    density of having drawn each, M p(y) (M,), which multiple importance sampling needs."""
+    density of having drawn each, M p(y) (M,), which multiple importance sampling needs. Light
+    path vertices (strategies/bidirectional.py) have a ``depth`` of 1 or more and their light side's
+    MIS share ``mis`` (lights.glsl: Light.paths); emitter samples have depth 0."""
 
     positions: np.ndarray
     normals: np.ndarray
     intensities: np.ndarray
     densities: np.ndarray
+    depths: np.ndarray | None = None
+    mis: np.ndarray | None = None
 
 
 class EmitterSamples:
@@ -69,6 +75,7 @@ class EmitterSamples:
         self.scene, self.count = scene, int(count)
         emitters = [m for m in scene.meshes if scene.materials[m.material].emissive]
         self.triangles = np.concatenate([m.positions[m.faces] for m in emitters])
+        self.face_normals = _face_normals(self.triangles)
         # Vertex normals per corner where the mesh has them (Mitsuba's emitters use the shading normal).
         self.corner_normals = (
             None
@@ -105,19 +112,25 @@ class EmitterSamples:
         """This frame's samples: positions, unit normals and intensities per unit cos, (M, 3) each,
         and the densities M p(y), (M,)."""
         rng = np.random.default_rng([seed, frame, 2])
-        u = (np.arange(self.count) + rng.random(self.count)) / self.count
+        t, positions, normals = self.draw(rng, (np.arange(self.count) + rng.random(self.count)) / self.count)
+        densities = self.density_scale * self.weights[t]
+        return LightVertices(positions, normals, self.radiance[t] / densities[:, None], densities)
+
+    def draw(self, rng: np.random.Generator, u: np.ndarray):
+        """Points at the power quantiles ``u``, uniform within their triangles: the triangles'
+        indices, the points and their unit shading normals."""
+        n = len(u)
         t = np.minimum(np.searchsorted(self.cdf, u, side="right"), len(self.cdf) - 1)
-        r1, r2 = np.sqrt(rng.random(self.count)), rng.random(self.count)
+        r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
         b = np.stack([1.0 - r1, r1 * (1.0 - r2), r1 * r2], axis=1)  # uniform over the triangle
         tri = self.triangles[t]
         positions = np.einsum("mk,mkj->mj", b, tri)
         if self.corner_normals is None:
-            normals = _face_normals(tri)
+            normals = self.face_normals[t]
         else:
             normals = np.einsum("mk,mkj->mj", b, self.corner_normals[t])
             normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-        densities = self.density_scale * self.weights[t]
-        return LightVertices(positions, normals, self.radiance[t] / densities[:, None], densities)
+        return t, positions, normals
 
 
 def _face_normals(triangles: np.ndarray) -> np.ndarray:
@@ -139,7 +152,7 @@ def pack_tiles(sizes: list[int], max_side: int) -> tuple[list[tuple[int, int]], 
     if max(size) > max_side:
         raise ValueError(
             f"{len(sizes)} shadow views ({sum(s * s for s in sizes):,} texels) exceed the GL texture "
-            f"limit {max_side}; lower the shadow map sizes or the light samples"
+            f"limit {max_side}; lower the shadow map sizes, the light samples or the light paths"
         )
     return corners, size
 
@@ -202,7 +215,10 @@ class ShadowLights:
     in texels (``shadow_bias``, and ``shadow_slope_bias`` per unit tangent of the angle to the
     light) and the PCF kernel (``shadow_filter`` bilinear taps a side; 1: one bilinear 2x2
     lookup). ``visibility`` (a light visibility unit's maps, gpu_impl/visibility/) makes the light
-    vertices' shadow maps; ``light_vertices`` is how many there are each frame.
+    vertices' shadow maps; ``light_vertices`` is how many emitter samples there are each frame, and
+    ``path_vertices`` the most light path vertices (bidirectional paths), whose records follow.
+    With light path vertices, the atlas keeps the triangle each texel saw too: the fixed lights'
+    maps are where light paths start (shaders/light_paths.glsl).
     """
 
     def __init__(
@@ -212,6 +228,7 @@ class ShadowLights:
         settings: RenderSettings,
         visibility,
         light_vertices: int,
+        path_vertices: int = 0,
     ):
         self.gl, self.gpu_scene, self.visibility = gl, gpu_scene, visibility
         self.map_size, self.filter = settings.shadow_map_size, settings.shadow_filter
@@ -219,8 +236,9 @@ class ShadowLights:
         lights = [light for light in gpu_scene.scene.lights if light.kind in LIGHT_KINDS]
         environments = [light for light in gpu_scene.scene.lights if light.kind in ("constant", "envmap")]
         self.environment = environments[0] if environments else None
-        self.light_vertices = light_vertices
-        self.count = len(lights) + light_vertices
+        self.light_vertices = light_vertices + path_vertices
+        self.count = len(lights) + light_vertices  # the lights light_irradiance loops over (lights.glsl)
+        self.records_count = records_count = self.count + path_vertices
         records, views = [], []
         for light in lights:
             first = len(views)
@@ -229,22 +247,32 @@ class ShadowLights:
         # The light vertices' records and views (redrawn every frame) follow these.
         self.fixed_lights, self.fixed_views = len(records), len(views)
         self.buffers = {}
-        self.atlas = self.framebuffer = None
-        if self.count:
+        self.atlas = self.framebuffer = self.triangles = None
+        visibility.check(self.light_vertices)
+        if records_count:
             per_vertex = visibility.tiles_per_vertex
-            sizes = [self.map_size] * len(views) + [visibility.map_size] * (per_vertex * light_vertices)
+            texels = self.map_size**2 * len(views) + visibility.map_size**2 * per_vertex * self.light_vertices
+            if texels > gl.limit("GL_MAX_TEXTURE_SIZE") ** 2:  # before a list of every tile is made
+                raise ValueError(
+                    f"{self.light_vertices:,} light vertices' shadow maps ({texels:,} texels) exceed the GL texture "
+                    f"limit of {gl.limit('GL_MAX_TEXTURE_SIZE')} a side; lower the light samples, the light paths "
+                    "or their maps' size"
+                )
+            sizes = [self.map_size] * len(views) + [visibility.map_size] * (per_vertex * self.light_vertices)
             self.tiles, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"))
             self.view_records = np.zeros(len(sizes), dtype=SHADOW_VIEW)
             for i, view in enumerate(views):
                 self.set_view(i, view, self.map_size)
-            self.records = np.zeros(self.count, dtype=LIGHT)
+            self.records = np.zeros(records_count, dtype=LIGHT)
             for i, record in enumerate(records):
                 self.records[i] = record
             self.buffers["LIGHTS"] = gl.buffer(self.records.tobytes())
             self.buffers["SHADOW_VIEWS"] = gl.buffer(self.view_records.tobytes())
             self.atlas = gl.texture(atlas_size, 1, dtype="f4")
             self.depth = gl.depth_renderbuffer(self.atlas.size)
-            self.framebuffer = gl.framebuffer([self.atlas], self.depth)
+            if path_vertices:
+                self.triangles = gl.texture(atlas_size, 1, dtype="u4")
+            self.framebuffer = gl.framebuffer([self.atlas, *([self.triangles] if path_vertices else [])], self.depth)
             self.program = gl.program("shadow_maps")
             self.vao = gpu_scene.vertex_array(self.program)
 
@@ -257,28 +285,36 @@ class ShadowLights:
         self.view_records["origin"][i] = (*origin, 1.0 if perspective_view else 0.0)
         self.view_records["axis"][i] = (*axis, 1.0 / far)
 
-    def set_light_vertices(self, vertices: LightVertices) -> None:
-        """This frame's light vertices: their records after the fixed lights', and their shadow
-        maps, which the light visibility makes."""
-        if len(vertices.positions) != self.light_vertices:
+    def set_light_path_densities(self, densities: np.ndarray) -> None:
+        """Each fixed light's density of starting a light path (Light.paths.x, lights.glsl)."""
+        self.records["paths"][: self.fixed_lights, 0] = densities
+        self.upload()
+
+    def set_light_vertices(self, vertices: LightVertices, seed: int, frame: int) -> None:
+        """This frame's light vertices (emitter samples, then light path vertices): their records
+        after the fixed lights', and their shadow maps, which the light visibility makes (imperfect
+        maps draw their points with ``seed`` and ``frame``)."""
+        if len(vertices.positions) > self.light_vertices:
             raise ValueError(f"{len(vertices.positions)} light vertices for {self.light_vertices} places")
         r = self.gpu_scene.radius
         positions = vertices.positions - self.gpu_scene.centre + LIGHT_VERTEX_OFFSET * r * vertices.normals
-        per_vertex, kind = (
-            self.visibility.tiles_per_vertex,
-            LIGHT_KINDS["emitter_sample"],
-        )
-        rows = zip(positions, vertices.normals, vertices.intensities, vertices.densities)
-        for m, (position, normal, intensity, density) in enumerate(rows):
+        per_vertex = self.visibility.tiles_per_vertex
+        count = len(positions)
+        depths = np.zeros(count) if vertices.depths is None else vertices.depths
+        mis = np.zeros(count) if vertices.mis is None else vertices.mis
+        rows = zip(positions, vertices.normals, vertices.intensities, vertices.densities, depths, mis)
+        for m, (position, normal, intensity, density, depth, share) in enumerate(rows):
             first = self.fixed_views + per_vertex * m
+            kind = LIGHT_KINDS["emitter_sample" if depth == 0 else "light_path_vertex"]
             record = (
                 (*position, kind),
                 (*normal, 0.0),
                 (*intensity, 0.0),
                 (density, 0.0, first, per_vertex),
+                (share, depth, 0.0, 0.0),
             )
             self.records[self.fixed_lights + m] = record
-        self.visibility.render(self, positions, vertices.normals)
+        self.visibility.render(self, positions, vertices.normals, seed, frame)
 
     def upload(self) -> None:
         """The light records and the view table to the GPU."""
@@ -321,6 +357,7 @@ class ShadowLights:
             (*direction, math.cos(cutoff)),
             (*light.intensity, math.cos(beam)),
             (cutoff, inv_transition, first_view, views),
+            (0.0, 0.0, 0.0, 0.0),
         )
 
     # -- passes --------------------------------------------------------------------------
@@ -340,7 +377,7 @@ class ShadowLights:
         self.buffers["SHADOW_VIEWS"].bind_to_storage_buffer(BINDINGS["SHADOW_VIEWS"])
         far = np.finfo(np.float32).max
         if not clear:
-            self.framebuffer.clear(red=far, depth=1.0)
+            self.framebuffer.clear(red=far, depth=1.0)  # a triangle texel is read only where a distance is
         for i in views:
             x, y, size, _ = self.view_records["tile"][i]
             self.framebuffer.viewport = (int(x), int(y), int(size), int(size))
@@ -351,7 +388,7 @@ class ShadowLights:
 
     def defines(self) -> dict:
         return {
-            "SHADOW_LIGHTS": int(self.count > 0),
+            "SHADOW_LIGHTS": int(self.records_count > 0),
             **self.visibility.defines(),
             "ENVIRONMENT": ENVIRONMENT_KINDS[None if self.environment is None else self.environment.kind],
         }
@@ -363,6 +400,10 @@ class ShadowLights:
         if self.atlas is not None:
             self.atlas.use(atlas_unit)
 
+    def bind_triangles(self, unit: int = TRIANGLES_UNIT) -> None:
+        """Bind the triangles the fixed lights' maps saw (for light paths) at texture unit ``unit``."""
+        self.triangles.use(unit)
+
     def set_uniforms(self, program, atlas_unit: int) -> None:
         """Set ``program``'s lighting and environment uniforms (those it has); they never change."""
         values = {
@@ -371,6 +412,7 @@ class ShadowLights:
             "shadow_slope_bias": self.slope_bias,
             "shadow_filter": self.filter,
             "shadow_atlas": atlas_unit,
+            "shadow_triangles": TRIANGLES_UNIT,
         }
         env = self.environment
         if env is not None:
@@ -384,15 +426,19 @@ class ShadowLights:
 
     @property
     def nbytes(self) -> int:
-        atlas = 0 if self.atlas is None else self.atlas.size[0] * self.atlas.size[1] * 8  # R32F + depth
+        texel = 8 if self.triangles is None else 12  # R32F + depth (+ R32UI triangles)
+        atlas = 0 if self.atlas is None else self.atlas.size[0] * self.atlas.size[1] * texel
         return sum(b.size for b in self.buffers.values()) + atlas
 
     def release(self) -> None:
         for buffer in self.buffers.values():
             buffer.release()
         self.buffers.clear()
+        self.visibility.release()
         if self.framebuffer is not None:
             self.vao.release()
             self.framebuffer.release()
             self.atlas.release()
             self.depth.release()
+            if self.triangles is not None:
+                self.triangles.release()

@@ -11,13 +11,14 @@ from dataclasses import dataclass, replace
 
 from evalkit.core.settings import RenderSettings, check_value, declared
 from gpu_impl.methods import imperfect, perfect
-from gpu_impl.strategies import eye
+from gpu_impl.strategies import bidirectional, eye
 from gpu_impl.units import Registry, Unit
 from gpu_impl.visibility import exact
+from gpu_impl.visibility import imperfect as imperfect_shadow_maps
 
 METHODS = Registry("bundle method", perfect.METHOD, imperfect.METHOD)
-LIGHT_VISIBILITIES = Registry("light visibility", exact.VISIBILITY)
-STRATEGIES = Registry("path strategy", eye.STRATEGY)
+LIGHT_VISIBILITIES = Registry("light visibility", exact.VISIBILITY, imperfect_shadow_maps.VISIBILITY)
+STRATEGIES = Registry("path strategy", eye.STRATEGY, bidirectional.STRATEGY)
 
 # The RenderSettings field that names the unit of each kind.
 KINDS = {"method": METHODS, "strategy": STRATEGIES, "light_visibility": LIGHT_VISIBILITIES}

@@ -118,7 +118,14 @@ class Renderer:
         self.reuse_bundles = not settings.rotate_directions and not self.moving
         self.strategy = units["strategy"].paths(self, own["strategy"])
         visibility = units["light_visibility"].maps(gl, self.gpu_scene, own["light_visibility"])
-        self.lights = ShadowLights(gl, self.gpu_scene, settings, visibility, self.strategy.light_vertices_per_frame)
+        self.lights = ShadowLights(
+            gl,
+            self.gpu_scene,
+            settings,
+            visibility,
+            self.strategy.light_vertices_per_frame,
+            self.strategy.path_vertices_per_frame,
+        )
         self.warnings = list(scene.warnings) + self.strategy.warnings
         features = self.gpu_scene.features
         # Shader variants from the scene's features: no shadow-map lookups without such lights, no
@@ -138,13 +145,13 @@ class Renderer:
         self.gbuffer_program = gl.program("gbuffer")
         self.gbuffer_vao = self.gpu_scene.vertex_array(self.gbuffer_program)
         d = self.defines
-        primary = {k: d[k] for k in ("SHADOW_LIGHTS", "ENVIRONMENT", "TEXTURES", "LIGHT_VISIBILITY")}
+        primary = {k: d[k] for k in ("SHADOW_LIGHTS", "ENVIRONMENT", "TEXTURES", "LIGHT_VISIBILITY", "BIDIRECTIONAL")}
         self.programs = {
             "primary": gl.program("primary", **primary),
             **self.strategy.programs(d),
             "resolve_images": gl.program("resolve_images"),
         }
-        if d["SHADOW_LIGHTS"] and self.tracer.lighting != "lazy":
+        if d["SHADOW_LIGHTS"] and self.tracer.lighting != "lazy" and not self.strategy.lazy_lighting_only:
             irradiance = ("SHADOW_LIGHTS", "NODE_SIDES", "TEXTURES", "LIGHT_VISIBILITY")
             self.programs["irradiance"] = gl.program("irradiance", **{k: d[k] for k in irradiance})
         self.buffers = {
@@ -262,6 +269,7 @@ class Renderer:
             "bundles_reused": len(frames) - 1 if self.reuse_bundles else 0,
             "lighting_frames": lighting,
             "gpu_bytes": self.gpu_bytes,
+            **self.strategy.stats(),
         }
         params, warnings = self.params(), list(self.warnings)
         return RenderResult(images, timings, stats, params, warnings, variances, frame_means)
@@ -272,11 +280,11 @@ class Renderer:
         if shadow_maps:
             with timer.measure("shadow_maps"):
                 self.lights.render_shadow_maps()
-        if self.strategy.light_vertices_per_frame:
-            with timer.measure("emitter_samples"):
-                self.lights.set_light_vertices(self.strategy.light_vertices(st.seed, frame))
+        if self.strategy.light_vertices_per_frame or self.strategy.path_vertices_per_frame:
+            with timer.measure("emitter_samples" if not self.strategy.path_vertices_per_frame else "light_paths"):
+                self.lights.set_light_vertices(self.strategy.light_vertices(st.seed, frame), st.seed, frame)
             self.irradiance_of = None  # lit by this frame's light vertices
-        self._bind()
+        self.bind()
         with timer.measure("gbuffer"):
             self._gbuffer(frame)
         alive = self._alive_paths()
@@ -314,7 +322,7 @@ class Renderer:
         was +2.7 % at R = 64 against +0.4 %). Precomputed irradiance counts against the node
         budget; in "auto" a frame it does not fit in is lit lazily."""
         mode = self.tracer.lighting
-        if mode == "lazy":
+        if mode == "lazy" or self.strategy.lazy_lighting_only:
             return True
         items = self.tracer.irradiance_items
         needed = 12 * self.defines["NODE_SIDES"] * items
@@ -351,12 +359,13 @@ class Renderer:
     def _alive_paths(self) -> int:
         return int(np.frombuffer(self.buffers["ALIVE_PATHS"].read(4), dtype=np.uint32)[0])
 
-    def _bind(self) -> None:
+    def bind(self) -> None:
         """Every buffer and texture the frame's compute passes read, at their bindings."""
         self.tracer.bind()
         for name, buffer in self.buffers.items():
             buffer.bind_to_storage_buffer(BINDINGS[name])
         self.lights.bind(ATLAS_UNIT)
+        self.strategy.bind()
         self.gbuffer.use(GBUFFER_UNIT)
 
     def _read_images(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray] | None]:
@@ -398,7 +407,7 @@ class Renderer:
     def gpu_bytes(self) -> int:
         own = sum(b.size for b in self.buffers.values())
         gbuffer = self.gbuffer_size[0] * self.gbuffer_size[1] * 8
-        return own + gbuffer + self.tracer.gpu_bytes + self.lights.nbytes
+        return own + gbuffer + self.tracer.gpu_bytes + self.lights.nbytes + self.strategy.nbytes
 
     def release(self) -> None:
         for buffer in self.buffers.values():
@@ -409,6 +418,7 @@ class Renderer:
         self.gbuffer.release()
         self.gbuffer_depth.release()
         self.lights.release()
+        self.strategy.release()
         self.tracer.release()
         self.gpu_scene.release()
 

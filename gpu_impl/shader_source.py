@@ -20,6 +20,7 @@ from gpu_impl.layout import (
     BINDINGS,
     ENVIRONMENT_KINDS,
     LIGHT_VISIBILITY_EXACT,
+    LIGHT_VISIBILITY_IMPERFECT,
     NODE_SPLAT_POINT,
     NODE_TRIANGLE,
     SAMPLERS,
@@ -31,10 +32,11 @@ SHADER_DIR = Path(__file__).parent / "shaders"
 STAGES = {"VERTEX_SHADER": "vertex_shader", "FRAGMENT_SHADER": "fragment_shader", "COMPUTE_SHADER": "compute_shader"}
 
 NODE_REFERENCES = (NODE_TRIANGLE, NODE_SPLAT_POINT)
-LIGHT_VISIBILITIES = (LIGHT_VISIBILITY_EXACT,)
+LIGHT_VISIBILITIES = (LIGHT_VISIBILITY_EXACT, LIGHT_VISIBILITY_IMPERFECT)
 ENVIRONMENTS = tuple(ENVIRONMENT_KINDS.values())
 # A define that is 1 only where another one is (lazy light and light vertices need shadow-mapped lights).
-REQUIRES = {"LAZY_LIGHTING": "SHADOW_LIGHTS", "EMITTER_SAMPLES": "SHADOW_LIGHTS"}
+# Bidirectional paths light every hit where it lands (their connections depend on the path).
+REQUIRES = {"LAZY_LIGHTING": "SHADOW_LIGHTS", "EMITTER_SAMPLES": "SHADOW_LIGHTS", "BIDIRECTIONAL": "LAZY_LIGHTING"}
 # Per program: flag sets (a list), or axes (a dict of define -> the values the code sets it to),
 # with a rule that leaves out combinations no code makes (a (dict, predicate) pair).
 VARIANTS = {
@@ -52,18 +54,24 @@ VARIANTS = {
     "expand_nodes": {"TEXTURES": (0, 1), "NODE_REFERENCE": NODE_REFERENCES},
     "gbuffer": [{}],
     "shadow_maps": [{}],
+    "imperfect_shadow_maps": [{}],
+    "connection_visibility": {"LIGHT_VISIBILITY": LIGHT_VISIBILITIES},
     "irradiance": {
         "SHADOW_LIGHTS": (1,),
         "NODE_SIDES": (1, 2),
         "TEXTURES": (0, 1),
         "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
     },
-    "primary": {
-        "SHADOW_LIGHTS": (0, 1),
-        "ENVIRONMENT": ENVIRONMENTS,
-        "TEXTURES": (0, 1),
-        "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
-    },
+    "primary": (
+        {
+            "SHADOW_LIGHTS": (0, 1),
+            "ENVIRONMENT": ENVIRONMENTS,
+            "TEXTURES": (0, 1),
+            "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
+            "BIDIRECTIONAL": (0, 1),
+        },
+        lambda d: d["SHADOW_LIGHTS"] or not d["BIDIRECTIONAL"],
+    ),
     "eye_paths": (
         {
             "SHADOW_LIGHTS": (0, 1),
@@ -74,12 +82,20 @@ VARIANTS = {
             "TEXTURES": (0, 1),
             "NODE_REFERENCE": NODE_REFERENCES,
             "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
+            "BIDIRECTIONAL": (0, 1),
         },
         # Precomputed light (shadow-mapped lights, not lazy) is splat points' only.
         lambda d: not d["SHADOW_LIGHTS"] or d["LAZY_LIGHTING"] or d["NODE_REFERENCE"] == NODE_SPLAT_POINT,
     ),
+    "light_paths": {
+        "BIDIRECTIONAL": (1,),
+        "TEXTURES": (0, 1),
+        "NODE_SIDES": (1, 2),
+        "NODE_REFERENCE": NODE_REFERENCES,
+        "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
+    },
     "resolve_images": [{}],
-    "record_strides": {"RECORD_GROUP": (0, 1, 2, 3)},
+    "record_strides": {"RECORD_GROUP": (0, 1, 2, 3, 4)},
 }
 
 

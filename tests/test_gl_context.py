@@ -25,6 +25,7 @@ RECORD_GROUPS = {
     1: ["Light", "ShadowView"],
     2: ["Path", "PathSums"],
     3: ["Node", "NodeNext", "NodeDepth", "NodeRef", "SplatLines"],
+    4: ["LightPathStart", "LightPathVertex"],
 }
 
 

@@ -1,6 +1,12 @@
 // Shared by every shader: invocation ids for 1-D compute passes, normal and colour packing, and
 // a counter-based random number generator.
 
+// Bidirectional paths (gpu_impl/strategies/bidirectional.py) compile their own variants of the
+// path passes; every other program is compiled without.
+#ifndef BIDIRECTIONAL
+#define BIDIRECTIONAL 0
+#endif
+
 // The index that points nowhere: the end of a linked list, a path that found no node.
 #define NO_NODE 0xFFFFFFFFu
 
@@ -66,3 +72,7 @@ float power_heuristic(float own, float other) {
     float r = other / own;
     return 1.0 / (1.0 + r * r);
 }
+
+// Bidirectional paths' MIS shares (E, L: lights.glsl) are bounded here: a share grows without
+// bound where a density vanishes (a grazing edge), and an infinite one times a zero cosine is NaN.
+#define MAX_MIS_SHARE 1e30

@@ -25,13 +25,13 @@ layout(local_size_x = LOCAL_SIZE) in;
 uniform uint invocations;  // K N points
 
 void store_irradiance(uint item, vec3 position, vec3 normal, uint triangle) {
-    vec3 front = light_irradiance(position, normal);
+    vec3 front = light_irradiance(position, normal, 0.0);
     uint i = irradiance_index(item, 0u);
     irradiance[i] = front.r;
     irradiance[i + 1u] = front.g;
     irradiance[i + 2u] = front.b;
 #if NODE_SIDES == 2
-    vec3 back = material_twosided(triangle_material(triangle)) ? light_irradiance(position, -normal) : vec3(0.0);
+    vec3 back = material_twosided(triangle_material(triangle)) ? light_irradiance(position, -normal, 0.0) : vec3(0.0);
     i = irradiance_index(item, 1u);
     irradiance[i] = back.r;
     irradiance[i + 1u] = back.g;

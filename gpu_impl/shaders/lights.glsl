@@ -21,8 +21,13 @@ struct Light {
     vec4 intensity;  // rgb: W/sr (point, spot) or W/m^2 (directional); w: cos(beam width)
     vec4 shape;      // x: cutoff (rad), or M p(y) for an emitter sample; y: 1 / (cutoff - beam width) (rad^-1);
                      // z: first shadow view; w: views (1 or 6)
+    vec4 paths;      // bidirectional paths' MIS (light_paths.glsl): a point or spot light's density of
+                     // starting a light path that reaches a surface, per unit cos / distance^2 (a
+                     // directional light's per unit cos), V q p(omega); a light path vertex's
+                     // x: L_i, y: its depth
 };
-// Light.position.w is LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL or LIGHT_EMITTER_SAMPLE (gpu_impl/layout.py).
+// Light.position.w is LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL, LIGHT_EMITTER_SAMPLE or
+// LIGHT_LIGHT_PATH_VERTEX (gpu_impl/layout.py).
 
 // One shadow map: a tile of the atlas holding, per texel, the distance from the light to the
 // nearest surface (radial for a perspective view, along the light direction for an orthographic one).
@@ -38,7 +43,7 @@ struct ShadowView {
 layout(std430, binding = BINDING_LIGHTS) readonly buffer Lights { Light lights[]; };
 layout(std430, binding = BINDING_SHADOW_VIEWS) readonly buffer ShadowViews { ShadowView shadow_views[]; };
 
-uniform int light_count;
+uniform int light_count;          // the point, spot and directional lights and the emitter samples
 uniform sampler2D shadow_atlas;   // R32F light distances
 uniform float shadow_bias;        // constant depth bias, in texels
 uniform float shadow_slope_bias;  // slope-scaled depth bias, in texels per unit tan(angle to the light)
@@ -71,19 +76,16 @@ int shadow_view_of(Light light, vec3 p) {
     return first + (v.z >= 0.0 ? 4 : 5);
 }
 
-// The fraction of the light that reaches p (normal n, unit vector to the light to_light):
-// percentage-closer filtering of the shadow map with a slope-scaled bias. Stored distances more
-// than the bias nearer to the light than p shadow it.
-float shadow_visibility(int view_index, vec3 p, vec3 n, vec3 to_light) {
-    ShadowView view = shadow_views[view_index];
-    vec4 clip = view.to_clip * vec4(p, 1.0);
-    if (clip.w <= 0.0) return 1.0;
-    vec2 ndc = clip.xy / clip.w;
-    if (any(greaterThan(abs(ndc), vec2(1.0)))) return 1.0;  // outside this view: a spot's cone has no light there
-    float dist = light_distance(view, p);
+// The depth bias in texels for a surface of normal n lit from to_light: constant and slope-scaled.
+float depth_bias_texels(vec3 n, vec3 to_light) {
     float cos_l = clamp(dot(n, to_light), 1e-4, 1.0);
     float slope = min(sqrt(1.0 - cos_l * cos_l) / cos_l, MAX_SHADOW_SLOPE);
-    float reference = dist - texel_size(view, dist) * (shadow_bias + shadow_slope_bias * slope);
+    return shadow_bias + shadow_slope_bias * slope;
+}
+
+// Percentage-closer filtering around ndc (the tile's [-1, 1]^2) of a shadow view: the share of the
+// taps whose stored distance is no nearer than `reference`.
+float filtered_visibility(ShadowView view, vec2 ndc, float reference) {
     int size = int(view.tile.z);
     ivec2 origin = ivec2(view.tile.xy);
     // Texel coordinates in the tile with texel centres at integers.
@@ -104,6 +106,19 @@ float shadow_visibility(int view_index, vec3 p, vec3 n, vec3 to_light) {
     return lit / float(shadow_filter * shadow_filter);
 }
 
+// The fraction of the light that reaches p (normal n, unit vector to the light to_light):
+// percentage-closer filtering of the shadow map with a slope-scaled bias. Stored distances more
+// than the bias nearer to the light than p shadow it.
+float shadow_visibility(int view_index, vec3 p, vec3 n, vec3 to_light) {
+    ShadowView view = shadow_views[view_index];
+    vec4 clip = view.to_clip * vec4(p, 1.0);
+    if (clip.w <= 0.0) return 1.0;
+    vec2 ndc = clip.xy / clip.w;
+    if (any(greaterThan(abs(ndc), vec2(1.0)))) return 1.0;  // outside this view: a spot's cone has no light there
+    float dist = light_distance(view, p);
+    return filtered_visibility(view, ndc, dist - texel_size(view, dist) * depth_bias_texels(n, to_light));
+}
+
 // Mitsuba's spot falloff (src/emitters/spot.cpp): 1 inside the beam width, then linear in angle
 // down to 0 at the cutoff.
 float spot_falloff(Light light, float cos_theta) {
@@ -114,25 +129,42 @@ float spot_falloff(Light light, float cos_theta) {
 
 #if LIGHT_VISIBILITY == LIGHT_VISIBILITY_EXACT
 #include "light_visibility_exact.glsl"
+#elif LIGHT_VISIBILITY == LIGHT_VISIBILITY_IMPERFECT
+#include "light_visibility_imperfect.glsl"
 #else
 #error "LIGHT_VISIBILITY names no light visibility (gpu_impl/layout.py: LIGHT_VISIBILITY_*)"
 #endif
 
-// Irradiance at p on the side its normal n faces, from every shadow-mapped light.
-vec3 light_irradiance(vec3 p, vec3 n) {
+#if BIDIRECTIONAL
+// Multiple importance sampling over every strategy that makes a path (strategies/bidirectional.py
+// derives it): a strategy's weight is 1 / the sum over all strategies of (their density / its
+// density)^2. The eye vertex carries the eye side's share of that sum as `eye_mis` (E_j), a light
+// path vertex the light side's (Light.paths.x, L_i); each completes it with the densities of the
+// connecting edge. Bundle directions have density 1 / (2 pi) per solid angle on either side.
+uniform float light_path_emitter_ratio;  // V q_emitters / M: light paths' density of an emitter point over the emitter samples'
+uniform int light_path_first;            // the light path vertices' records follow the light_count lights
+uniform int light_path_vertices;         // how many there are this frame
+uniform int bounces;                     // B: a connection from eye vertex j to a vertex of depth d is bounce j + d
+#endif
+
+// Irradiance at p on the side its normal n faces, from every shadow-mapped light: the point, spot
+// and directional lights and the emitter samples (light vertices of depth 0). eye_mis: the eye
+// vertex's share of the MIS sum (bidirectional paths; 0 at the G-buffer sample), else unused.
+vec3 light_irradiance(vec3 p, vec3 n, float eye_mis) {
     vec3 e = vec3(0.0);
     for (int l = 0; l < light_count; l++) {
         Light light = lights[l];
         vec3 to_light;
         vec3 arriving;
+        float d2 = 1.0, cos_out = 1.0;
         if (light.position.w == LIGHT_DIRECTIONAL) {
             to_light = -light.direction.xyz;
             arriving = light.intensity.rgb;
         } else {
             vec3 v = light.position.xyz - p;
-            float d2 = dot(v, v);
+            d2 = dot(v, v);
             to_light = v * inversesqrt(d2);
-            float cos_out = dot(-to_light, light.direction.xyz);
+            cos_out = dot(-to_light, light.direction.xyz);
             float falloff = light.position.w == LIGHT_SPOT ? spot_falloff(light, cos_out)
                           : light.position.w == LIGHT_EMITTER_SAMPLE
                           ? (cos_out > 0.0 ? cos_out * power_heuristic(light.shape.x * d2 / cos_out, BUNDLE_DIRECTION_PDF) : 0.0)
@@ -143,10 +175,51 @@ vec3 light_irradiance(vec3 p, vec3 n) {
         if (cos_theta <= 0.0 || all(equal(arriving, vec3(0.0)))) continue;
         float visible = light.position.w == LIGHT_EMITTER_SAMPLE ? light_vertex_visibility(light, p, n, to_light)
                                                                   : shadow_visibility(shadow_view_of(light, p), p, n, to_light);
+#if BIDIRECTIONAL
+        // The light paths could have made this path too: from this light straight to p, then a
+        // connection from p's predecessor on the eye path (eye_mis). An emitter sample's weight
+        // above already holds the eye path hitting the emitter; it is redone with every term.
+        // Each weight is written times d^4, so a vanishing distance gives 0, not inf x 0.
+        if (light.position.w == LIGHT_EMITTER_SAMPLE) {
+            // arriving = I cos_out pow / d^2, pow = 1 / (1 + (pdf cos_out / (M p_A d^2))^2): undone.
+            arriving = light.intensity.rgb * cos_out;
+            float hit = BUNDLE_DIRECTION_PDF * cos_out / light.shape.x;
+            float by_light_paths = light_path_emitter_ratio * BUNDLE_DIRECTION_PDF * cos_theta;
+            arriving *= d2 / max(d2 * d2 + hit * hit + by_light_paths * by_light_paths * eye_mis, 1e-30);
+        } else {
+            float by_light_paths = light.paths.x * cos_theta;
+            arriving *= d2 * d2 / max(d2 * d2 + by_light_paths * by_light_paths * eye_mis, 1e-30);
+        }
+#endif
         e += arriving * (cos_theta * visible);
     }
     return e;
 }
+
+#if BIDIRECTIONAL
+// Irradiance at eye vertex `eye_vertex` (p, normal n) from the frame's light path vertices: the
+// connections, each weighted against every other strategy for its path.
+vec3 connections(vec3 p, vec3 n, int eye_vertex, float eye_mis) {
+    vec3 e = vec3(0.0);
+    for (int l = light_path_first; l < light_path_first + light_path_vertices; l++) {
+        Light light = lights[l];
+        if (eye_vertex + int(light.paths.y) > bounces) continue;
+        vec3 v = light.position.xyz - p;
+        float d2 = dot(v, v);
+        vec3 to_light = v * inversesqrt(d2);
+        float cos_out = dot(-to_light, light.direction.xyz), cos_theta = dot(n, to_light);
+        if (cos_out <= 0.0 || cos_theta <= 0.0) continue;
+        // Each side's density of the other's vertex by a bundle direction, times d^2: the
+        // strategies with one more eye vertex (light side) and one more light vertex (eye side).
+        // The weight 1 / (1 + (b/d^2)^2 E + (a/d^2)^2 L) and the geometry term cos cos / d^2 are
+        // taken together, so a light vertex a round-off from p adds 0, not inf x 0.
+        float eye_side = BUNDLE_DIRECTION_PDF * cos_theta, light_side = BUNDLE_DIRECTION_PDF * cos_out;
+        float weighted = cos_out * cos_theta * d2 / max(d2 * d2 + eye_side * eye_side * eye_mis + light_side * light_side * light.paths.x, 1e-30);
+        e += light.intensity.rgb * weighted * light_vertex_visibility(light, p, n, to_light);
+    }
+    return e;
+}
+#endif
 
 #endif  // !SHADOW_MAP_RASTER
 #endif  // SHADOW_LIGHTS

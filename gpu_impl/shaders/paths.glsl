@@ -33,6 +33,12 @@ struct PathSums {
 
 layout(std430, binding = BINDING_PATHS) buffer Paths { Path paths[]; };
 layout(std430, binding = BINDING_PATH_SUMS) buffer Sums { PathSums sums[]; };
+#if BIDIRECTIONAL
+// Per path, the eye side's share of its MIS sum at its current vertex j (E_j, lights.glsl): 0 at
+// the G-buffer sample, then E_j = (1 + b^2 E_{j-1}) / a^2 with a the eye side's density of vertex j
+// and b the light side's density of vertex j - 1 (strategies/bidirectional.py).
+layout(std430, binding = BINDING_PATH_MIS) buffer PathMis { float path_mis[]; };
+#endif
 // Paths still alive after a bounce pass: when none is, the passes left are skipped.
 layout(std430, binding = BINDING_ALIVE_PATHS) buffer AlivePaths { uint alive_paths; };
 

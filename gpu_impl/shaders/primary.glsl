@@ -52,7 +52,11 @@ void main() {
             else n = -n;
             vec3 albedo = material_albedo(m, surface_uv(v, b1, b2));
 #if SHADOW_LIGHTS
-            direct += albedo * INV_PI * light_irradiance(camera_origin + depth * dir, n);
+            direct += albedo * INV_PI * light_irradiance(camera_origin + depth * dir, n, 0.0);
+#endif
+#if BIDIRECTIONAL
+            // Connections from the first eye vertex to light path vertices are indirect light.
+            sums[id].indirect.rgb += albedo * INV_PI * connections(camera_origin + depth * dir, n, 0, 0.0);
 #endif
             vec3 g = triangle_normal(t);
             path = Path(camera_origin + depth * dir, encode_normal(n), vec3(1.0), PATH_FROM_CAMERA, albedo,
@@ -63,6 +67,9 @@ void main() {
     }
     sums[id].direct.rgb += direct;
     paths[id] = path;
+#if BIDIRECTIONAL
+    path_mis[id] = 0.0;  // no strategy has fewer eye vertices than the G-buffer sample
+#endif
 }
 
 #endif

@@ -16,6 +16,8 @@
 #include "lights.glsl"
 #elif RECORD_GROUP == 2
 #include "paths.glsl"
+#elif RECORD_GROUP == 4
+#include "light_path_records.glsl"
 #else
 #define LINKED_LISTS
 #define SLOT_LISTS
@@ -41,6 +43,9 @@ void main() {
 #elif RECORD_GROUP == 2
     lengths[0] = uint(paths.length());
     lengths[1] = uint(sums.length());
+#elif RECORD_GROUP == 4
+    lengths[0] = uint(starts.length());
+    lengths[1] = uint(light_path_records.length());
 #else
     lengths[0] = uint(nodes.length());
     lengths[1] = uint(node_next.length());

@@ -25,6 +25,9 @@ void main() {
 
 in vec3 v_position;
 layout(location = 0) out float out_distance;
+// The triangle seen + 1, where the atlas has a second attachment for it: the fixed lights' maps read
+// as reflective shadow maps, where light paths start (light_paths.glsl).
+layout(location = 1) out uint out_triangle;
 
 void main() {
     ShadowView view = shadow_views[view_index];
@@ -34,6 +37,7 @@ void main() {
     if (view.origin.w > 0.5 && any(notEqual(view.axis.xyz, vec3(0.0))) && dot(v_position - view.origin.xyz, view.axis.xyz) <= 0.0) discard;
     out_distance = light_distance(view, v_position);
     gl_FragDepth = clamp(out_distance * view.axis.w, 0.0, 1.0);
+    out_triangle = uint(gl_PrimitiveID) + 1u;
 }
 
 #endif

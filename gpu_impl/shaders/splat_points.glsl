@@ -16,15 +16,11 @@
 #define SPLAT_POINTS_WRITE
 #include "common.glsl"
 #include "bundle.glsl"
+#include "area_sampling.glsl"
 
 #if defined COMPUTE_SHADER
 
 layout(local_size_x = LOCAL_SIZE) in;
-
-// Per curve position: the inclusive area CDF (float bits, last = 1) and the triangle there; and a
-// guide to it: the answer for u lies between entries cdf_guide[b] and cdf_guide[b + 1], b = u G.
-layout(std430, binding = BINDING_AREA_CDF) readonly buffer AreaCdf { uvec2 area_cdf[]; };
-layout(std430, binding = BINDING_CDF_GUIDE) readonly buffer CdfGuide { uint cdf_guide[]; };
 
 uniform uint invocations;     // K * N
 uniform uint triangle_count;
@@ -32,10 +28,6 @@ uniform uint seed;
 uniform uint frame;
 
 #define CURVE_LEVELS 16  // 2^16 cells per triangle: as fine as the unorm16 barycentrics
-
-float cdf_at(uint i) {
-    return uintBitsToFloat(area_cdf[i].x);
-}
 
 void main() {
     uint id = linear_id();
@@ -48,13 +40,7 @@ void main() {
 #else
     float u = unit_float(r.x);
 #endif
-    // The first curve position whose inclusive CDF exceeds u.
-    uint bucket = min(uint(u * float(cdf_guide.length() - 1)), uint(cdf_guide.length()) - 2u);
-    uint lo = cdf_guide[bucket], hi = cdf_guide[bucket + 1u];
-    while (lo < hi) {
-        uint mid = (lo + hi) / 2u;
-        if (cdf_at(mid) > u) hi = mid; else lo = mid + 1u;
-    }
+    uint lo = curve_position(u);
     uint triangle = area_cdf[lo].y;
 #if SAMPLER == SAMPLER_STRATIFIED
     // Where u falls inside this triangle's stretch of the CDF, down the halving curve: a

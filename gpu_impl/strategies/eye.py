@@ -44,6 +44,9 @@ class EyePaths:
                 "paths that hit them, so images of small emitters converge slowly"
             )
 
+    path_vertices_per_frame = 0  # light path vertices (the bidirectional strategy's)
+    lazy_lighting_only = False
+
     @property
     def light_vertices_per_frame(self) -> int:
         return 0 if self.emitter_samples is None else self.emitter_samples.count
@@ -56,7 +59,19 @@ class EyePaths:
         return self.emitter_samples.frame_lights(seed, frame)
 
     def defines(self) -> dict:
-        return {"EMITTER_SAMPLES": int(self.emitter_samples is not None)}
+        return {"EMITTER_SAMPLES": int(self.emitter_samples is not None), "BIDIRECTIONAL": 0}
+
+    def bind(self) -> None:
+        """Bind the strategy's own buffers (none)."""
+
+    def stats(self) -> dict:
+        """The strategy's own statistics of the render (none)."""
+        return {}
+
+    nbytes = 0
+
+    def release(self) -> None:
+        """Free the strategy's own buffers (none)."""
 
     def uniforms(self) -> dict:
         if self.emitter_samples is None:

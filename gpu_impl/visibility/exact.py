@@ -39,10 +39,13 @@ class ExactShadowMaps:
     def defines(self) -> dict:
         return {"LIGHT_VISIBILITY": LIGHT_VISIBILITY_EXACT}
 
-    def render(self, lights, positions: np.ndarray, normals: np.ndarray) -> None:
+    def check(self, light_vertices: int) -> None:
+        """Nothing beyond the atlas, which `ShadowLights` checks."""
+
+    def render(self, lights, positions: np.ndarray, normals: np.ndarray, seed: int, frame: int) -> None:
         """The cube views of the vertices at ``positions`` (relative to the bundle centre), with
         their surfaces' ``normals``, set in the lights' view table after the fixed lights' views,
-        and drawn."""
+        and drawn (the same for every ``seed`` and ``frame``)."""
         far_base = lights.gpu_scene.radius
         drawn = []
         for m, (position, normal) in enumerate(zip(positions, normals)):
@@ -55,6 +58,9 @@ class ExactShadowMaps:
                     drawn.append(first + f)
         lights.upload()
         lights.draw(drawn, clear=True)
+
+    def release(self) -> None:
+        """Nothing of its own: the lights own the atlas."""
 
 
 def faces_front(face: tuple, normal: np.ndarray) -> bool:

@@ -1,0 +1,124 @@
+"""Imperfect shadow maps measured against exact ones, for the same light vertices: what each costs a
+frame, the share of connections whose visibility differs (a light vertex that one calls visible
+from a receiver point and the other hidden), and how far each is from the truth, Embree rays. The
+light vertices are those a frame's light paths leave (`gpu_impl.strategies.bidirectional`); the
+receivers are surface points the camera sees (the first eye vertices). benchmarks/shadow_maps.py
+runs it on atrium; tests/test_bidirectional.py on a small scene.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+
+from evalkit.core.bundleset import DirectionSet
+from evalkit.core.scene import Scene
+from evalkit.core.settings import RenderSettings
+from gpu_impl.context import GLContext, set_uniforms
+from gpu_impl.layout import BINDINGS
+from gpu_impl.lights import LightVertices, ShadowLights
+from gpu_impl.registry import resolve
+from gpu_impl.renderer import ATLAS_UNIT, Renderer
+from gpu_impl.scene_buffers import GpuScene
+from references.embree import ExactTracer
+
+# A connection is visible where its filtered visibility is at least this.
+VISIBLE = 0.5
+
+
+def frame_light_vertices(gl: GLContext, scene: Scene, settings: RenderSettings, count: int) -> LightVertices:
+    """The first ``count`` light path vertices of frame 0 of a bidirectional render with ``settings``
+    (fewer where its light paths leave fewer)."""
+    with Renderer(gl, scene, settings) as renderer:
+        renderer.tracer.build(DirectionSet.make(settings.directions, seed=settings.seed, frame=0, jitter=True))
+        renderer.lights.render_shadow_maps()
+        vertices = renderer.strategy.light_vertices(settings.seed, 0)
+    depth = vertices.depths > 0
+    return LightVertices(*(column[depth][:count] for column in vertices))
+
+
+def camera_points(scene: Scene, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Receivers where connections start: up to ``count`` surface points the camera sees, through
+    uniformly drawn film positions (by Embree rays), and their shading normals turned to the camera."""
+    cam = scene.camera
+    rng = np.random.default_rng([seed, 4])
+    film = rng.random((count, 2))
+    width, height = cam.film_size(None, None)
+    to_world = np.asarray(cam.to_world, dtype=np.float64)
+    tan_x = np.tan(np.radians(cam.fov) / 2)
+    tan_x, tan_y = (tan_x, tan_x * height / width) if cam.fov_axis == "x" else (tan_x * width / height, tan_x)
+    local = np.stack([(1 - 2 * film[:, 0]) * tan_x, (1 - 2 * film[:, 1]) * tan_y, np.ones(count)], axis=1)
+    directions = local @ to_world[:3, :3].T
+    origins = np.broadcast_to(to_world[:3, 3], directions.shape)
+    hits = ExactTracer(scene).next_hit(origins, directions)
+    seen = hits.prim_id >= 0
+    normals = hits.normal[seen] * -np.sign(np.einsum("ij,ij->i", hits.normal[seen], directions[seen]))[:, None]
+    return hits.point[seen], normals
+
+
+def measure(
+    gl: GLContext,
+    scene: Scene,
+    settings: RenderSettings,
+    vertices: LightVertices,
+    receivers: tuple[np.ndarray, np.ndarray],
+    repeats: int = 1,
+) -> dict:
+    """The light vertices' maps of the light visibility ``settings`` names: the median time to make
+    them (ms, after one warm-up) and the visibility of every (receiver, vertex) pair (R, V: -1 where
+    they do not face each other)."""
+    resolved = resolve(settings)
+    count = len(vertices.positions)
+    gpu_scene = GpuScene(gl, scene)
+    maps = resolved.units["light_visibility"].maps(gl, gpu_scene, resolved.unit_settings["light_visibility"])
+    lights = ShadowLights(gl, gpu_scene, settings, maps, 0, count)
+    try:
+        times = []
+        for _ in range(repeats + 1):
+            gl.finish()
+            start = time.perf_counter()
+            lights.set_light_vertices(vertices, settings.seed, 0)
+            gl.finish()
+            times.append(1e3 * (time.perf_counter() - start))
+        positions, normals = receivers
+        records = np.zeros((len(positions), 2, 4), dtype=np.float32)
+        records[:, 0, :3] = positions - gpu_scene.centre
+        records[:, 1, :3] = normals
+        program = gl.program("connection_visibility", **maps.defines())
+        lights.set_uniforms(program, ATLAS_UNIT)
+        set_uniforms(program, {"first_vertex": lights.fixed_lights, "vertex_count": count})
+        receiver_buffer = gl.buffer(records.tobytes())
+        visible = gl.buffer(reserve=4 * len(positions) * count)
+        receiver_buffer.bind_to_storage_buffer(BINDINGS["RECEIVERS"])
+        visible.bind_to_storage_buffer(BINDINGS["VISIBLE"])
+        lights.bind(ATLAS_UNIT)
+        gl.dispatch(program, len(positions) * count)
+        result = np.frombuffer(visible.read(), dtype=np.float32).reshape(len(positions), count).copy()
+        receiver_buffer.release()
+        visible.release()
+    finally:
+        lights.release()
+        gpu_scene.release()
+    return {"ms": statistics.median(times[1:]), "visibility": result}
+
+
+def differing_share(exact: np.ndarray, other: np.ndarray) -> float:
+    """The share of connecting pairs (those facing each other in ``exact``: -1 marks the others)
+    whose visibility differs."""
+    pairs = exact >= 0.0
+    return float(((exact >= VISIBLE) != (other >= VISIBLE))[pairs].mean()) if pairs.any() else 0.0
+
+
+def traced_visibility(scene: Scene, vertices: LightVertices, receivers: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The true visibility of every (receiver, vertex) pair, by Embree rays (references.embree), as
+    1 or 0: what both kinds of shadow maps approximate. Rays leave each end a millionth of the
+    scene's radius off its surface."""
+    tracer = ExactTracer(scene)
+    positions, normals = receivers
+    offset = 1e-6 * tracer.radius
+    origins = np.repeat(positions + offset * normals, len(vertices.positions), axis=0)
+    ends = np.tile(vertices.positions + offset * vertices.normals, (len(positions), 1))
+    hits = tracer.next_hit(origins, ends - origins, t_max=1.0 - 1e-6)
+    return (hits.prim_id < 0).astype(np.float32).reshape(len(positions), len(vertices.positions))

@@ -1,0 +1,105 @@
+// One step of a path over the frame's bundles, shared by the eye paths (eye_paths.glsl) and the
+// light paths (light_paths.glsl): from vertex x (geometric normal ng, on the side the path leaves)
+// along bundle k's direction (forward: +d, else -d) to the next vertex.
+//
+// The next vertex: where the ray from the vertex along omega meets the frame's bundle. No line
+// passes through the vertex; the four around it (R x R lines, h = 2 radius / R apart) pass up
+// to a pixel beside it, and each meets surfaces the ray may or may not. Each line offers the
+// first node beyond the vertex whose plane the ray reaches, and the ray's own point on that
+// plane; the ray lands on the nearest of them that lies on its node's surface (inside its
+// triangle, or within its splat). A point on a surface another line meets nearer is behind
+// that surface (the far wall beside a block), so all four are looked at. Where no point lies
+// on its surface (the ray passes between the surfaces the lines meet, or they are triangles
+// smaller than a pixel), the line on the vertex's open side (its geometric normal's, per grid
+// axis) decides, as one line did before. One line's node taken where it lies put the next vertex half a pixel off on
+// average, towards the open side, and lost the light of lines passing beside a concave edge:
+// +2 % and -1 % of cornell-box's and the furnace's indirect light at R = 64
+// (docs/MEASURED_FACTS.md).
+
+uniform float self_hit_bias;  // in bundle pixels, see below
+
+struct BundleStep {
+    bool leaves;     // the direction leaves x's geometric surface (else the path would enter it)
+    uint hit;        // the node reached, NO_NODE where the ray leaves the scene
+    BundleHit node;  // what it is (when hit != NO_NODE)
+    vec3 geometric;  // its triangle's geometric normal
+};
+
+BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng) {
+    BundleFrame f = frames[k];
+    vec3 omega = forward ? f.d.xyz : -f.d.xyz;
+    float cg = dot(ng, f.d.xyz);
+    // With a shading normal, omega may point below the geometric surface: the path would enter it.
+    bool leaves = forward ? cg > 0.0 : cg < 0.0;
+    vec2 grid = bundle_grid_position(f, x);
+    ivec2 corner = ivec2(floor(grid));
+    // The open side's line: of the four, the one offset from the vertex towards its normal.
+    vec2 above = vec2(dot(ng, f.u.xyz), dot(ng, f.v.xyz));
+    int open_side = (above.x >= 0.0 && grid.x > floor(grid.x) ? 1 : 0) + (above.y >= 0.0 && grid.y > floor(grid.y) ? 2 : 0);
+    // Nodes up to the vertex's depth along a line are behind it; so are those up to where the line
+    // crosses the vertex's tangent plane, should it cross ahead (a line below that plane). A
+    // further self-hit bias of self_hit_bias h covers float32 depths: occluders nearer than that
+    // to the vertex are missed.
+    float bias = self_hit_bias * 2.0 * radius / float(resolution);
+    uint hit = NO_NODE, open_hit = NO_NODE;
+    vec3 open_origin = vec3(0.0);
+    float hit_t = 0.0;
+    for (int i = 0; i < 4 && leaves; i++) {
+        int c = i == 0 ? open_side : (i <= open_side ? i - 1 : i);  // the open side first, then the others
+        ivec2 pixel = corner + ivec2(c & 1, c >> 1);
+        if (any(lessThan(pixel, ivec2(0))) || any(greaterThanEqual(pixel, ivec2(resolution)))) continue;
+        uint list = pixel_list(k, pixel);
+        vec3 origin = line_origin(k, pixel);
+        float depth = dot(x - origin, f.d.xyz);
+        float crossing = depth + dot(ng, x - (origin + depth * f.d.xyz)) / cg;
+        float bound = forward ? max(depth, crossing) + bias : min(depth, crossing) - bias;
+        // The nearest node beyond the bound along omega: a binary search of the sorted depths.
+        uint first = list_first(list), last = list_end(list);
+        uint lo = first, hi = last;
+        while (lo < hi) {
+            uint mid = (lo + hi) / 2u;
+            if (forward ? node_depth(mid) <= bound : node_depth(mid) < bound) lo = mid + 1u; else hi = mid;
+        }
+        uint node = forward ? (lo < last ? lo : NO_NODE) : (lo > first ? lo - 1u : NO_NODE);
+        // A node whose plane the ray cannot reach (the plane lies behind the vertex, or through
+        // it) is on the line only because the line passes beside the vertex: the next one is
+        // taken. Near a concave edge a line may pass behind the other surface (a floor vertex's
+        // line behind the wall) and meet its back: the furnace's 1-bounce indirect light at R = 32
+        // was 5.7 % short before (tests/test_renderer.py). A splat lies in its triangle's plane.
+        // A splat of the vertex's own surface is skipped too: on a curved surface it stands off
+        // the vertex and shadowed it (parts scene, N = 65536, R = 256: indirect light 0.23 of
+        // Mitsuba's with it, 0.51 without; docs/MEASURED_FACTS.md).
+        while (node != NO_NODE) {
+            uint ref = node_ref(node);
+            vec3 plane_normal = triangle_normal(ref_triangle(ref));
+            float gap = dot(plane_normal, origin + node_depth(node) * f.d.xyz - x), along = dot(plane_normal, omega);
+            if (gap * along > 0.0 && !own_surface(ref, x, ng)) {
+                float t = gap / along;
+                // No nearer than the best so far (on its plane, usually): it cannot win.
+                if ((hit == NO_NODE || t < hit_t * (1.0 - 1e-5)) && on_node_surface(ref, x + t * omega)) {
+                    hit = node;
+                    hit_t = t;
+                }
+                if (c == open_side) {
+                    open_hit = node;
+                    open_origin = origin;
+                }
+                break;
+            }
+            node = forward ? (node + 1u < last ? node + 1u : NO_NODE) : (node > first ? node - 1u : NO_NODE);
+        }
+    }
+    bool on_surface = hit != NO_NODE;
+    if (!on_surface) hit = open_hit;
+    BundleHit node = BundleHit(0u, vec3(0.0), vec3(0.0), vec3(0.0));
+    vec3 node_geometric = vec3(0.0);
+    if (hit != NO_NODE) {
+        // The ray's point on the node's surface; off it (the open side's line), the node where it
+        // lies: a small curved facet's plane carried to the ray put the vertex inside neighbouring
+        // parts (-18 % of the parts scene's indirect light at R = 128).
+        vec3 y = on_surface ? x + hit_t * omega : open_origin + node_depth(hit) * f.d.xyz;
+        node = bundle_hit(y, node_ref(hit));
+        node_geometric = triangle_normal(node.triangle);
+    }
+    return BundleStep(leaves, hit, node, node_geometric);
+}

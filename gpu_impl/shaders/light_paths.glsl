@@ -1,0 +1,193 @@
+// Light paths over the frame's bundles (gpu_impl/strategies/bidirectional.py): one invocation per
+// light path, from its start (the host drew the source by power, and the point on an emitter) to
+// up to B vertices on surfaces, each written with what a connection needs. No ray is traced:
+//
+// - From an emitter point the path leaves along a uniformly chosen bundle direction (the side in
+//   the emitter's hemisphere, density 1 / (2 pi)) to the next node, as eye paths do (bundle_step.glsl).
+// - From a point or spot light it leaves along a direction drawn from the light (uniform over the
+//   sphere, or over the spot's cone), and from a directional light through a point drawn uniformly
+//   on the disk the light's shadow view covers. The first surface is the light's shadow map read
+//   as a reflective shadow map: the triangle its texel saw (shadow_maps.glsl), met exactly by the
+//   ray. The texel stands for the ray, as a bundle pixel stands for a ray.
+// - Every later vertex takes a uniformly chosen bundle of the frame, but not the one it arrived
+//   along, and its next node.
+//
+// A vertex y_i (depth d = n - i, on a path that started at z_n) is stored as a point light whose
+// intensity falls as the cosine to its normal: alpha_i albedo / pi, with alpha_i the light path's
+// throughput (flux over density) arriving there. Its MIS share (lights.glsl) is
+//   L_{n-1} = (e_n^2 + a_n^2) / (b_n b_{n-1})^2   (an emitter start; a delta light: a_n = 0, e_n = 1)
+//   L_i = (1 + a_{i+1}^2 L_{i+1}) / b_i^2
+// with b the light side's densities per area (b_n: V q p_A of the start), a the eye side's of the
+// vertex before (by a bundle direction: cos / (2 pi t^2)), e_n next-event estimation's.
+
+#define BUNDLE_LOOKUP
+#define SHADOW_LIGHTS 1
+#include "common.glsl"
+#include "scene.glsl"
+#include "bundle.glsl"
+#include "bundle_hits.glsl"
+#include "bundle_step.glsl"
+#include "lights.glsl"
+#include "light_path_records.glsl"
+
+#if defined COMPUTE_SHADER
+
+layout(local_size_x = LOCAL_SIZE) in;
+
+#define INV_PI 0.3183098861837907
+#define PI 3.141592653589793
+
+uniform uint invocations;       // V
+uniform usampler2D shadow_triangles;  // the triangle + 1 each shadow texel saw
+uniform int direction_count;    // K
+uniform uint seed;
+uniform uint frame;
+
+struct Surface {
+    bool found;
+    vec3 position, normal, geometric, albedo;  // normals on the side the path arrives at
+};
+
+// The first surface along the ray from origin along omega, from light l's shadow map.
+Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
+    Surface s = Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+    int view_index = light.position.w == LIGHT_DIRECTIONAL ? int(light.shape.z) : shadow_view_of(light, origin + omega);
+    ShadowView view = shadow_views[view_index];
+    vec4 clip = view.to_clip * vec4(origin + omega, 1.0);
+    if (clip.w <= 0.0) return s;
+    vec2 ndc = clip.xy / clip.w;
+    if (any(greaterThan(abs(ndc), vec2(1.0)))) return s;
+    int size = int(view.tile.z);
+    ivec2 texel = clamp(ivec2((ndc * 0.5 + 0.5) * view.tile.z), ivec2(0), ivec2(size - 1));
+    ivec2 at = ivec2(view.tile.xy) + texel;
+    uint seen = texelFetch(shadow_triangles, at, 0).r;
+    if (seen == 0u || texelFetch(shadow_atlas, at, 0).r * view.axis.w >= 1.0) return s;  // nothing there
+    uint t = seen - 1u;
+    uvec3 v = triangle_vertices(t);
+    vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;
+    vec3 so = origin - p0, pv = cross(omega, e2), qv = cross(so, e1);
+    float det = dot(e1, pv);
+    if (det == 0.0) return s;
+    float inv = 1.0 / det;
+    float b1 = dot(so, pv) * inv, b2 = dot(omega, qv) * inv, depth = dot(e2, qv) * inv;
+    if (depth <= 0.0) return s;
+    vec3 n = shading_normal(t, v, b1, b2), g = triangle_normal(t);
+    uint m = triangle_material(t);
+    if (dot(n, omega) >= 0.0) {
+        if (!material_twosided(m)) return s;  // the back of a one-sided surface absorbs it
+        n = -n;
+    }
+    s.found = true;
+    s.position = origin + depth * omega;
+    s.normal = n;
+    s.geometric = dot(g, omega) < 0.0 ? g : -g;
+    s.albedo = material_albedo(m, surface_uv(v, b1, b2));
+    return s;
+}
+
+// Where a step over the bundles along omega lands: nothing where it leaves the scene, or meets the
+// back of a one-sided surface (which absorbs it).
+Surface landed(BundleStep step, vec3 omega) {
+    if (!step.leaves || step.hit == NO_NODE) return Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+    vec3 n = step.node.normal, g = step.geometric;
+    if (dot(n, omega) >= 0.0) {
+        if (!material_twosided(triangle_material(step.node.triangle))) return Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+        n = -n;
+    }
+    return Surface(true, step.node.position, n, dot(g, omega) < 0.0 ? g : -g, step.node.albedo);
+}
+
+// A unit vector around axis a at cos_theta from it and azimuth phi.
+vec3 around(vec3 a, float cos_theta, float phi) {
+    vec3 helper = abs(a.x) < 0.9 ? vec3(1.0, 0.0, 0.0) : vec3(0.0, 1.0, 0.0);
+    vec3 t = normalize(cross(a, helper)), b = cross(a, t);
+    float sin_theta = sqrt(max(1.0 - cos_theta * cos_theta, 0.0));
+    return sin_theta * cos(phi) * t + sin_theta * sin(phi) * b + cos_theta * a;
+}
+
+void main() {
+    uint id = linear_id();
+    if (id >= invocations) return;
+    for (int d = 0; d < bounces; d++) light_path_records[id * uint(bounces) + uint(d)].position.w = 0.0;
+    LightPathStart start = starts[id];
+    int source = int(start.position.w);
+    float b_start = start.normal.w;
+    Surface y;
+    vec3 alpha;      // the throughput arriving at y
+    float mis;       // L of y
+    int arrived = -1;  // the bundle y was reached along (none from a light's shadow map)
+    uvec4 r = pcg4d(uvec4(id, 0xFFFFFFFFu, seed, frame));
+    if (source < 0) {
+        // An emitter point: along a bundle direction in its hemisphere.
+        vec3 x = start.position.xyz, n = start.normal.xyz;
+        int k = min(int(unit_float(r.x) * float(direction_count)), direction_count - 1);
+        BundleFrame f = frames[k];
+        bool forward = dot(f.d.xyz, n) >= 0.0;
+        vec3 omega = forward ? f.d.xyz : -f.d.xyz;
+        y = landed(bundle_step(k, forward, x, start.geometric.xyz), omega);
+        if (!y.found) return;
+        vec3 edge = y.position - x;
+        float t2 = dot(edge, edge), cos_start = abs(dot(n, omega)), cos_y = abs(dot(y.normal, omega));
+        alpha = start.radiance.rgb * cos_start / (b_start * BUNDLE_DIRECTION_PDF);
+        // (e^2 + a^2) / (b_n b)^2 with a = pdf cos_start / t^2 and b = pdf cos_y / t^2, times t^4 / t^4.
+        float a_start = BUNDLE_DIRECTION_PDF * cos_start, b_y = BUNDLE_DIRECTION_PDF * cos_y;
+        float e = start.radiance.w * t2;
+        mis = min((e * e + a_start * a_start) / max(b_start * b_start * b_y * b_y, 1e-30), MAX_MIS_SHARE);
+        arrived = k;
+    } else {
+        Light light = lights[source];
+        vec3 origin, omega;
+        if (light.position.w == LIGHT_DIRECTIONAL) {
+            omega = light.direction.xyz;
+            vec3 disk = around(omega, 0.0, 2.0 * PI * unit_float(r.y)) * (radius * sqrt(unit_float(r.x)));
+            origin = -radius * omega + disk;
+            alpha = light.intensity.rgb / light.paths.x;
+        } else {
+            origin = light.position.xyz;
+            if (light.position.w == LIGHT_SPOT) {
+                float cos_theta = 1.0 - unit_float(r.x) * (1.0 - light.direction.w);
+                omega = around(light.direction.xyz, cos_theta, 2.0 * PI * unit_float(r.y));
+                alpha = light.intensity.rgb * spot_falloff(light, cos_theta);
+            } else {
+                omega = around(vec3(0.0, 0.0, 1.0), 1.0 - 2.0 * unit_float(r.x), 2.0 * PI * unit_float(r.y));
+                alpha = light.intensity.rgb;
+            }
+            alpha /= light.paths.x;  // V q p(omega)
+        }
+        y = reflective_shadow_map(light, origin, omega);
+        if (!y.found) return;
+        vec3 edge = y.position - origin;
+        float t2 = light.position.w == LIGHT_DIRECTIONAL ? 1.0 : dot(edge, edge);
+        float b = light.paths.x * abs(dot(y.normal, omega));  // b_n b_{n-1} t^2
+        mis = min(t2 * t2 / max(b * b, 1e-30), MAX_MIS_SHARE);
+    }
+    for (int d = 1; d <= bounces; d++) {
+        light_path_records[id * uint(bounces) + uint(d - 1)] = LightPathVertex(
+            vec4(y.position, float(d)), vec4(y.normal, mis), vec4(alpha * y.albedo * INV_PI, 0.0));
+        if (d == bounces) break;
+        // On along any bundle but the one it arrived along (eye_paths.glsl says why).
+        uint u = pcg4d(uvec4(id, uint(d), seed, frame)).x;
+        bool any_bundle = arrived < 0 || direction_count == 1;
+        int choices = any_bundle ? direction_count : direction_count - 1;
+        int k = min(int(unit_float(u) * float(choices)), choices - 1);
+        if (!any_bundle && k >= arrived) k++;
+        BundleFrame f = frames[k];
+        float c = dot(f.d.xyz, y.normal);
+        bool forward = c >= 0.0;
+        vec3 omega = forward ? f.d.xyz : -f.d.xyz;
+        float cos_y = abs(c);
+        alpha *= 2.0 * cos_y * y.albedo;
+        if (all(equal(alpha, vec3(0.0)))) return;
+        Surface next = landed(bundle_step(k, forward, y.position, y.geometric), omega);
+        if (!next.found) return;
+        vec3 edge = next.position - y.position;
+        float t2 = dot(edge, edge), cos_next = abs(dot(next.normal, omega));
+        // (1 + a^2 L) / b^2 with a = pdf cos_y / t^2, b = pdf cos_next / t^2, times t^4 / t^4.
+        float a = BUNDLE_DIRECTION_PDF * cos_y, b = BUNDLE_DIRECTION_PDF * cos_next;
+        mis = min((t2 * t2 + a * a * mis) / max(b * b, 1e-30), MAX_MIS_SHARE);
+        y = next;
+        arrived = k;
+    }
+}
+
+#endif

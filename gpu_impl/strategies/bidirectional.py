@@ -1,0 +1,248 @@
+"""Bidirectional paths over ray bundles: eye paths as the eye strategy makes them, and each frame V
+light paths from the lights over the same bundles (shaders/light_paths.glsl), whose vertices every
+eye vertex connects to through their shadow maps (the light visibility unit's: exact or imperfect).
+The poster's future work, after Tokuyoshi and Ogaki's bidirectional path tracing via rasterization
+(I3D 2012); docs/BIDIRECTIONAL.md derives it.
+
+Every strategy that can make a path is weighted by multiple importance sampling (the power
+heuristic): the eye path hitting an emitter, next-event estimation (emitter samples and the
+shadow-mapped lights: the light vertices of depth 0), and a connection from each eye vertex to
+each light path vertex of depth 1..B. Strategies differ only in where the path is split, so a
+strategy's weight is 1 / sum_j (p_j / p_s)^2 over the densities p_j per area of the whole path;
+the eye paths carry the eye side's share of that sum (paths.glsl: path_mis) and the light path
+vertices the light side's (lights.glsl: Light.paths), and each connection completes it from its own
+edge. Nothing is clamped. Light paths are not connected to the camera (light tracing), which would
+need a visibility test per vertex; no strategy here stands in for it, and its paths are found by the
+others.
+
+A light path starts at a source drawn by power (the emitters together, each point, spot and
+directional light), stratified over the V paths: an emitter point by emitted power as next-event
+estimation draws them; a point or spot light's direction uniform over its sphere or cone; a
+directional light's ray through a uniform point of the disk its shadow view covers. Its first
+surface comes from the bundles (an emitter) or from the light's shadow map read as a reflective
+shadow map (a fixed light), its later ones from the bundles.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from evalkit.core.settings import setting
+from gpu_impl.context import set_uniforms
+from gpu_impl.layout import BINDINGS, LIGHT_PATH_START, LIGHT_PATH_VERTEX
+from gpu_impl.lights import EmitterSamples, LightVertices
+from gpu_impl.strategies.eye import EyePaths, EyeSettings
+from gpu_impl.units import PathStrategy
+
+DEFAULT_LIGHT_PATHS = 32
+
+
+@dataclass(frozen=True)
+class BidirectionalSettings(EyeSettings):
+    """The eye strategy's settings (the same declarations: one flag), and the light paths."""
+
+    light_paths: int = setting(
+        DEFAULT_LIGHT_PATHS,
+        "light paths started at the lights per frame; each leaves up to B vertices that every eye vertex connects to",
+        minimum=0,
+        symbol="V",
+    )
+
+
+class BidirectionalPaths(EyePaths):
+    """The bidirectional strategy of one renderer: the eye strategy's passes with every strategy's
+    MIS weights, and the frame's light paths, whose vertices join the frame's light vertices."""
+
+    def __init__(self, renderer, settings: BidirectionalSettings):
+        super().__init__(renderer, settings)
+        self.light_paths = settings.light_paths
+        self.bounces = renderer.settings.bounces
+        self.sources = LightSources(renderer.gpu_scene, self.light_paths)
+        # No light path without a source that emits (an environment alone is reached by eye paths).
+        self.path_vertices_per_frame = self.light_paths * self.bounces if self.sources.powers.sum() > 0 else 0
+        if not self.path_vertices_per_frame and self.light_paths:
+            self.warnings.append(
+                "bidirectional paths: no light that light paths could start at (the environment is reached "
+                "by eye paths only), so these are eye paths"
+            )
+        self.buffers = {}  # made with the first frame, once the lights have checked that the maps fit
+        self.vertex_counts = []
+
+    lazy_lighting_only = True  # connections depend on the eye path (its MIS share), so no light is precomputed
+
+    def defines(self) -> dict:
+        # Without light paths (a scene lit only by its environment) the eye strategy is all there is.
+        return {**super().defines(), "BIDIRECTIONAL": int(self.path_vertices_per_frame > 0)}
+
+    def uniforms(self) -> dict:
+        emitters = self.sources.emitter_probability * self.light_paths
+        samples = 0 if self.emitter_samples is None else self.emitter_samples.count
+        total = self.sources.emitters.total if self.sources.emitters is not None else 1.0
+        return {
+            "emitter_sample_density": samples / total,
+            "light_path_emitter_density": emitters / total,
+            "light_path_emitter_ratio": emitters / samples if samples else 0.0,
+            "light_path_first": self.renderer.lights.fixed_lights + samples,
+        }
+
+    def programs(self, defines: dict) -> dict:
+        gl = self.renderer.gl
+        programs = {}
+        if defines["SHADOW_LIGHTS"]:
+            programs["eye_paths_lazy"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=1)
+        else:  # nothing to light or connect to
+            programs["eye_paths"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=0)
+        if self.path_vertices_per_frame:
+            keep = ("TEXTURES", "NODE_SIDES", "NODE_REFERENCE", "LIGHT_VISIBILITY")
+            programs["light_paths"] = gl.program("light_paths", BIDIRECTIONAL=1, **{k: defines[k] for k in keep})
+        return programs
+
+    def light_vertices(self, seed: int, frame: int) -> LightVertices:
+        """This frame's emitter samples, then the vertices its light paths left."""
+        renderer = self.renderer
+        if not self.buffers:
+            gl = renderer.gl
+            self.buffers = {
+                "LIGHT_PATH_STARTS": gl.buffer(reserve=max(LIGHT_PATH_START.itemsize * self.light_paths, 4)),
+                "LIGHT_PATH_VERTICES": gl.buffer(
+                    reserve=max(LIGHT_PATH_VERTEX.itemsize * self.path_vertices_per_frame, 4)
+                ),
+                "PATH_MIS": gl.buffer(reserve=4 * renderer.paths),
+            }
+        parts = []
+        if self.emitter_samples is not None:
+            samples = super().light_vertices(seed, frame)
+            parts.append(
+                samples._replace(depths=np.zeros(len(samples.positions)), mis=np.zeros(len(samples.positions)))
+            )
+        count = 0
+        if self.path_vertices_per_frame:
+            paths = self._trace(seed, frame)
+            count = len(paths.positions)
+            parts.append(paths)
+        self.vertex_counts.append(count)
+        for program in renderer.programs.values():
+            set_uniforms(program, {"light_path_vertices": count})
+        return LightVertices(*(np.concatenate(column) for column in zip(*parts)))
+
+    def _trace(self, seed: int, frame: int) -> LightVertices:
+        """Run the frame's light paths on the GPU; their vertices, in scene space."""
+        renderer = self.renderer
+        renderer.lights.set_light_path_densities(self.sources.path_densities())
+        starts = self.sources.starts(seed, frame, self.emitter_samples)
+        self.buffers["LIGHT_PATH_STARTS"].write(starts.tobytes())
+        renderer.bind()
+        for name, buffer in self.buffers.items():
+            buffer.bind_to_storage_buffer(BINDINGS[name])
+        renderer.lights.bind_triangles()
+        program = renderer.programs["light_paths"]
+        program["frame"] = frame & 0xFFFFFFFF
+        renderer.gl.dispatch(program, self.light_paths)
+        records = np.frombuffer(self.buffers["LIGHT_PATH_VERTICES"].read(), dtype=LIGHT_PATH_VERTEX)
+        records = records[: self.path_vertices_per_frame]
+        # A vertex that sends nothing (a black surface) needs no shadow map.
+        found = records[(records["position"][:, 3] > 0.0) & (records["intensity"][:, :3].max(axis=1) > 0.0)]
+        centre = renderer.gpu_scene.centre
+        return LightVertices(
+            positions=found["position"][:, :3].astype(np.float64) + centre,
+            normals=found["normal"][:, :3].astype(np.float64),
+            intensities=found["intensity"][:, :3].astype(np.float64),
+            densities=np.zeros(len(found)),
+            depths=found["position"][:, 3].astype(np.float64),
+            mis=found["normal"][:, 3].astype(np.float64),
+        )
+
+    def bind(self) -> None:
+        if self.buffers:  # none before the first frame's light paths (and none without light sources)
+            self.buffers["PATH_MIS"].bind_to_storage_buffer(BINDINGS["PATH_MIS"])
+
+    def stats(self) -> dict:
+        """What the frames' light paths left: light path vertices per frame (median)."""
+        return {"light_path_vertices_median": int(np.median(self.vertex_counts)) if self.vertex_counts else 0}
+
+    @property
+    def nbytes(self) -> int:
+        return sum(b.size for b in self.buffers.values())
+
+    def release(self) -> None:
+        for buffer in self.buffers.values():
+            buffer.release()
+        self.buffers.clear()
+
+
+class LightSources:
+    """Where light paths start, drawn by power: the emitters together (emitted power pi W), and each
+    point (4 pi I), spot (2 pi (1 - cos cutoff) I: an upper bound of its power) and directional light
+    (pi r^2 E over the disk of the bounding sphere), I and E the means of their channels."""
+
+    def __init__(self, gpu_scene, light_paths: int):
+        scene, r = gpu_scene.scene, gpu_scene.radius
+        self.gpu_scene, self.light_paths = gpu_scene, light_paths
+        fixed = [light for light in scene.lights if light.kind in ("point", "spot", "directional")]
+        powers, self.direction_pdfs = [], []
+        for light in fixed:
+            mean = float(np.mean(light.intensity))
+            if light.kind == "point":
+                solid_angle = 4.0 * math.pi
+            elif light.kind == "spot":
+                solid_angle = 2.0 * math.pi * (1.0 - math.cos(math.radians(light.cutoff_angle or 90.0)))
+            else:
+                solid_angle = math.pi * r * r  # an area: the disk the light's rays cross
+            powers.append(mean * solid_angle)
+            self.direction_pdfs.append(1.0 / solid_angle)
+        self.emitters = (
+            EmitterSamples(scene, light_paths)
+            if any(scene.materials[m.material].emissive for m in scene.meshes)
+            else None
+        )
+        if self.emitters is not None:
+            powers.append(math.pi * self.emitters.total)
+        self.powers = np.asarray(powers, dtype=np.float64)
+        total = self.powers.sum()
+        self.probabilities = self.powers / total if total > 0 else self.powers
+        self.cdf = np.cumsum(self.probabilities)
+        self.emitter_probability = float(self.probabilities[-1]) if self.emitters is not None else 0.0
+
+    def path_densities(self) -> np.ndarray:
+        """Each fixed light's density of starting a light path along a direction (or through a point
+        of its disk): V q p(omega), Light.paths.x (lights.glsl)."""
+        return self.light_paths * self.probabilities[: len(self.direction_pdfs)] * np.asarray(self.direction_pdfs)
+
+    def starts(self, seed: int, frame: int, emitter_samples: EmitterSamples | None) -> np.ndarray:
+        """The frame's V light path starts (`LIGHT_PATH_START` records), stratified over the
+        sources' power."""
+        v = self.light_paths
+        rng = np.random.default_rng([seed, frame, 3])
+        u = (np.arange(v) + rng.random(v)) / v
+        source = np.minimum(np.searchsorted(self.cdf, u, side="right"), len(self.cdf) - 1)
+        records = np.zeros(v, dtype=LIGHT_PATH_START)
+        records["position"][:, 3] = source
+        on_emitters = source == len(self.direction_pdfs) if self.emitters is not None else np.zeros(v, bool)
+        if on_emitters.any():
+            if self.emitters.scene is not self.gpu_scene.scene:  # posed since: the emitters may have moved
+                self.emitters = EmitterSamples(self.gpu_scene.scene, self.light_paths)
+            e = self.emitters
+            n = int(on_emitters.sum())
+            triangles, positions, normals = e.draw(rng, (np.arange(n) + rng.random(n)) / n)
+            p_area = e.weights[triangles] / e.total
+            samples = 0 if emitter_samples is None else emitter_samples.count
+            records["position"][on_emitters, :3] = positions - self.gpu_scene.centre
+            records["position"][on_emitters, 3] = -1.0
+            records["normal"][on_emitters, :3] = normals
+            records["normal"][on_emitters, 3] = v * self.emitter_probability * p_area
+            records["radiance"][on_emitters, :3] = e.radiance[triangles]
+            records["radiance"][on_emitters, 3] = samples * p_area
+            records["geometric"][on_emitters, :3] = e.face_normals[triangles]
+        return records
+
+
+STRATEGY = PathStrategy(
+    name="bidirectional",
+    summary="eye paths and light paths over the frame's bundles, connected through shadow maps, "
+    "every strategy weighted by multiple importance sampling",
+    settings=BidirectionalSettings,
+    paths=BidirectionalPaths,
+)

@@ -1,0 +1,118 @@
+"""Imperfect shadow maps for light vertices (Ritschel et al. 2008, the visibility the imperfect
+bundles are modelled on): each light vertex gets one paraboloid map of its front hemisphere, drawn
+from ``ism_points`` surface points of its own as round splats, every vertex's map in one draw
+(shaders/imperfect_shadow_maps.glsl), and looked up with the exact maps' filtering and bias
+(shaders/light_visibility_imperfect.glsl). Their cost grows with the points, not the
+triangles: hundreds of light vertices per frame on a scene of 10^5 triangles.
+
+The splat radius is ``ism_splat_scale`` times the radius at which P disks would just cover the
+scene's area A once, sqrt(A / (pi P)). Holes (a surface whose splats leave a gap) let light through
+where there is none; larger splats close them and widen occluders. No pull-push hole filling.
+`evalkit.metrics.light_visibility` measures them against exact maps and rays
+(benchmarks/shadow_maps.py).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from evalkit.core.settings import setting
+from gpu_impl.layout import LIGHT_VISIBILITY_IMPERFECT
+from gpu_impl.units import LightVisibility
+
+DEFAULT_ISM_SIZE = 64
+DEFAULT_ISM_POINTS = 4096
+DEFAULT_SPLAT_SCALE = 1.0
+MAX_DRAW_VERTICES = 2**31 - 1
+
+
+@dataclass(frozen=True)
+class ImperfectSettings:
+    ism_size: int = setting(
+        DEFAULT_ISM_SIZE, "texels per side of each light vertex's paraboloid map", minimum=2, unit="texels"
+    )
+    ism_points: int = setting(
+        DEFAULT_ISM_POINTS,
+        "surface points splatted into each light vertex's map, a different set per vertex",
+        minimum=1,
+    )
+    ism_splat_scale: float = setting(
+        DEFAULT_SPLAT_SCALE,
+        "splat radius over the radius at which a map's points would just cover the scene",
+        positive=True,
+    )
+
+
+class ImperfectShadowMaps:
+    """Each light vertex's paraboloid map (`tiles_per_vertex` 1) in the shadow atlas of
+    `gpu_impl.lights.ShadowLights`, splatted from its own points every frame."""
+
+    tiles_per_vertex = 1
+
+    def __init__(self, gl, gpu_scene, settings: ImperfectSettings):
+        self.gl, self.gpu_scene = gl, gpu_scene
+        self.map_size, self.points_per_map = settings.ism_size, settings.ism_points
+        area = sum(float(m.triangle_areas().sum()) for m in gpu_scene.scene.meshes)
+        self.splat_radius = settings.ism_splat_scale * math.sqrt(area / (math.pi * self.points_per_map))
+        self.program = gl.program("imperfect_shadow_maps")
+        self.vao = gl.vertex_array(self.program, [])
+
+    def defines(self) -> dict:
+        return {"LIGHT_VISIBILITY": LIGHT_VISIBILITY_IMPERFECT}
+
+    def check(self, light_vertices: int) -> None:
+        """Raises ValueError when ``light_vertices`` maps' points do not fit one draw. The points are
+        made in the draw's vertex shader, so they take no memory; a draw counts its vertices in a
+        signed 32-bit integer."""
+        points = light_vertices * self.points_per_map
+        if points > MAX_DRAW_VERTICES:
+            raise ValueError(
+                f"{light_vertices:,} light vertices x {self.points_per_map:,} points per imperfect shadow map "
+                f"= {points:,} points, over the {MAX_DRAW_VERTICES:,} one draw can make; lower --ism-points "
+                "or the light vertices"
+            )
+
+    def render(self, lights, positions: np.ndarray, normals: np.ndarray, seed: int, frame: int) -> None:
+        """The paraboloid views of the vertices at ``positions`` (relative to the bundle centre)
+        around their ``normals``, set in the lights' view table, and splatted from this frame's
+        points (``seed``, ``frame``)."""
+        if not len(positions):
+            return
+        far_base = lights.gpu_scene.radius
+        tiles = []
+        for m, (position, normal) in enumerate(zip(positions, normals)):
+            i = lights.fixed_views + m
+            far = float(np.linalg.norm(position)) + far_base
+            lights.set_view(i, (np.eye(4), 2.0 / self.map_size, position, True, normal, far), self.map_size)
+            tiles.append(i)
+        lights.upload()
+        fb = lights.framebuffer
+        far = np.finfo(np.float32).max
+        for i in tiles:
+            x, y, size, _ = lights.view_records["tile"][i]
+            fb.clear(red=far, depth=1.0, viewport=(int(x), int(y), int(size), int(size)))
+        fb.viewport = (0, 0, *lights.atlas.size)
+        lights.gpu_scene.bind()
+        lights.bind(0)
+        self.program["first_vertex_light"] = lights.fixed_lights
+        self.program["points_per_map"] = self.points_per_map
+        self.program["seed"] = seed & 0xFFFFFFFF
+        self.program["frame"] = frame & 0xFFFFFFFF
+        self.program["splat_radius"] = self.splat_radius
+        self.program["atlas_size"] = lights.atlas.size
+        self.gl.draw(self.vao, moderngl.POINTS, fb, depth_test=True, vertices=len(positions) * self.points_per_map)
+
+    def release(self) -> None:
+        self.vao.release()
+
+
+VISIBILITY = LightVisibility(
+    name="imperfect",
+    summary="imperfect shadow maps: a paraboloid map per light vertex, splatted from its own surface points",
+    settings=ImperfectSettings,
+    maps=ImperfectShadowMaps,
+)
