@@ -68,7 +68,7 @@ BINDINGS = {
     "PATH_MIS": 33,
     "LIGHT_PATH_STARTS": 34,
     "LIGHT_PATH_VERTICES": 35,
-    # light visibility measured (visibility/compare.py): receiver points, and what each pair sees
+    # light visibility measured (evalkit/metrics/light_visibility.py): receiver points, and what each pair sees
     "RECEIVERS": 36,
     "VISIBLE": 37,
 }

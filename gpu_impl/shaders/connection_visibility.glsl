@@ -1,6 +1,6 @@
 // The visibility of light vertices from receiver points through the light vertices' shadow maps,
 // one invocation per (receiver, vertex) pair: how imperfect shadow maps are measured against exact
-// ones (gpu_impl/visibility/compare.py). A pair that cannot connect (either faces away) is -1.
+// ones (evalkit/metrics/light_visibility.py). A pair that cannot connect (either faces away) is -1.
 
 #define SHADOW_LIGHTS 1
 #include "common.glsl"

@@ -21,7 +21,7 @@ import moderngl
 import numpy as np
 
 from evalkit.core.settings import setting
-from gpu_impl.layout import LIGHT_VISIBILITY_IMPERFECT
+from gpu_impl.layout import BINDINGS, LIGHT_VISIBILITY_IMPERFECT
 from gpu_impl.units import LightVisibility
 
 DEFAULT_ISM_SIZE = 64
@@ -96,8 +96,9 @@ class ImperfectShadowMaps:
             x, y, size, _ = lights.view_records["tile"][i]
             fb.clear(red=far, depth=1.0, viewport=(int(x), int(y), int(size), int(size)))
         fb.viewport = (0, 0, *lights.atlas.size)
-        lights.gpu_scene.bind()
-        lights.bind(0)
+        lights.gpu_scene.bind()  # the area CDF and the triangles the points are drawn on
+        for name in ("LIGHTS", "SHADOW_VIEWS"):  # not the atlas itself: it is being drawn into
+            lights.buffers[name].bind_to_storage_buffer(BINDINGS[name])
         self.program["first_vertex_light"] = lights.fixed_lights
         self.program["points_per_map"] = self.points_per_map
         self.program["seed"] = seed & 0xFFFFFFFF
