@@ -559,7 +559,7 @@ FLAG_TYPES = {"node_budget": parse_bytes}
 # and --shadow-maps offer the registered ones) and every registered unit's settings.
 RENDER_FLAGS = [(None, f) for f in declared(RenderSettings) if f.name not in KINDS]
 # A setting two units declare (the eye and bidirectional strategies' light_samples) is one flag.
-UNIT_FLAGS = list({f.name: (unit, f) for unit in reversed(all_units()) for f in declared(unit.settings)}.values())[::-1]
+UNIT_FLAGS = list({f.name: (unit, f) for unit in all_units() for f in declared(unit.settings)}.values())
 # `evalkit bundles`' flags: the list layout and the node budget, and the bundle methods' settings.
 BUNDLE_FLAGS = [(None, f) for f in declared(RenderSettings) if f.name in ("directions", "resolution", "node_budget")]
 METHOD_FLAGS = [(unit, f) for unit in METHODS for f in declared(unit.settings)]

@@ -103,6 +103,11 @@ class EmitterSamples:
         self.total = float(power.sum())  # W in p(y) = w(y) / W
         self.cdf = np.cumsum(power) / self.total
 
+    def posed(self, scene) -> EmitterSamples:
+        """These samples for ``scene``: the same object, or new ones where the scene was posed
+        since (its emitters may have moved)."""
+        return self if scene is self.scene else EmitterSamples(scene, self.count)
+
     @property
     def density_scale(self) -> float:
         """M / W: M p(y) = density_scale w(y), what the eye paths' MIS weights need (eye_paths.glsl)."""

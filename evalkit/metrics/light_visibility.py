@@ -42,16 +42,12 @@ def frame_light_vertices(gl: GLContext, scene: Scene, settings: RenderSettings, 
 def camera_points(scene: Scene, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Receivers where connections start: up to ``count`` surface points the camera sees, through
     uniformly drawn film positions (by Embree rays), and their shading normals turned to the camera."""
-    cam = scene.camera
-    rng = np.random.default_rng([seed, 4])
-    film = rng.random((count, 2))
-    width, height = cam.film_size(None, None)
-    to_world = np.asarray(cam.to_world, dtype=np.float64)
-    tan_x = np.tan(np.radians(cam.fov) / 2)
-    tan_x, tan_y = (tan_x, tan_x * height / width) if cam.fov_axis == "x" else (tan_x * width / height, tan_x)
+    camera = scene.camera.frame(np.zeros(3), *scene.camera.film_size(None, None))
+    film = np.random.default_rng([seed, 4]).random((count, 2))
+    tan_x, tan_y = camera["tan_half"]
     local = np.stack([(1 - 2 * film[:, 0]) * tan_x, (1 - 2 * film[:, 1]) * tan_y, np.ones(count)], axis=1)
-    directions = local @ to_world[:3, :3].T
-    origins = np.broadcast_to(to_world[:3, 3], directions.shape)
+    directions = local @ camera["to_world"].T
+    origins = np.broadcast_to(camera["origin"], directions.shape)
     hits = ExactTracer(scene).next_hit(origins, directions)
     seen = hits.prim_id >= 0
     normals = hits.normal[seen] * -np.sign(np.einsum("ij,ij->i", hits.normal[seen], directions[seen]))[:, None]

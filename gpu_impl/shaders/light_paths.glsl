@@ -51,8 +51,7 @@ struct Surface {
 // The first surface along the ray from origin along omega, from light l's shadow map.
 Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
     Surface s = Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
-    int view_index = light.position.w == LIGHT_DIRECTIONAL ? int(light.shape.z) : shadow_view_of(light, origin + omega);
-    ShadowView view = shadow_views[view_index];
+    ShadowView view = shadow_views[shadow_view_of(light, origin + omega)];
     vec4 clip = view.to_clip * vec4(origin + omega, 1.0);
     if (clip.w <= 0.0) return s;
     vec2 ndc = clip.xy / clip.w;

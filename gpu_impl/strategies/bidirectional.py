@@ -104,6 +104,8 @@ class BidirectionalPaths(EyePaths):
         """This frame's emitter samples, then the vertices its light paths left."""
         renderer = self.renderer
         if not self.buffers:
+            # The fixed lights' densities never change; the records keep them for every upload.
+            renderer.lights.set_light_path_densities(self.sources.path_densities())
             gl = renderer.gl
             self.buffers = {
                 "LIGHT_PATH_STARTS": gl.buffer(reserve=max(LIGHT_PATH_START.itemsize * self.light_paths, 4)),
@@ -131,7 +133,6 @@ class BidirectionalPaths(EyePaths):
     def _trace(self, seed: int, frame: int) -> LightVertices:
         """Run the frame's light paths on the GPU; their vertices, in scene space."""
         renderer = self.renderer
-        renderer.lights.set_light_path_densities(self.sources.path_densities())
         starts = self.sources.starts(seed, frame, self.emitter_samples)
         self.buffers["LIGHT_PATH_STARTS"].write(starts.tobytes())
         renderer.bind()
@@ -222,9 +223,7 @@ class LightSources:
         records["position"][:, 3] = source
         on_emitters = source == len(self.direction_pdfs) if self.emitters is not None else np.zeros(v, bool)
         if on_emitters.any():
-            if self.emitters.scene is not self.gpu_scene.scene:  # posed since: the emitters may have moved
-                self.emitters = EmitterSamples(self.gpu_scene.scene, self.light_paths)
-            e = self.emitters
+            e = self.emitters = self.emitters.posed(self.gpu_scene.scene)
             n = int(on_emitters.sum())
             triangles, positions, normals = e.draw(rng, (np.arange(n) + rng.random(n)) / n)
             p_area = e.weights[triangles] / e.total

@@ -53,9 +53,7 @@ class EyePaths:
 
     def light_vertices(self, seed: int, frame: int) -> LightVertices:
         """This frame's emitter samples (only called when there are some)."""
-        scene = self.renderer.gpu_scene.scene
-        if self.emitter_samples.scene is not scene:  # posed since: the emitters may have moved
-            self.emitter_samples = EmitterSamples(scene, self.emitter_samples.count)
+        self.emitter_samples = self.emitter_samples.posed(self.renderer.gpu_scene.scene)
         return self.emitter_samples.frame_lights(seed, frame)
 
     def defines(self) -> dict:

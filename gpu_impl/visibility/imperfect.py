@@ -59,6 +59,8 @@ class ImperfectShadowMaps:
         area = sum(float(m.triangle_areas().sum()) for m in gpu_scene.scene.meshes)
         self.splat_radius = settings.ism_splat_scale * math.sqrt(area / (math.pi * self.points_per_map))
         self.program = gl.program("imperfect_shadow_maps")
+        self.program["points_per_map"] = self.points_per_map
+        self.program["splat_radius"] = self.splat_radius
         self.vao = gl.vertex_array(self.program, [])
 
     def defines(self) -> dict:
@@ -100,10 +102,8 @@ class ImperfectShadowMaps:
         for name in ("LIGHTS", "SHADOW_VIEWS"):  # not the atlas itself: it is being drawn into
             lights.buffers[name].bind_to_storage_buffer(BINDINGS[name])
         self.program["first_vertex_light"] = lights.fixed_lights
-        self.program["points_per_map"] = self.points_per_map
         self.program["seed"] = seed & 0xFFFFFFFF
         self.program["frame"] = frame & 0xFFFFFFFF
-        self.program["splat_radius"] = self.splat_radius
         self.program["atlas_size"] = lights.atlas.size
         self.gl.draw(self.vao, moderngl.POINTS, fb, depth_test=True, vertices=len(positions) * self.points_per_map)
 
