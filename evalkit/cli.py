@@ -35,7 +35,7 @@ from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_E
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
-from evalkit.tune import CALIBRATION_SHARE, settings_text, tune
+from evalkit.tune import CALIBRATION_SHARE, Candidate, settings_text, tune
 from gpu_impl.api import render, trace_bundles
 from gpu_impl.bundles import format_bytes
 from gpu_impl.registry import KINDS, METHODS, all_units, owners, resolve
@@ -425,6 +425,8 @@ def _tune(args) -> int:
         args.scene,
         args.budget,
         method=args.method,
+        strategy=args.strategy,
+        light_visibility=args.light_visibility,
         metric=args.metric,
         out=args.out,
         width=args.width,
@@ -454,7 +456,7 @@ def _tune(args) -> int:
             f"error {measured['error'] / predicted['error']:.2f}x the predicted)"
         )
     for c in result["candidates"]:
-        if c["method"] != rec["method"]:
+        if Candidate.of(c) != Candidate.of(rec):
             print(
                 f"other       {settings_text(c)}: predicted {c['predicted_time_s']:.3g} s, {c['predicted_error']:.4g}"
                 + (
@@ -820,6 +822,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="render time (every frame, after shader compilation)",
     )
     p.add_argument("--method", default="both", metavar="|".join((*METHODS.names, "both")), help="default both")
+    for field in ("strategy", "light_visibility"):
+        registry = KINDS[field]
+        p.add_argument(
+            FLAG_NAMES.get(field, f"--{field}"),
+            dest=field,
+            metavar="|".join((*registry.names, "both")),
+            help=f"default {registry.default.name}; both: the measurement chooses",
+        )
     p.add_argument(
         "--metric",
         default="indirect_relmse",

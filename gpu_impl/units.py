@@ -23,14 +23,41 @@ class NoSettings:
 
 
 @dataclass(frozen=True)
+class TuneTerms:
+    """What a unit adds to `evalkit.tune`'s models (its package docstring has them all): a tuner
+    candidate is a bundle method, a path strategy and a light visibility, and its models have the
+    terms of all three.
+
+    ``axes``: the unit's own settings the optimiser varies, with the values the recommendation is
+    rounded to; those in ``log_axes`` it varies in log space. ``time_terms`` / ``time``: names and
+    per-frame features of the time model's terms beyond the shared ones (a constant and the lists,
+    K R^2); ``error_terms`` / ``error``: the error model's beyond the shared bias and noise.
+    Features are functions of a dict of settings (directions, resolution, frames and the axes;
+    ``sampler`` too for the error) that work on numpy arrays and Dr.Jit floats alike (``xp`` gives
+    exp and log). ``calibration``: the unit's calibration runs, spread so that every term changes
+    between them (a candidate's runs are its bundle method's, each with the other units' settings
+    taken in turn from theirs).
+    """
+
+    axes: dict = field(default_factory=dict)
+    log_axes: tuple[str, ...] = ()
+    time_terms: tuple[str, ...] = ()
+    time: Callable = lambda x: []
+    error_terms: tuple[str, ...] = ()
+    error: Callable = lambda x, xp: []
+    calibration: tuple[dict, ...] = ()
+
+
+@dataclass(frozen=True)
 class Unit:
     """A registered unit: its ``name`` (what settings, flags and study files say), a line saying
-    what it does, and the dataclass of its own settings."""
+    what it does, the dataclass of its own settings and its terms in the tuner's models."""
 
     kind: ClassVar[str] = "unit"
     name: str
     summary: str
     settings: type = NoSettings
+    tune: TuneTerms = TuneTerms()
 
     def option_names(self) -> list[str]:
         return [f.name for f in declared(self.settings)]
@@ -53,36 +80,12 @@ class Unit:
 
 
 @dataclass(frozen=True)
-class TuneTerms:
-    """What a bundle method adds to `evalkit.tune`'s models (its package docstring has them all).
-
-    ``axes``: the method's own settings the optimiser varies, with the values the recommendation is
-    rounded to; those in ``log_axes`` it varies in log space. ``time_terms`` / ``time``: names and
-    per-frame features of the time model's terms beyond the shared ones (a constant and the lists,
-    K R^2); ``error_terms`` / ``error``: the error model's beyond the shared bias and noise.
-    Features are functions of a dict of settings (directions, resolution, frames and the axes;
-    ``sampler`` too for the error) that work on numpy arrays and Dr.Jit floats alike (``xp`` gives
-    exp and log). ``calibration``: the method's calibration runs, spread so that every term changes
-    between them.
-    """
-
-    axes: dict = field(default_factory=dict)
-    log_axes: tuple[str, ...] = ()
-    time_terms: tuple[str, ...] = ()
-    time: Callable = lambda x: []
-    error_terms: tuple[str, ...] = ()
-    error: Callable = lambda x, xp: []
-    calibration: tuple[dict, ...] = ()
-
-
-@dataclass(frozen=True)
 class BundleMethod(Unit):
     """A way to build ray bundles on the GPU. ``tracer(gl, gpu_scene, render_settings, **extra)``
     makes its `gpu_impl.bundles.BundleTracer` (``extra``: the tracer's test and study hooks)."""
 
     kind: ClassVar[str] = "bundle method"
     tracer: Callable = None
-    tune: TuneTerms = TuneTerms()
 
 
 @dataclass(frozen=True)

@@ -56,7 +56,8 @@ def test_imperfect_shadow_maps_light_the_lit_room_as_exact_maps_do(gl):
     # Every pixel of the lit room is lit after a bounce off the ceiling: connections to the light
     # path vertices there carry it. Imperfect maps splat the room from 4096 points per vertex.
     # Measured with the test's settings (B=1, K=16, R=64, 64x48, 8 frames x 2 paths, V=32): 96.6 %
-    # of pixels lit with exact maps, 8.6 % by eye paths alone; indirect mean imperfect / exact 0.983.
+    # of pixels lit with exact maps, 8.6 % by eye paths alone; indirect mean imperfect / exact 1.0002
+    # (0.983 with the first imperfect maps: disks facing the vertex, independent points, scale 1.0).
     settings = dict(bounces=1, directions=16, resolution=64, frames=8, spp=2, width=64, height=48, light_paths=32)
     scene = load_scene("lit-room")
     exact = render_with(gl, scene, strategy="bidirectional", **settings)
@@ -110,7 +111,8 @@ def test_imperfect_shadow_maps_agree_with_exact_maps_and_rays_on_most_connection
     # Frame 0's light path vertices of lit-room (V=32, B=2) against 512 points the camera sees.
     # Measured (`python benchmarks/shadow_maps.py --scene lit-room --vertices 32 --receivers 512`):
     # exact maps disagree with Embree rays on 0.4 % of connections; imperfect maps at the defaults
-    # (64 texels, 4096 points) with exact maps on 5.6 %, at 32 texels and 1024 points on 10.3 %.
+    # (64 texels, 4096 points, splat scale 1.6) with exact maps on 4.1 %, at 32 texels and 1024
+    # points on 7.1 % (5.6 % and 10.3 % with splats facing the vertex, independent points, 1.0).
     scene = load_scene("lit-room")
     base = dict(method="perfect", strategy="bidirectional", directions=32, resolution=128, bounces=2, frames=1)
     settings = {
@@ -125,7 +127,7 @@ def test_imperfect_shadow_maps_agree_with_exact_maps_and_rays_on_most_connection
     truth = traced_visibility(scene, vertices, receivers)
     assert len(vertices.positions) == 32 and (exact >= 0).mean() > 0.3
     assert differing_share(exact, truth) < 0.01
-    assert differing_share(exact, imperfect) < 0.08
+    assert differing_share(exact, imperfect) < 0.06
 
 
 @pytest.mark.slow

@@ -12,50 +12,53 @@ import pytest
 from conftest import run_evalkit
 
 from evalkit.core.errors import InputError
-from evalkit.tune import Model, axes, compare_with_grid, fit_model, optimise
-from gpu_impl.registry import METHODS
+from evalkit.tune import Candidate, Model, axes, calibration_grid, compare_with_grid, fit_model, optimise
 
+PERFECT, IMPERFECT = Candidate("perfect"), Candidate("imperfect")
+BIDIRECTIONAL = Candidate("perfect", "bidirectional")
 TIME = {
-    "perfect": {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0},
-    "imperfect": {"t_once": 0.2, "t0": 0.05, "t_lists": 0.2, "t_points": 0.02, "t_nodes": 0.1},
+    PERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0},
+    IMPERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.2, "t_points": 0.02, "t_nodes": 0.1},
+    BIDIRECTIONAL: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0, "t_light": 0.5},
 }
 ERROR = {
-    "perfect": {"b": 0.004, "v": 0.05, "w": 0.5},
-    "imperfect": {"b": 0.004, "v": 0.05, "w": 0.5, "h": 0.3, "g": 0.002},
+    PERFECT: {"b": 0.004, "v": 0.05, "w": 0.5},
+    IMPERFECT: {"b": 0.004, "v": 0.05, "w": 0.5, "h": 0.3, "g": 0.002},
+    BIDIRECTIONAL: {"b": 0.004, "v": 0.01, "w": 0.5, "u": 0.8},
 }
 
 
-def settings(K, R, N=16384, s=1.8, F=1) -> dict:
-    return {"directions": K, "resolution": R, "points": N, "splat_scale": s, "frames": F}
+def settings(K, R, N=16384, s=1.8, F=1, V=32) -> dict:
+    return {"directions": K, "resolution": R, "points": N, "splat_scale": s, "light_paths": V, "frames": F}
 
 
-def synthetic_rows(method: str) -> list[dict]:
+def synthetic_rows(candidate: Candidate) -> list[dict]:
     """Rows as calibration runs would give them, from the models with known constants."""
-    time_model, error_model = Model(method, "time", TIME[method], []), Model(method, "error", ERROR[method], [])
-    splats = [(4096, 1.4), (16384, 1.8), (8192, 2.4)] if method == "imperfect" else [(16384, 1.8)]
+    time_model = Model(candidate, "time", TIME[candidate], [])
+    error_model = Model(candidate, "error", ERROR[candidate], [])
+    splats = [(4096, 1.4), (16384, 1.8), (8192, 2.4)] if candidate == IMPERFECT else [(16384, 1.8)]
+    light_paths = [8, 64] if candidate == BIDIRECTIONAL else [32]
     rows = []
-    for K, R, F, (N, s) in itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats):
+    for K, R, F, (N, s), V in itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats, light_paths):
+        x = settings(K, R, N, s, F, V)
         rows.append(
             {
-                "method": method,
-                "directions": K,
-                "resolution": R,
-                "points": N,
-                "splat_scale": s,
+                **candidate.settings(),
+                **x,
                 "frames_rendered": F,
-                "wall_s": float(time_model.predict(settings(K, R, N, s, F))),
-                "indirect_relmse": float(error_model.predict(settings(K, R, N, s, F))),
+                "wall_s": float(time_model.predict(x)),
+                "indirect_relmse": float(error_model.predict(x)),
             }
         )
     return rows
 
 
-@pytest.mark.parametrize("method", ["perfect", "imperfect"])
-def test_fits_recover_known_time_and_error_constants(method):
-    rows = synthetic_rows(method)
-    time_model = fit_model(method, "time", rows)
-    error_model = fit_model(method, "error", rows, "indirect_relmse")
-    for fitted, true in ((time_model.constants, TIME[method]), (error_model.constants, ERROR[method])):
+@pytest.mark.parametrize("candidate", [PERFECT, IMPERFECT, BIDIRECTIONAL], ids=lambda c: c.name)
+def test_fits_recover_known_time_and_error_constants(candidate):
+    rows = synthetic_rows(candidate) + synthetic_rows(PERFECT if candidate != PERFECT else IMPERFECT)
+    time_model = fit_model(candidate, "time", rows)  # each candidate fits its own rows only
+    error_model = fit_model(candidate, "error", rows, "indirect_relmse")
+    for fitted, true in ((time_model.constants, TIME[candidate]), (error_model.constants, ERROR[candidate])):
         assert fitted.keys() == true.keys()
         for name, value in true.items():
             assert fitted[name] == pytest.approx(value, rel=0.01), name
@@ -63,21 +66,21 @@ def test_fits_recover_known_time_and_error_constants(method):
 
 
 def test_rows_of_one_frame_each_count_the_once_per_render_cost_per_frame():
-    rows = [r for r in synthetic_rows("perfect") if r["frames_rendered"] == 1]
-    model = fit_model("perfect", "time", rows)
+    rows = [r for r in synthetic_rows(PERFECT) if r["frames_rendered"] == 1]
+    model = fit_model(PERFECT, "time", rows)
     assert model.constants["t_once"] == 0.0 and "every perfect calibration run rendered 1 frame(s)" in model.warning
     assert model.rms_residual() < 0.05  # the one-frame times are still followed
     K, R = 16, 96
-    truth = Model("perfect", "time", TIME["perfect"], [])
+    truth = Model(PERFECT, "time", TIME[PERFECT], [])
     # over-, never under-predicted
     assert float(model.predict(settings(K, R, F=10))) > float(truth.predict(settings(K, R, F=10)))
 
 
 def test_a_weighted_row_pulls_the_fit_towards_it():
-    rows = synthetic_rows("perfect")
+    rows = synthetic_rows(PERFECT)
     anchor = {**rows[0], "indirect_relmse": 2 * rows[0]["indirect_relmse"]}  # a row the model's terms cannot follow
-    plain = fit_model("perfect", "error", rows + [anchor], "indirect_relmse")
-    weighted = fit_model("perfect", "error", rows + [{**anchor, "weight": len(rows)}], "indirect_relmse")
+    plain = fit_model(PERFECT, "error", rows + [anchor], "indirect_relmse")
+    weighted = fit_model(PERFECT, "error", rows + [{**anchor, "weight": len(rows)}], "indirect_relmse")
     assert abs(weighted.residuals[-1]) < 0.5 * abs(plain.residuals[-1])
 
 
@@ -116,16 +119,19 @@ def test_the_grid_comparison_takes_the_best_run_within_the_budget(tmp_path):
         compare_with_grid(result, tmp_path / "missing")
 
 
-@pytest.mark.parametrize("method, budget", [("perfect", 10.0), ("perfect", 60.0), ("imperfect", 10.0)])
-def test_optimisation_finds_the_best_grid_setting_within_the_budget(method, budget):
-    time_model, error_model = Model(method, "time", TIME[method], []), Model(method, "error", ERROR[method], [])
+@pytest.mark.parametrize(
+    "candidate, budget", [(PERFECT, 10.0), (PERFECT, 60.0), (IMPERFECT, 10.0), (BIDIRECTIONAL, 10.0)]
+)
+def test_optimisation_finds_the_best_grid_setting_within_the_budget(candidate, budget):
+    time_model = Model(candidate, "time", TIME[candidate], [])
+    error_model = Model(candidate, "error", ERROR[candidate], [])
     found = optimise(time_model, error_model, budget)
-    grid = axes(method)
+    grid = axes(candidate)
     best = np.inf
     for values in itertools.product(*grid.values()):
         x = dict(zip(grid, values))
-        per_frame = float(time_model.predict({**x, "frames": 1})) - TIME[method]["t_once"]
-        frames = int((budget - TIME[method]["t_once"]) // per_frame)
+        per_frame = float(time_model.predict({**x, "frames": 1})) - TIME[candidate]["t_once"]
+        frames = int((budget - TIME[candidate]["t_once"]) // per_frame)
         if frames >= 1:
             best = min(best, float(error_model.predict({**x, "frames": frames})))
     assert found.predicted_time_s <= budget and found.settings["frames"] >= 1
@@ -133,10 +139,7 @@ def test_optimisation_finds_the_best_grid_setting_within_the_budget(method, budg
 
 
 def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
-    time_model, error_model = (
-        Model("perfect", "time", TIME["perfect"], []),
-        Model("perfect", "error", ERROR["perfect"], []),
-    )
+    time_model, error_model = Model(PERFECT, "time", TIME[PERFECT], []), Model(PERFECT, "error", ERROR[PERFECT], [])
     # The cheapest: K=8, R=32, one frame: 0.2 + 0.05 + 0.3 * 8 * 32^2 * 1e-6 + 2.0 * 8 * 1e-3 = 0.2685 s
     # (shown to 3 digits).
     with pytest.raises(
@@ -153,6 +156,8 @@ def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
         (["--budget", "0"], "the budget must be a positive number of seconds, got 0.0"),
         (["--budget", "10", "--metric", "indirect_psnr"], "unknown metric 'indirect_psnr'; known: direct_mse"),
         (["--budget", "10", "--method", "mitsuba"], "method must be perfect, imperfect or both, got 'mitsuba'"),
+        (["--budget", "10", "--strategy", "light"], "strategy must be eye, bidirectional or both, got 'light'"),
+        (["--budget", "10", "--shadow-maps", "rays"], "light_visibility must be exact, imperfect or both, got 'rays'"),
     ],
 )
 def test_bad_tune_input_is_one_line(tmp_path, args, said):
@@ -162,9 +167,20 @@ def test_bad_tune_input_is_one_line(tmp_path, args, said):
 
 def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     """The whole chain on cornell-box at 1 s: calibration, refinement, a check of each method's
-    optimum, --json's last line, tune.json and report.html."""
+    optimum, --json's last line, tune.json and report.html. One path per pixel a frame, so that a
+    frame fits the budget on a slow machine (16, the default, took 2.1 s a frame here on llvmpipe)."""
     r = run_evalkit(
-        "tune", "cornell-box", "--budget", "1", "--calibration-share", "1", "--json", "--out", str(tmp_path)
+        "tune",
+        "cornell-box",
+        "--budget",
+        "1",
+        "--spp",
+        "1",
+        "--calibration-share",
+        "1",
+        "--json",
+        "--out",
+        str(tmp_path),
     )
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout.strip().splitlines()[-1])
@@ -180,7 +196,7 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     assert result["measured"]["error"] == min(c["measured"]["error"] for c in result["candidates"])
     for method in ("perfect", "imperfect"):  # a residual per calibration run and one for the refinement run
         for kind in ("time", "error"):
-            assert len(result["models"][method][kind]["residuals"]) == len(METHODS[method].tune.calibration) + 1
+            assert len(result["models"][method][kind]["residuals"]) == len(Candidate(method).calibration()) + 1
     assert json.loads((tmp_path / "tune.json").read_text())["recommended"] == rec
     report = (tmp_path / "report.html").read_text()
     assert "<h1>evalkit tune: cornell-box, 1 s</h1>" in report
@@ -188,3 +204,40 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     assert report.count("class='ek-viewer'") == 2 and "check/viewer/" in report
     sources = re.findall(r"&quot;src&quot;: &quot;([^&]+)&quot;", report)
     assert sources and all((tmp_path / src).is_file() for src in sources)
+
+
+def test_a_candidates_calibration_is_its_methods_runs_with_the_other_units_settings_in_turn():
+    runs = calibration_grid([PERFECT, BIDIRECTIONAL], 10.0)
+    eye = [r for r in runs if Candidate.of(r) == PERFECT]
+    light = [r for r in runs if Candidate.of(r) == BIDIRECTIONAL]
+    assert len(eye) == len(light) == len(eye + light) // 2 and len(eye) >= len(TIME[BIDIRECTIONAL])
+    assert [(r["directions"], r["resolution"]) for r in light] == [(r["directions"], r["resolution"]) for r in eye]
+    assert [r["light_paths"] for r in light][:4] == [8, 64, 24, 8] and all("light_paths" not in r for r in eye)
+    assert sum(r["time_budget"] for r in runs) == pytest.approx(10.0, abs=0.01)
+    assert PERFECT.name == "perfect" and BIDIRECTIONAL.name == "perfect strategy=bidirectional"
+    assert Candidate.of({"method": "imperfect", "light_visibility": "imperfect"}).name == (
+        "imperfect light_visibility=imperfect"
+    )
+    assert axes(BIDIRECTIONAL).keys() == {"directions", "resolution", "light_paths"}
+
+
+def test_tune_chooses_between_strategies_on_a_room_lit_only_after_a_bounce(tmp_path):
+    """`--strategy both` calibrates, refines and checks eye and bidirectional paths alike; in the lit
+    room, where eye paths find the light only by chance, the bidirectional optimum measures less
+    error and is recommended with its light paths."""
+    r = run_evalkit(
+        "tune", "lit-room", "--budget", "2", "--method", "perfect", "--strategy", "both", "--width", "32",
+        "--height", "32", "--spp", "4", "--reference-spp", "4096", "--calibration-share", "1", "--json",
+        "--out", str(tmp_path),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    candidates = {Candidate.of(c): c for c in result["candidates"]}
+    assert candidates.keys() == {PERFECT, BIDIRECTIONAL} and result["strategy"] == "both"
+    assert result["models"][BIDIRECTIONAL.name]["time"]["constants"].keys() == TIME[BIDIRECTIONAL].keys()
+    assert result["models"][BIDIRECTIONAL.name]["error"]["constants"].keys() == ERROR[BIDIRECTIONAL].keys()
+    assert "light_paths" in candidates[BIDIRECTIONAL] and "light_paths" not in candidates[PERFECT]
+    assert candidates[BIDIRECTIONAL]["measured"]["error"] < candidates[PERFECT]["measured"]["error"]
+    rec = result["recommended"]
+    assert rec["strategy"] == "bidirectional" and rec["light_paths"] == candidates[BIDIRECTIONAL]["light_paths"]
+    assert "perfect strategy=bidirectional" in (tmp_path / "report.html").read_text()

@@ -2,45 +2,52 @@
 models of time and error fitted to a short calibration sweep of the scene, checked by a render.
 
 For a scene, an image (width x height, B bounces, S eye paths per pixel per frame) and a budget of
-T seconds of render time, the settings are the method, K directions, R lines per side, for
-imperfect bundles N points and splat scale s, and F frames. Each model is fitted per scene and
-method, to the rows of a calibration study (`evalkit.study`, so its runs are cached in the output
-folder and a second call with the same budget runs nothing new):
+T seconds of render time, the settings are the candidate (a bundle method, a path strategy and a
+light visibility: `Candidate`), K directions, R lines per side, for imperfect bundles N points and
+splat scale s, for bidirectional paths V light paths, and F frames. Each model is fitted per scene
+and candidate, to the rows of a calibration study (`evalkit.study`, so its runs are cached in the
+output folder and a second call with the same budget runs nothing new):
 
-**Time** of F frames (seconds; `wall_s` of a row), every constant positive (each bundle method
-adds its own terms, declared with it: `gpu_impl.units.TuneTerms`; today's two are):
+**Time** of F frames (seconds; `wall_s` of a row), every constant positive (each unit adds its own
+terms, declared with it: `gpu_impl.units.TuneTerms`; today's are):
 
-    perfect    t = t_once + F (t0 + t_lists K R^2 + t_dirs K)
-    imperfect  t = t_once + F (t0 + t_lists K R^2 + t_points K N + t_nodes K R^2 s^2)
+    perfect        t = t_once + F (t0 + t_lists K R^2 + t_dirs K)
+    imperfect      t = t_once + F (t0 + t_lists K R^2 + t_points K N + t_nodes K R^2 s^2)
+    bidirectional  the method's + F t_light V
 
 t_once is what a render does once (a static scene's shadow maps, reading the images back); t0 what
 a frame does that does not depend on the bundles (G-buffer, emitter samples, the bounce passes at
 this image size); K R^2 are the lists, K the per-direction draw (perfect), K N the splat points and
-K R^2 s^2 the splat nodes (a splat covers about s^2 A / (4 r^2) R^2 / N lines).
+K R^2 s^2 the splat nodes (a splat covers about s^2 A / (4 r^2) R^2 / N lines); V the light paths'
+B V vertices, each a shadow map (exact or imperfect: the light visibility's cost is in t_light,
+fitted per candidate) and a connection from every eye vertex.
 
 **Error** (the chosen metric, e.g. relMSE of the indirect image against the Mitsuba reference):
 
-    perfect    E = b (64 / R)^2 + (v + w / K) / F
-    imperfect  E = the same + h exp(-c s^q) + g s^2 (16384 / N)
+    perfect        E = b (64 / R)^2 + (v + w / K) / F
+    imperfect      E = the same + h exp(-c s^q) + g s^2 (16384 / N)
+    bidirectional  the method's + u / (F V)
 
 b (64 / R)^2 is the squared O(1/R) bias of the line a path takes (docs/MEASURED_FACTS.md); v / F
 the paths' variance; w / (F K) what a frame's K shared directions add (the directions study); h
 the holes of the splat points, with the hole model's shape for their sampler (c, q:
-studies/hole_vs_splat.toml); g s^2 / N the splats' overhang, which grows with their radius squared.
+studies/hole_vs_splat.toml); g s^2 / N the splats' overhang, which grows with their radius squared;
+u / (F V) what the connections add, shared by a frame's pixels. Each candidate fits its own v: the
+eye paths' variance is what the light paths take away.
 
 Both fits minimise the squared log residuals by gradient descent with Dr.Jit's automatic
 differentiation (`evalkit.metrics.fitting`). The calibration costs about ``calibration_share`` times
 the budget: each of its runs renders frames until its share of that time is spent (the renderer's
 ``time_budget``), at least one, so a larger budget calibrates with more frames, where the bias
 terms it must then predict show through the noise. Half of that time goes to runs spread over the
-settings; the other half renders each method's first optimum, which then anchors the refit
-(`SPREAD`). The optimisation takes, per method, the frames that fill the budget,
-F = (T - t_once) / (time per frame), and minimises log E over log K, log R, log N and s (each
+settings; the other half renders each candidate's first optimum, which then anchors the refit
+(`SPREAD`). The optimisation takes, per candidate, the frames that fill the budget,
+F = (T - t_once) / (time per frame), and minimises log E over log K, log R, log N, s and log V (each
 mapped from an unbounded variable onto its range), by gradient descent on the same Dr.Jit models;
 the optimum is rounded to the settings grid below and its neighbours on the grid are checked (the
 rounded setting with the least predicted error within the budget wins). The check renders each
-method's optimum and measures its time and error; the recommendation is the one with the least
-measured error (without the check: the least predicted error). Between methods the choice is left
+candidate's optimum and measures its time and error; the recommendation is the one with the least
+measured error (without the check: the least predicted error). Between candidates the choice is left
 to the measurement because the models' residuals are as large as the predicted differences: at
 atrium's 10 s the perfect optimum was predicted 6 % better than the imperfect one and measured
 26 % worse.
@@ -51,13 +58,14 @@ least predicted error within a budget), `evalkit.tune.calibration` (the runs and
 """
 
 from evalkit.tune.calibration import CALIBRATION_SHARE, calibration_grid, compare_with_grid, tune
-from evalkit.tune.models import GRID, TUNE_METRICS, Model, axes, fit_model
+from evalkit.tune.models import GRID, TUNE_METRICS, Candidate, Model, axes, fit_model
 from evalkit.tune.optimise import Recommendation, optimise
 from evalkit.tune.report import settings_text, write_tune_report
 
 __all__ = [
     "CALIBRATION_SHARE",
     "GRID",
+    "Candidate",
     "TUNE_METRICS",
     "Model",
     "Recommendation",

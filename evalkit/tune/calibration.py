@@ -1,9 +1,10 @@
 """The tuner's runs and its answer: the calibration sweep, the refinement that anchors the models
-where the decision is made, the check that renders each method's optimum, and `tune`, which does
+where the decision is made, the check that renders each candidate's optimum, and `tune`, which does
 all of it (evalkit/tune/__init__.py says why each step is there)."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import sys
@@ -17,17 +18,17 @@ from evalkit.pages import is_number
 from evalkit.study.executors import read_rows, run_study
 from evalkit.study.run import versions
 from evalkit.study.spec import study_from_dict
-from evalkit.tune.models import TUNE_METRICS, axes, fit_model
+from evalkit.tune.models import TUNE_METRICS, Candidate, axes, fit_model
 from evalkit.tune.optimise import optimise
 from evalkit.tune.report import write_tune_report
-from gpu_impl.registry import METHODS
+from gpu_impl.registry import KINDS
 
-# The last two calibration runs of each method have LONG shares of the calibration time: runs where
+# The last two calibration runs of each candidate have LONG shares of the calibration time: runs where
 # the noise has fallen far enough for the bias terms to show (fitted to short runs alone, the
 # error model put cornell-box's 60 s recommendation at half its measured error).
 LONG = 3
 CALIBRATION_SHARE = 2.0  # the calibration's render time, in budgets (each run renders at least one frame)
-# The part of it that the spread runs share; the rest renders each method's first optimum, which
+# The part of it that the spread runs share; the rest renders each candidate's first optimum, which
 # then weighs as much as half the spread runs in the refit: a model of a few terms is least wrong
 # where the decision is made, and the error model's bias terms extrapolate badly (atrium's
 # holes and overhang grow fast below N = 16384, its 10 s recommendation measured 13x its
@@ -36,16 +37,16 @@ SPREAD = 0.5
 MAX_FRAMES = 100_000  # a calibration run's frame limit: its time budget ends it long before
 
 
-def calibration_grid(methods: tuple[str, ...], seconds: float) -> list[dict]:
-    """The calibration sweep's runs (each method's `TuneTerms.calibration`), each with its share of
-    ``seconds`` as its time budget."""
-    runs = {m: METHODS[m].tune.calibration for m in methods}
-    shares = {m: [1] * (len(runs[m]) - 2) + [LONG] * 2 for m in methods}
+def calibration_grid(candidates: list[Candidate], seconds: float) -> list[dict]:
+    """The calibration sweep's runs (each candidate's `Candidate.calibration`), each with its share
+    of ``seconds`` as its time budget."""
+    runs = {c: c.calibration() for c in candidates}
+    shares = {c: [1] * (len(runs[c]) - 2) + [LONG] * 2 for c in candidates}
     unit = seconds / sum(sum(v) for v in shares.values())
     return [
-        {"method": m, **settings, "time_budget": round(share * unit, 3), "frames": MAX_FRAMES}
-        for m in methods
-        for settings, share in zip(runs[m], shares[m])
+        {**settings, "time_budget": round(share * unit, 3), "frames": MAX_FRAMES}
+        for c in candidates
+        for settings, share in zip(runs[c], shares[c])
     ]
 
 
@@ -91,6 +92,8 @@ def tune(
     scene: str,
     budget: float,
     method: str = "both",
+    strategy: str | None = None,
+    light_visibility: str | None = None,
     metric: str = "indirect_relmse",
     out: str | Path | None = None,
     width: int = 128,
@@ -106,6 +109,9 @@ def tune(
 ) -> dict:
     """Recommend settings for ``scene`` within ``budget`` seconds of render time, predicted by models
     fitted to a calibration sweep of about ``calibration_share`` x ``budget`` seconds of render time,
+    among the candidates of ``method``, ``strategy`` and ``light_visibility`` (each a registered
+    unit's name, or "both" for every registered one; the strategy and light visibility default to
+    the default units),
     and (``check``) measure the recommendation; ``grid``: a study's folder to compare it with
     (`compare_with_grid`). Returns everything `evalkit tune --json` prints; writes ``tune.json``
     and ``report.html`` to ``out``."""
@@ -113,70 +119,73 @@ def tune(
         raise InputError("tune", f"the budget must be a positive number of seconds, got {budget}")
     if metric not in TUNE_METRICS:
         raise InputError("tune", f"unknown metric {metric!r}; known: {', '.join(TUNE_METRICS)}")
-    if method not in (*METHODS.names, "both"):
-        known = ", ".join(METHODS.names)
-        raise InputError("tune", f"method must be {known} or both, got {method!r}")
+    choices = {"method": method, "strategy": strategy, "light_visibility": light_visibility}
+    for field, name in choices.items():
+        registry = KINDS[field]
+        if name not in (*registry.names, "both", None):
+            raise InputError("tune", f"{field} must be {', '.join(registry.names)} or both, got {name!r}")
     if not (isinstance(calibration_share, (int, float)) and math.isfinite(calibration_share) and calibration_share > 0):
         raise InputError("tune", f"the calibration share must be a positive number of budgets, got {calibration_share}")
     if grid is not None and not (Path(grid) / "results.jsonl").is_file():
         raise InputError(
             str(grid), "no results.jsonl: run the grid study first (evalkit study studies/tune_check.toml)"
         )
-    methods = METHODS.names if method == "both" else (method,)
+    names = {f: KINDS[f].names if n == "both" else (n or KINDS[f].default.name,) for f, n in choices.items()}
+    candidates = [Candidate(**dict(zip(names, units))) for units in itertools.product(*names.values())]
     out = Path(out or f"out/tune/{Path(scene).stem}")
     image = {"width": width, "height": height, "bounces": bounces, "spp": spp}
     start = time.perf_counter()
     studies = TunerStudies({"scene": scene, "seed": seed, **image}, metric, reference_spp, out, progress)
     seconds = calibration_share * budget
-    rows = studies.run("calibration", calibration_grid(methods, SPREAD * seconds))
-    models = {m: _fit(m, rows, metric) for m in methods}
-    first = {m: optimise(models[m]["time"], models[m]["error"], budget) for m in methods}
-    share = round((1 - SPREAD) * seconds / len(methods), 3)
+    rows = studies.run("calibration", calibration_grid(candidates, SPREAD * seconds))
+    models = {c: _fit(c, rows, metric) for c in candidates}
+    first = [optimise(models[c]["time"], models[c]["error"], budget) for c in candidates]
+    share = round((1 - SPREAD) * seconds / len(candidates), 3)
     anchors = studies.run(
         "refinement",
-        [{**c.settings, "method": m, "frames": MAX_FRAMES, "time_budget": share} for m, c in first.items()],
+        [{**o.candidate.settings(), **o.settings, "frames": MAX_FRAMES, "time_budget": share} for o in first],
     )
-    rows += [{**r, "weight": len(METHODS[r["method"]].tune.calibration) / 2} for r in anchors]
-    models = {m: _fit(m, rows, metric) for m in methods}
-    candidates = [optimise(models[m]["time"], models[m]["error"], budget) for m in methods]
+    rows += [{**r, "weight": len(Candidate.of(r).calibration()) / 2} for r in anchors]
+    models = {c: _fit(c, rows, metric) for c in candidates}
+    optima = [optimise(models[c]["time"], models[c]["error"], budget) for c in candidates]
     measured = {}
     if check:
-        # Every method's candidate is rendered and the least measured error wins: between methods
-        # the models' residuals (0.1-0.3 in log) are as large as the predicted differences.
-        checked = studies.run("check", [{"method": c.method, **c.settings} for c in candidates])
+        # Every candidate's optimum is rendered and the least measured error wins: between
+        # candidates the models' residuals (0.1-0.3 in log) are as large as the predicted differences.
+        checked = studies.run("check", [{**o.candidate.settings(), **o.settings} for o in optima])
         measured = {
-            r["method"]: {"time_s": float(r["wall_s"]), "error": float(r[metric]), "run_id": r["run_id"]}
+            Candidate.of(r): {"time_s": float(r["wall_s"]), "error": float(r[metric]), "run_id": r["run_id"]}
             for r in checked
         }
-        best = min(candidates, key=lambda c: measured[c.method]["error"])
+        best = min(optima, key=lambda o: measured[o.candidate]["error"])
     else:
-        best = min(candidates, key=lambda c: c.predicted_error)
+        best = min(optima, key=lambda o: o.predicted_error)
     result = {
         "scene": scene,
         "budget_s": budget,
         "metric": metric,
-        "method": method,
+        **{field: name for field, name in choices.items() if name is not None},
         "image": image,
         "seed": seed,
         "reference_spp": reference_spp,
-        "recommended": {"method": best.method, **best.settings, **image},
+        "recommended": {**best.candidate.settings(), **best.settings, **image},
         "predicted": {"time_s": best.predicted_time_s, "error": best.predicted_error},
         "chosen_by": "measured error" if check else "predicted error",
-        "candidates": [{**c.as_dict(), **({"measured": measured[c.method]} if check else {})} for c in candidates],
-        **({"measured": measured[best.method]} if check else {}),
+        "candidates": [{**o.as_dict(), **({"measured": measured[o.candidate]} if check else {})} for o in optima],
+        **({"measured": measured[best.candidate]} if check else {}),
         "models": {
-            m: {
+            c.name: {
                 kind: {
-                    "constants": models[m][kind].constants,
-                    "residuals": models[m][kind].residuals,
-                    "rms_log_residual": models[m][kind].rms_residual(),
+                    "constants": models[c][kind].constants,
+                    "residuals": models[c][kind].residuals,
+                    "rms_log_residual": models[c][kind].rms_residual(),
                 }
                 for kind in ("time", "error")
             }
-            for m in methods
+            for c in candidates
         },
-        "first_optimum": [c.as_dict() for c in first.values()],
-        "warnings": [model.warning for m in methods for model in models[m].values() if model.warning],
+        "first_optimum": [o.as_dict() for o in first],
+        "warnings": [model.warning for c in candidates for model in models[c].values() if model.warning],
         "calibration": {
             "runs": len(rows),
             "share": calibration_share,
@@ -196,8 +205,8 @@ def tune(
     return result
 
 
-def _fit(method: str, rows: list[dict], metric: str) -> dict:
-    return {"time": fit_model(method, "time", rows), "error": fit_model(method, "error", rows, metric)}
+def _fit(candidate: Candidate, rows: list[dict], metric: str) -> dict:
+    return {"time": fit_model(candidate, "time", rows), "error": fit_model(candidate, "error", rows, metric)}
 
 
 def compare_with_grid(result: dict, folder: Path) -> dict:
@@ -227,11 +236,12 @@ def compare_with_grid(result: dict, folder: Path) -> dict:
             f"{image['spp']} spp with time_budget = {budget:g} measured {metric} within it",
         )
     best = min(same, key=lambda r: r[metric])
-    keys = ("method", *axes(best["method"]), "frames_rendered")
+    candidate = Candidate.of(best)
+    settings = {**candidate.settings(), **{k: best[k] for k in (*axes(candidate), "frames_rendered")}}
     out = {
         "folder": str(folder),
         "runs": len(same),
-        "best": {**{k: best[k] for k in keys}, "time_s": best["wall_s"], "error": best[metric]},
+        "best": {**settings, "time_s": best["wall_s"], "error": best[metric]},
     }
     if "measured" in result:
         out["ratio"] = result["measured"]["error"] / best[metric]

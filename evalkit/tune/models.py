@@ -1,11 +1,12 @@
 """The tuner's models of render time and error (evalkit/tune/__init__.py gives them) and their fit
-to calibration rows with Dr.Jit's automatic differentiation. Each bundle method adds its own terms
-(`gpu_impl.units.TuneTerms`); the shared ones are here."""
+to calibration rows with Dr.Jit's automatic differentiation. A candidate is a choice of units (a
+bundle method, a path strategy, a light visibility); each unit adds its own terms
+(`gpu_impl.units.TuneTerms`), the shared ones are here."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -14,11 +15,11 @@ from evalkit.core.settings import IMAGES
 from evalkit.metrics.fitting import drjit, gradient_descent
 from evalkit.metrics.images import METRICS
 from evalkit.pages import is_number
-from gpu_impl.registry import METHODS
+from gpu_impl.registry import KINDS
 
 TUNE_METRICS = tuple(f"{image}_{metric}" for image in IMAGES for metric in METRICS)
-# The settings every method's recommendation is rounded to (and their ranges for the optimisation);
-# each method adds its own axes (`axes`). No fewer than 8 directions: a path never takes the bundle
+# The settings every candidate's recommendation is rounded to (and their ranges for the optimisation);
+# each unit adds its own axes (`axes`). No fewer than 8 directions: a path never takes the bundle
 # it arrived along, and at K = 4 that is a bias no term of the error model has (an open stage's
 # indirect light -13 %, docs/MEASURED_FACTS.md); atrium's 10 s recommendation at K = 4 measured
 # twice its prediction.
@@ -27,46 +28,83 @@ GRID = {
     "resolution": [32, 48, 64, 96, 128, 192, 256],
 }
 LOG_AXES = ("directions", "resolution")
-# The terms every method's models have: a render's once-only cost, a frame's cost outside the
+# The terms every candidate's models have: a render's once-only cost, a frame's cost outside the
 # bundles and the lists K R^2 (time); the O(1/R) bias, the paths' variance and what a frame's K
 # shared directions add (error).
 TIME_TERMS = ("t_once", "t0", "t_lists")
 ERROR_TERMS = ("b", "v", "w")
 
 
-def axes(method: str) -> dict:
-    """The settings the optimiser varies for ``method``, with their grids."""
-    return {**GRID, **METHODS[method].tune.axes}
+@dataclass(frozen=True)
+class Candidate:
+    """What the tuner models and recommends between: one unit of each kind, by name (the defaults
+    unless given)."""
+
+    method: str = KINDS["method"].default.name
+    strategy: str = KINDS["strategy"].default.name
+    light_visibility: str = KINDS["light_visibility"].default.name
+
+    @classmethod
+    def of(cls, settings: dict) -> Candidate:
+        """The candidate of a run's settings or row (an absent unit: the default)."""
+        return cls(**{f.name: settings.get(f.name) or getattr(cls, f.name) for f in fields(cls)})
+
+    def settings(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @property
+    def name(self) -> str:
+        """'perfect', or 'perfect strategy=bidirectional' and so on: the method and each other unit
+        that is not the default."""
+        others = [f"{k}={v}" for k, v in self.settings().items() if k != "method" and v != getattr(Candidate, k)]
+        return " ".join([self.method, *others])
+
+    @property
+    def tunes(self) -> list:
+        return [KINDS[k][v].tune for k, v in self.settings().items()]
+
+    def calibration(self) -> list[dict]:
+        """The calibration runs: the bundle method's, each with the other units' settings taken in
+        turn from their runs."""
+        own = [t.calibration for t in self.tunes if t.calibration]
+        count = max((len(c) for c in own), default=0)
+        return [{**self.settings(), **{k: v for c in own for k, v in c[i % len(c)].items()}} for i in range(count)]
 
 
-def log_axes(method: str) -> tuple[str, ...]:
-    return (*LOG_AXES, *METHODS[method].tune.log_axes)
+def axes(candidate: Candidate) -> dict:
+    """The settings the optimiser varies for ``candidate``, with their grids."""
+    return {**GRID, **{a: v for t in candidate.tunes for a, v in t.axes.items()}}
 
 
-def term_names(method: str, kind: str) -> tuple[str, ...]:
-    tune = METHODS[method].tune
-    return (*TIME_TERMS, *tune.time_terms) if kind == "time" else (*ERROR_TERMS, *tune.error_terms)
+def log_axes(candidate: Candidate) -> tuple[str, ...]:
+    return (*LOG_AXES, *(a for t in candidate.tunes for a in t.log_axes))
 
 
-def time_features(method: str, x: dict) -> list:
+def term_names(candidate: Candidate, kind: str) -> tuple[str, ...]:
+    if kind == "time":
+        return (*TIME_TERMS, *(n for t in candidate.tunes for n in t.time_terms))
+    return (*ERROR_TERMS, *(n for t in candidate.tunes for n in t.error_terms))
+
+
+def time_features(candidate: Candidate, x: dict) -> list:
     """The time model's terms without their constants, for settings ``x`` (directions, resolution,
-    frames and the method's axes; numpy arrays or Dr.Jit floats)."""
+    frames and the candidate's axes; numpy arrays or Dr.Jit floats)."""
     K, R, F = x["directions"], x["resolution"], x["frames"]
     lists = K * R * R * 1e-6
-    return [F * 0.0 + 1.0, F, F * lists, *METHODS[method].tune.time(x)]
+    return [F * 0.0 + 1.0, F, F * lists, *(f for t in candidate.tunes for f in t.time(x))]
 
 
-def error_features(method: str, x: dict, xp=np) -> list:
+def error_features(candidate: Candidate, x: dict, xp=np) -> list:
     """The error model's terms without their constants; ``xp`` (numpy or drjit) gives exp and log."""
     K, R, F = x["directions"], x["resolution"], x["frames"]
-    return [(64.0 / R) * (64.0 / R), 1.0 / F, 1.0 / (F * K), *METHODS[method].tune.error(x, xp)]
+    return [(64.0 / R) * (64.0 / R), 1.0 / F, 1.0 / (F * K), *(f for t in candidate.tunes for f in t.error(x, xp))]
 
 
 @dataclass
 class Model:
     """Positive constants of a sum of terms, fitted to rows; `predict` evaluates it."""
 
-    method: str
+    candidate: Candidate
     kind: str  # "time" (seconds for F frames) or "error"
     constants: dict
     residuals: list  # log(predicted / measured) per calibration row
@@ -75,12 +113,12 @@ class Model:
 
     def terms(self, x: dict, xp=np) -> list:
         if self.kind == "time":
-            return time_features(self.method, x)
-        return error_features(self.method, {"sampler": self.sampler, **x}, xp)
+            return time_features(self.candidate, x)
+        return error_features(self.candidate, {"sampler": self.sampler, **x}, xp)
 
     def predict(self, x: dict, xp=np):
         """Seconds for ``x["frames"]`` frames (time) or the metric after them (error), at settings
-        ``x`` (the method's axes); numpy or Dr.Jit (``xp``) arrays."""
+        ``x`` (the candidate's axes); numpy or Dr.Jit (``xp``) arrays."""
         return sum(c * t for c, t in zip(self.constants.values(), self.terms({"frames": 1.0, **x}, xp)))
 
     def rms_residual(self) -> float:
@@ -88,26 +126,29 @@ class Model:
 
 
 def fit_model(
-    method: str, kind: str, rows: list[dict], metric: str | None = None, sampler: str = "stratified"
+    candidate: Candidate, kind: str, rows: list[dict], metric: str | None = None, sampler: str = "stratified"
 ) -> Model:
-    """Fit the time model (to ``wall_s``) or the error model (to ``metric``) of ``method`` to rows of
-    calibration runs (their frames: ``frames_rendered``), by Dr.Jit AD on the squared log residuals."""
-    names = term_names(method, kind)
+    """Fit the time model (to ``wall_s``) or the error model (to ``metric``) of ``candidate`` to its
+    rows of calibration runs (their frames: ``frames_rendered``), by Dr.Jit AD on the squared log
+    residuals."""
+    names = term_names(candidate, kind)
     target_key = "wall_s" if kind == "time" else metric
-    rows = [r for r in rows if r.get("method") == method and is_number(r.get(target_key))]
+    rows = [r for r in rows if Candidate.of(r) == candidate and is_number(r.get(target_key))]
     if len(rows) < len(names):
         raise InputError(
-            "tune", f"{len(rows)} usable {method} calibration rows for the {kind} model; it needs at least {len(names)}"
+            "tune",
+            f"{len(rows)} usable {candidate.name} calibration rows for the {kind} model; "
+            f"it needs at least {len(names)}",
         )
-    x = {a: np.array([float(r[a]) for r in rows]) for a in axes(method)}
+    x = {a: np.array([float(r[a]) for r in rows]) for a in axes(candidate)}
     x["frames"] = F = np.array([float(r["frames_rendered"]) for r in rows])
     target = np.array([float(r[target_key]) for r in rows])
     weight = np.array([float(r.get("weight", 1.0)) for r in rows])
     if np.any(target <= 0):
         raise InputError(
-            "tune", f"a {method} calibration row has {target_key} <= 0; the {kind} model needs positive values"
+            "tune", f"a {candidate.name} calibration row has {target_key} <= 0; the {kind} model needs positive values"
         )
-    skeleton = Model(method, kind, dict.fromkeys(names, 1.0), [], sampler)
+    skeleton = Model(candidate, kind, dict.fromkeys(names, 1.0), [], sampler)
     features = [np.broadcast_to(np.asarray(t, dtype=np.float64), target.shape) for t in skeleton.terms(x)]
     # A render's once-only cost cannot be told from a frame's when every row rendered as many
     # frames (a budget so short that each calibration run rendered one): it is then counted per
@@ -117,8 +158,9 @@ def fit_model(
     if kind == "time" and np.all(F[0] == F):
         fitted.remove("t_once")
         warning = (
-            f"every {method} calibration run rendered {F[0]:g} frame(s), so the time model counts the once-per-render "
-            f"cost per frame and over-predicts longer renders; a larger --calibration-share or budget separates them"
+            f"every {candidate.name} calibration run rendered {F[0]:g} frame(s), so the time model counts the "
+            "once-per-render cost per frame and over-predicts longer renders; a larger --calibration-share or budget "
+            "separates them"
         )
     features = [f for name, f in zip(names, features) if name in fitted]
     log_target = np.log(target)
@@ -132,6 +174,6 @@ def fit_model(
 
     log_constants = dict(zip(fitted, gradient_descent(loss, start, steps=1500, rate=0.05)))
     constants = {name: math.exp(log_constants[name]) if name in log_constants else 0.0 for name in names}
-    model = Model(method, kind, constants, [], sampler, warning)
+    model = Model(candidate, kind, constants, [], sampler, warning)
     model.residuals = [float(v) for v in np.log(model.predict(x) / target)]
     return model

@@ -1,4 +1,4 @@
-"""The least predicted error within a time budget, for one method: gradient descent over the
+"""The least predicted error within a time budget, for one candidate: gradient descent over the
 continuous settings with the frames filling the budget, then the grid around the optimum."""
 
 from __future__ import annotations
@@ -10,20 +10,20 @@ import numpy as np
 
 from evalkit.core.errors import InputError
 from evalkit.metrics.fitting import drjit, gradient_descent
-from evalkit.tune.models import Model, axes, log_axes
+from evalkit.tune.models import Candidate, Model, axes, log_axes
 from gpu_impl.registry import settings_symbols
 
 
 @dataclass
 class Recommendation:
-    method: str
-    settings: dict  # directions, resolution, frames and the method's own axes
+    candidate: Candidate
+    settings: dict  # directions, resolution, frames and the candidate's own axes
     predicted_time_s: float
     predicted_error: float
 
     def as_dict(self) -> dict:
         return {
-            "method": self.method,
+            **self.candidate.settings(),
             **self.settings,
             "predicted_time_s": self.predicted_time_s,
             "predicted_error": self.predicted_error,
@@ -31,10 +31,10 @@ class Recommendation:
 
 
 def optimise(time_model: Model, error_model: Model, budget: float) -> Recommendation:
-    """The least predicted error within ``budget`` seconds for one method: gradient descent over
+    """The least predicted error within ``budget`` seconds for one candidate: gradient descent over
     the continuous settings (frames filling the budget), then the grid around the optimum."""
-    method = time_model.method
-    grid = axes(method)
+    candidate = time_model.candidate
+    grid = axes(candidate)
     names = list(grid)
     t_once = time_model.constants["t_once"]
 
@@ -48,13 +48,13 @@ def optimise(time_model: Model, error_model: Model, budget: float) -> Recommenda
         setting = ", ".join(f"{symbols.get(a, a)}={v}" for a, v in cheapest_settings.items())
         raise InputError(
             "tune",
-            f"a budget of {budget:g} s is below the cheapest {method} setting ({setting}, 1 frame: "
+            f"a budget of {budget:g} s is below the cheapest {candidate.name} setting ({setting}, 1 frame: "
             f"{cheapest:.3g} s predicted); give at least {cheapest:.3g} s",
         )
     _, Float = drjit()
     lo = {a: values[0] for a, values in grid.items()}
     hi = {a: values[-1] for a, values in grid.items()}
-    logarithmic = log_axes(method)
+    logarithmic = log_axes(candidate)
 
     def settings_of(dr_, u: list) -> dict:
         out = {}
@@ -74,16 +74,18 @@ def optimise(time_model: Model, error_model: Model, budget: float) -> Recommenda
     u = gradient_descent(loss, [0.0] * len(names), steps=600, rate=0.05)
     continuous = {a: float(v) for a, v in settings_of(np, u).items()}
     best = None
-    for candidate in _neighbours(continuous, grid):
-        frames = int((budget - t_once) // float(frame_time(candidate)))
+    for setting in _neighbours(continuous, grid):
+        frames = int((budget - t_once) // float(frame_time(setting)))
         if frames < 1:
             continue
-        x = {**candidate, "frames": frames}
+        x = {**setting, "frames": frames}
         error = float(error_model.predict(x))
         if best is None or error < best.predicted_error:
-            best = Recommendation(method, x, float(time_model.predict(x)), error)
+            best = Recommendation(candidate, x, float(time_model.predict(x)), error)
     if best is None:  # the continuous optimum's neighbours all cost over a frame of the budget
-        raise InputError("tune", f"no {method} setting near the optimum fits {budget:g} s; give a larger budget")
+        raise InputError(
+            "tune", f"no {candidate.name} setting near the optimum fits {budget:g} s; give a larger budget"
+        )
     return best
 
 

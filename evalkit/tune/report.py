@@ -14,6 +14,7 @@ from evalkit.figures import pyplot, save_figure
 from evalkit.pages import page
 from evalkit.report import run_viewers
 from evalkit.study.executors import read_rows
+from evalkit.tune.models import Candidate
 from evalkit.tune.optimise import optimise
 from gpu_impl.registry import settings_symbols
 
@@ -26,8 +27,8 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
     # Nine budgets a factor 2 apart: each is a whole optimisation (about 0.1 s).
     budgets = np.geomspace(budget / 16, budget * 16, 9)
-    for i, (method, m) in enumerate(models.items()):
-        colour = f"C{i}"
+    for i, (candidate, m) in enumerate(models.items()):
+        colour, name = f"C{i}", candidate.name
         front = []
         for b in budgets:
             try:
@@ -35,24 +36,24 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
             except InputError:
                 continue
         if front:
-            ax.plot(*zip(*front), "-", color=colour, label=f"{method}: predicted front")
-        mine = [r for r in rows if r["method"] == method]
+            ax.plot(*zip(*front), "-", color=colour, label=f"{name}: predicted front")
+        mine = [r for r in rows if Candidate.of(r) == candidate]
         ax.plot(
             [r["wall_s"] for r in mine],
             [r[metric] for r in mine],
             "o",
             color=colour,
             mfc="none",
-            label=f"{method}: calibration runs",
+            label=f"{name}: calibration runs",
         )
-        for c in (c for c in result["candidates"] if c["method"] == method):
+        for c in (c for c in result["candidates"] if Candidate.of(c) == candidate):
             ax.plot(
                 [c["predicted_time_s"]],
                 [c["predicted_error"]],
                 "*",
                 color=colour,
                 ms=11,
-                label=f"{method} optimum: predicted",
+                label=f"{name} optimum: predicted",
             )
             if "measured" in c:
                 ax.plot(
@@ -61,7 +62,7 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
                     "X",
                     color=colour,
                     ms=9,
-                    label=f"{method} optimum: measured",
+                    label=f"{name} optimum: measured",
                 )
     ax.axvline(budget, color="grey", lw=0.8, ls=":")
     ax.set(
@@ -88,7 +89,7 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
         f"cached in {html.escape(' and '.join(calibration['folders']))}.</p>",
         "<h2>Recommendation</h2><table><tr><th>setting</th><th>value</th></tr>",
         *[f"<tr><td>{html.escape(k)}</td><td>{v}</td></tr>" for k, v in rec.items()],
-        f"</table><p>Each method's optimum, chosen between by {html.escape(result['chosen_by'])}:</p>",
+        f"</table><p>Each candidate's optimum, chosen between by {html.escape(result['chosen_by'])}:</p>",
         "<table><tr><th>candidate</th><th>predicted time (s)</th><th>predicted error</th>"
         "<th>measured time (s)</th><th>measured error</th></tr>",
         *[
@@ -116,12 +117,12 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
         "<h2>Fitted models</h2>",
         *[f"<p><b>Warning</b>: {html.escape(w)}</p>" for w in result["warnings"]],
     ]
-    for method, m in result["models"].items():
+    for name, m in result["models"].items():
         for kind, fitted in m.items():
             constants = ", ".join(f"{k} = {v:.4g}" for k, v in fitted["constants"].items())
             residuals = ", ".join(f"{v:+.2f}" for v in fitted["residuals"])
             parts.append(
-                f"<p><b>{method} {kind}</b>: {constants}; log residuals per run {residuals} "
+                f"<p><b>{html.escape(name)} {kind}</b>: {constants}; log residuals per run {residuals} "
                 f"(rms {fitted['rms_log_residual']:.2f})</p>"
             )
     write_text(path, page(f"evalkit tune: {result['scene']}", parts))
@@ -143,6 +144,8 @@ def _check_viewers(result: dict, folder: Path) -> list[str]:
 
 
 def settings_text(settings: dict) -> str:
-    """'perfect K=8 R=256 F=22' and so on, from a candidate's or a grid row's settings."""
+    """'perfect K=8 R=256 F=22', 'perfect strategy=bidirectional V=32 K=8 R=128 F=10' and so on, from
+    a candidate's or a grid row's settings."""
     short = {**settings_symbols(), "frames_rendered": "F"}
-    return " ".join([settings["method"], *(f"{short[k]}={v}" for k, v in settings.items() if k in short)])
+    symbols = [f"{short[k]}={v}" for k, v in settings.items() if k in short]
+    return " ".join([Candidate.of(settings).name, *symbols])

@@ -7,10 +7,8 @@
 // SAMPLER picks how (gpu_impl/layout.py: SAMPLERS):
 // - SAMPLER_RANDOM: independent uniform points (a Poisson process over the surface, the textbook
 //   model of splat coverage: a hole wherever no centre lies within the splat radius).
-// - SAMPLER_STRATIFIED: u = (i + xi) / N, shifted per direction, so every stretch of the curve gets
-//   its share of points within one. Within a triangle the same u carries on down a curve that
-//   halves the triangle again and again (each half has half the area), so the points of a large
-//   triangle are stratified in 2D too. Fewer holes for the same splat size, so fewer nodes.
+// - SAMPLER_STRATIFIED: stratified over the area, a shift per direction (area_sampling.glsl:
+//   stratified_point). Fewer holes for the same splat size, so fewer nodes.
 
 #define NODE_REFERENCE NODE_SPLAT_POINT
 #define SPLAT_POINTS_WRITE
@@ -27,8 +25,6 @@ uniform uint triangle_count;
 uniform uint seed;
 uniform uint frame;
 
-#define CURVE_LEVELS 16  // 2^16 cells per triangle: as fine as the unorm16 barycentrics
-
 void main() {
     uint id = linear_id();
     if (id >= invocations) return;
@@ -37,34 +33,10 @@ void main() {
 #if SAMPLER == SAMPLER_STRATIFIED
     float shift = unit_float(pcg4d(uvec4(0xFFFFFFFFu, k, seed, frame)).x);
     float u = fract((float(i) + unit_float(r.x)) / float(points_per_direction) + shift);
+    uint triangle;
+    vec2 b = stratified_point(u, vec2(unit_float(r.y), unit_float(r.z)), triangle);
 #else
-    float u = unit_float(r.x);
-#endif
-    uint lo = curve_position(u);
-    uint triangle = area_cdf[lo].y;
-#if SAMPLER == SAMPLER_STRATIFIED
-    // Where u falls inside this triangle's stretch of the CDF, down the halving curve: a
-    // sub-triangle (apex, start, end) is split at the middle of start-end into (middle, start,
-    // apex) then (middle, apex, end), two halves of equal area that the curve runs through in
-    // turn. Corners are barycentrics (b1, b2) of the triangle.
-    float below = lo > 0u ? cdf_at(lo - 1u) : 0.0;
-    float s = clamp((u - below) / max(cdf_at(lo) - below, 1e-30), 0.0, 1.0);
-    vec2 apex = vec2(0.0), start = vec2(1.0, 0.0), end = vec2(0.0, 1.0);
-    for (int level = 0; level < CURVE_LEVELS; level++) {
-        vec2 middle = 0.5 * (start + end);
-        s *= 2.0;
-        if (s < 1.0) {
-            end = apex; apex = middle;
-        } else {
-            s -= 1.0;
-            start = apex; apex = middle;
-        }
-    }
-    // A uniform point in the last cell.
-    float a = unit_float(r.y), c = unit_float(r.z);
-    if (a + c > 1.0) { a = 1.0 - a; c = 1.0 - c; }
-    vec2 b = apex + a * (start - apex) + c * (end - apex);
-#else
+    uint triangle = area_cdf[curve_position(unit_float(r.x))].y;
     // Uniform on the triangle: b1 + b2 <= 1 with density 2.
     float sq = sqrt(unit_float(r.y)), w = unit_float(r.z);
     vec2 b = vec2(sq * (1.0 - w), sq * w);

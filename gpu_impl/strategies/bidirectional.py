@@ -35,7 +35,7 @@ from gpu_impl.context import set_uniforms
 from gpu_impl.layout import BINDINGS, LIGHT_PATH_START, LIGHT_PATH_VERTEX
 from gpu_impl.lights import EmitterSamples, LightVertices
 from gpu_impl.strategies.eye import EyePaths, EyeSettings
-from gpu_impl.units import PathStrategy
+from gpu_impl.units import PathStrategy, TuneTerms
 
 DEFAULT_LIGHT_PATHS = 32
 
@@ -238,10 +238,30 @@ class LightSources:
         return records
 
 
+def _time(x: dict) -> list:
+    # t_light: a frame's V B light vertices, each a shadow map and a connection from every eye vertex.
+    return [x["frames"] * x["light_paths"] * 1e-2]
+
+
+def _error(x: dict, xp) -> list:
+    # u: what the connections add, falling with the light paths a frame shares among its pixels.
+    return [1.0 / (x["frames"] * x["light_paths"])]
+
+
 STRATEGY = PathStrategy(
     name="bidirectional",
     summary="eye paths and light paths over the frame's bundles, connected through shadow maps, "
     "every strategy weighted by multiple importance sampling",
     settings=BidirectionalSettings,
     paths=BidirectionalPaths,
+    tune=TuneTerms(
+        axes={"light_paths": [8, 16, 32, 64, 128, 256]},
+        log_axes=("light_paths",),
+        time_terms=("t_light",),
+        time=_time,
+        error_terms=("u",),
+        error=_error,
+        # Taken in turn with the bundle method's runs: a cycle of 3 against their 10 or 13.
+        calibration=({"light_paths": 8}, {"light_paths": 64}, {"light_paths": 24}),
+    ),
 )
