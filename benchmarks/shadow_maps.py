@@ -1,14 +1,17 @@
 """Imperfect shadow maps against exact ones for the same light vertices, side by side in one run:
 what a frame's maps cost and the share of connections whose visibility differs, from exact maps and
-from Embree rays (the truth both approximate), over map sizes and points per map.
+from Embree rays (the truth both approximate), over map sizes and points per map; then, at the
+default size and points, pull-push hole filling against larger splats (the splat scales given).
 
     python benchmarks/shadow_maps.py [--scene atrium] [--vertices 256] [--receivers 2048]
-                                     [--sizes 32 64 128] [--points 1024 4096 16384] [--repeats 3]
+                                     [--sizes 32 64 128] [--points 1024 4096 16384]
+                                     [--splat-scales 1.0 1.6 2.5] [--repeats 3]
 
 The light vertices are the first ``--vertices`` that frame 0's light paths leave (B=2, perfect
 bundles K=32 R=128); the receivers are surface points the camera sees. Times are medians over the
-repeats after a warm-up, host time around glFinish. Prints a table; the last line is one JSON
-object with every figure.
+repeats after a warm-up, host time around glFinish. "hidden" and "leaked" split the changed
+connections: seen through exact maps but not through imperfect ones, and the reverse. Prints a
+table; the last line is one JSON object with every figure.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ def main() -> None:
     parser.add_argument("--receivers", type=int, default=2048)
     parser.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
     parser.add_argument("--points", type=int, nargs="+", default=[1024, 4096, 16384])
+    parser.add_argument("--splat-scales", type=float, nargs="+", default=[1.0, 1.6, 2.5])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
@@ -79,20 +83,41 @@ def main() -> None:
             "points": None,
             "ms": exact_maps["ms"],
             "differ_exact": 0.0,
+            "hidden": 0.0,
+            "leaked": 0.0,
             "differ_rays": differing_share(exact_maps["visibility"], truth),
         }
     ]
     defaults = imperfect_maps.ImperfectSettings()
     configs = sorted({(s, p) for s in args.sizes for p in args.points} | {(defaults.ism_size, defaults.ism_points)})
-    for size, points in configs:
-        r = run(imperfect_maps.VISIBILITY.name, ism_size=size, ism_points=points)
+    configs = [(size, points, defaults.ism_splat_scale, False) for size, points in configs]
+    configs += [
+        (defaults.ism_size, defaults.ism_points, scale, pull_push)
+        for scale in args.splat_scales
+        for pull_push in (False, True)
+        if (scale, pull_push) != (defaults.ism_splat_scale, False)
+    ]
+    for size, points, scale, pull_push in configs:
+        r = run(
+            imperfect_maps.VISIBILITY.name,
+            ism_size=size,
+            ism_points=points,
+            ism_splat_scale=scale,
+            ism_pull_push=pull_push,
+        )
+        exact_seen, seen = exact_maps["visibility"] > 0.5, r["visibility"] > 0.5
+        pairs = max(int((exact_maps["visibility"] >= 0).sum()), 1)
         rows.append(
             {
                 "maps": imperfect_maps.VISIBILITY.name,
                 "size": size,
                 "points": points,
+                "splat_scale": scale,
+                "pull_push": pull_push,
                 "ms": r["ms"],
                 "differ_exact": differing_share(exact_maps["visibility"], r["visibility"]),
+                "hidden": float((exact_seen & ~seen).sum() / pairs),
+                "leaked": float((~exact_seen & seen & (exact_maps["visibility"] >= 0)).sum() / pairs),
                 "differ_rays": differing_share(r["visibility"], truth),
             }
         )
@@ -102,13 +127,23 @@ def main() -> None:
         f"{args.scene}: {len(vertices.positions)} light vertices ({paths} light paths), "
         f"{len(receivers[0])} receivers, {args.repeats} repeats"
     )
-    print(f"{'maps':<10}{'size':>6}{'points':>8}{'ms':>10}{'/ exact':>9}{'differ':>9}{'vs rays':>9}")
+    print(
+        f"{'maps':<10}{'size':>6}{'points':>8}{'scale':>7}{'pull-push':>11}{'ms':>10}{'/ exact':>9}"
+        f"{'differ':>9}{'hidden':>9}{'leaked':>9}{'vs rays':>9}"
+    )
     for r in rows:
         print(
-            f"{r['maps']:<10}{r['size']:>6}{r['points'] or '':>8}{r['ms']:>10.1f}{r['ms'] / exact_maps['ms']:>9.3f}"
-            f"{100 * r['differ_exact']:>8.1f}%{100 * r['differ_rays']:>8.1f}%"
+            f"{r['maps']:<10}{r['size']:>6}{r['points'] or '':>8}{r.get('splat_scale', ''):>7}"
+            f"{('on' if r.get('pull_push') else 'off') if r['points'] else '':>11}{r['ms']:>10.1f}"
+            f"{r['ms'] / exact_maps['ms']:>9.3f}{100 * r['differ_exact']:>8.1f}%{100 * r['hidden']:>8.1f}%"
+            f"{100 * r['leaked']:>8.1f}%{100 * r['differ_rays']:>8.1f}%"
         )
-    default = next(r for r in rows if r["size"] == defaults.ism_size and r["points"] == defaults.ism_points)
+    default = next(
+        r
+        for r in rows
+        if (r["size"], r["points"], r.get("splat_scale"), r.get("pull_push"))
+        == (defaults.ism_size, defaults.ism_points, defaults.ism_splat_scale, False)
+    )
     summary = {
         "scene": args.scene,
         "light_vertices": len(vertices.positions),

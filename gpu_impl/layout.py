@@ -71,6 +71,8 @@ BINDINGS = {
     # light visibility measured (evalkit/metrics/light_visibility.py): receiver points, and what each pair sees
     "RECEIVERS": 36,
     "VISIBLE": 37,
+    # imperfect shadow maps' pull-push pyramids (visibility/imperfect.py)
+    "ISM_PYRAMID": 38,
 }
 
 # Bits and enumerations. np.uint32 values are written as GLSL uint literals (1u), Python ints as

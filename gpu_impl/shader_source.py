@@ -55,6 +55,7 @@ VARIANTS = {
     "gbuffer": [{}],
     "shadow_maps": [{}],
     "imperfect_shadow_maps": [{}],
+    "ism_pull_push": [{}],
     "connection_visibility": {"LIGHT_VISIBILITY": LIGHT_VISIBILITIES},
     "irradiance": {
         "SHADOW_LIGHTS": (1,),

@@ -8,9 +8,10 @@ triangles: hundreds of light vertices per frame on a scene of 10^5 triangles.
 
 The splat radius is ``ism_splat_scale`` times the radius at which P disks would just cover the
 scene's area A once, sqrt(A / (pi P)). Holes (a surface whose splats leave a gap) let light through
-where there is none; larger splats close them and widen occluders. No pull-push hole filling.
-`evalkit.metrics.light_visibility` measures them against exact maps and rays
-(benchmarks/shadow_maps.py).
+where there is none; larger splats close them and widen occluders. ``ism_pull_push`` fills the
+holes instead (shaders/ism_pull_push.glsl), the ISM paper's way. `evalkit.metrics.light_visibility`
+measures them against exact maps and rays (benchmarks/shadow_maps.py compares pull-push with larger
+splats).
 """
 
 from __future__ import annotations
@@ -50,6 +51,9 @@ class ImperfectSettings:
         "splat radius over the radius at which a map's points would just cover the scene",
         positive=True,
     )
+    ism_pull_push: bool = setting(
+        False, "fill each imperfect shadow map's holes by pull-push (the mean distance of the covered texels around)"
+    )
 
 
 class ImperfectShadowMaps:
@@ -67,6 +71,7 @@ class ImperfectShadowMaps:
         self.program["points_per_map"] = self.points_per_map
         self.program["splat_radius"] = self.splat_radius
         self.vao = gl.vertex_array(self.program, [])
+        self.pull_push = PullPush(gl, self.map_size) if settings.ism_pull_push else None
 
     def defines(self) -> dict:
         return {"LIGHT_VISIBILITY": LIGHT_VISIBILITY_IMPERFECT}
@@ -111,9 +116,57 @@ class ImperfectShadowMaps:
         self.program["frame"] = frame & 0xFFFFFFFF
         self.program["atlas_size"] = lights.atlas.size
         self.gl.draw(self.vao, moderngl.POINTS, fb, depth_test=True, vertices=len(positions) * self.points_per_map)
+        if self.pull_push is not None:
+            self.pull_push.run(lights, len(positions))
 
     def release(self) -> None:
         self.vao.release()
+        if self.pull_push is not None:
+            self.pull_push.release()
+
+
+class PullPush:
+    """Pull-push hole filling of the frame's imperfect shadow maps (shaders/ism_pull_push.glsl): a
+    pyramid per map, levels 1.. of ceil(size / 2^l) texels a side down to one texel, in one buffer
+    that grows with the light vertices."""
+
+    def __init__(self, gl, map_size: int):
+        self.gl = gl
+        self.program = gl.program("ism_pull_push")
+        self.sizes = [map_size]
+        while self.sizes[-1] > 1:
+            self.sizes.append((self.sizes[-1] + 1) // 2)
+        # Level l's first float in a map's pyramid (level 0 is the atlas itself).
+        self.offsets = [0, 0]
+        for size in self.sizes[1:-1]:
+            self.offsets.append(self.offsets[-1] + size * size)
+        self.stride = self.offsets[-1] + self.sizes[-1] ** 2
+        self.program["map_stride"] = self.stride
+        self.buffer = None
+
+    def run(self, lights, maps: int) -> None:
+        """Pull, then push, over the ``maps`` light vertex maps that follow the fixed lights' views."""
+        if self.buffer is None or self.buffer.size < 4 * self.stride * maps:
+            if self.buffer is not None:
+                self.buffer.release()
+            self.buffer = self.gl.buffer(reserve=4 * self.stride * maps)
+        self.buffer.bind_to_storage_buffer(BINDINGS["ISM_PYRAMID"])
+        lights.buffers["SHADOW_VIEWS"].bind_to_storage_buffer(BINDINGS["SHADOW_VIEWS"])
+        lights.atlas.bind_to_image(0, read=True, write=True)
+        self.program["first_view"] = lights.fixed_views
+        top = len(self.sizes) - 1
+        passes = [(1, level) for level in range(1, top + 1)] + [(0, level) for level in range(top - 1, -1, -1)]
+        for pull, level in passes:
+            around = [max(0, min(top, level + i)) for i in (-1, 0, 1)]
+            self.program["pull"] = pull
+            self.program["level"] = level
+            self.program["sizes"] = tuple(self.sizes[i] for i in around)
+            self.program["offsets"] = tuple(self.offsets[i] for i in around)
+            self.gl.dispatch(self.program, maps * self.sizes[level] ** 2)
+
+    def release(self) -> None:
+        if self.buffer is not None:
+            self.buffer.release()
 
 
 VISIBILITY = LightVisibility(
