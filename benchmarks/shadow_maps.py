@@ -23,6 +23,7 @@ from evalkit.core.scene import load_scene
 from evalkit.core.settings import RenderSettings
 from evalkit.metrics.light_visibility import (
     camera_points,
+    changed_shares,
     differing_share,
     frame_light_vertices,
     measure,
@@ -105,8 +106,7 @@ def main() -> None:
             ism_splat_scale=scale,
             ism_pull_push=pull_push,
         )
-        exact_seen, seen = exact_maps["visibility"] > 0.5, r["visibility"] > 0.5
-        pairs = max(int((exact_maps["visibility"] >= 0).sum()), 1)
+        hidden, leaked = changed_shares(exact_maps["visibility"], r["visibility"])
         rows.append(
             {
                 "maps": imperfect_maps.VISIBILITY.name,
@@ -116,8 +116,8 @@ def main() -> None:
                 "pull_push": pull_push,
                 "ms": r["ms"],
                 "differ_exact": differing_share(exact_maps["visibility"], r["visibility"]),
-                "hidden": float((exact_seen & ~seen).sum() / pairs),
-                "leaked": float((~exact_seen & seen & (exact_maps["visibility"] >= 0)).sum() / pairs),
+                "hidden": hidden,
+                "leaked": leaked,
                 "differ_rays": differing_share(r["visibility"], truth),
             }
         )

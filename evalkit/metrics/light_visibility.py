@@ -103,8 +103,17 @@ def measure(
 def differing_share(exact: np.ndarray, other: np.ndarray) -> float:
     """The share of connecting pairs (those facing each other in ``exact``: -1 marks the others)
     whose visibility differs."""
+    return sum(changed_shares(exact, other))
+
+
+def changed_shares(exact: np.ndarray, other: np.ndarray) -> tuple[float, float]:
+    """The differing pairs' shares of the connecting pairs, split: (hidden, leaked), seen in
+    ``exact`` but not in ``other``, and the reverse."""
     pairs = exact >= 0.0
-    return float(((exact >= VISIBLE) != (other >= VISIBLE))[pairs].mean()) if pairs.any() else 0.0
+    if not pairs.any():
+        return 0.0, 0.0
+    seen, seen_other = (exact >= VISIBLE)[pairs], (other >= VISIBLE)[pairs]
+    return float((seen & ~seen_other).mean()), float((~seen & seen_other).mean())
 
 
 def traced_visibility(scene: Scene, vertices: LightVertices, receivers: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
