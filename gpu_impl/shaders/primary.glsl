@@ -30,6 +30,11 @@ void main() {
     vec2 film = (vec2(xy) + subpixel) / vec2(gbuffer_size);  // (0, 0) is the image's top left
     vec3 dir = normalize(camera_to_world * vec3((1.0 - 2.0 * film.x) * tan_half_fov.x, (1.0 - 2.0 * film.y) * tan_half_fov.y, 1.0));
     uint visible = texelFetch(gbuffer, xy, 0).r;
+    // A sample's paths share its first vertex, so what it sees and what reaches it through shadow maps
+    // and connections is the same for each: the first path gathers that once, counted for all of
+    // them (the resolve averages over the paths). It was a sample's costliest work, done spp times.
+    bool gathers = id % paths_per_sample == 0u;
+    float share = gathers ? float(paths_per_sample) : 0.0;
     Path path = Path(vec3(0.0), 0u, vec3(0.0), PATH_ENDED, vec3(0.0), 0u);
     vec3 direct = vec3(0.0);
     if (visible == 0u) {
@@ -52,11 +57,11 @@ void main() {
             else n = -n;
             vec3 albedo = material_albedo(m, surface_uv(v, b1, b2));
 #if SHADOW_LIGHTS
-            direct += albedo * INV_PI * light_irradiance(camera_origin + depth * dir, n, 0.0);
+            if (gathers) direct += albedo * INV_PI * light_irradiance(camera_origin + depth * dir, n, 0.0);
 #endif
 #if BIDIRECTIONAL
             // Connections from the first eye vertex to light path vertices are indirect light.
-            sums[id].indirect.rgb += albedo * INV_PI * connections(camera_origin + depth * dir, n, 0, 0.0);
+            if (gathers) sums[id].indirect.rgb += share * albedo * INV_PI * connections(camera_origin + depth * dir, n, 0, 0.0);
 #endif
             vec3 g = triangle_normal(t);
             path = Path(camera_origin + depth * dir, encode_normal(n), vec3(1.0), PATH_FROM_CAMERA, albedo,
@@ -65,7 +70,7 @@ void main() {
         }
         // else: the back of a one-sided surface, black as in Mitsuba; the path ends.
     }
-    sums[id].direct.rgb += direct;
+    sums[id].direct.rgb += share * direct;
     paths[id] = path;
 #if BIDIRECTIONAL
     path_mis[id] = 0.0;  // no strategy has fewer eye vertices than the G-buffer sample
