@@ -97,10 +97,21 @@ class GLContext:
         key = variant_key(name, defines)
         if key not in self._programs:
             sources = program_sources(name, defines)
-            if "compute_shader" in sources:
-                self._programs[key] = self.ctx.compute_shader(sources["compute_shader"])
-            else:
-                self._programs[key] = self.ctx.program(**sources)
+            try:
+                if "compute_shader" in sources:
+                    self._programs[key] = self.ctx.compute_shader(sources["compute_shader"])
+                else:
+                    self._programs[key] = self.ctx.program(**sources)
+            except moderngl.Error as e:
+                # A driver that cannot compile a shader (one without an extension it needs, or a
+                # shader being edited): the file, the variant and the driver's first complaint.
+                lines = [line.strip() for line in str(e).splitlines() if line.strip()]
+                complaint = next((line for line in lines if "error" in line.lower() and ":" in line), lines[-1])
+                variant = ", ".join(f"{k}={v}" for k, v in sorted(defines.items())) or "no defines"
+                raise InputError(
+                    f"gpu_impl/shaders/{name}.glsl",
+                    f"the GL driver ({self.ctx.info['GL_RENDERER']}) cannot compile it ({variant}): {complaint}",
+                ) from e
             COMPILED.add(key)
         return self._programs[key]
 

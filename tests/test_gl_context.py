@@ -91,6 +91,16 @@ def test_bad_device_index_is_one_clear_error():
         GLContext(device_index=97)
 
 
+def test_a_shader_the_driver_cannot_compile_is_one_line_naming_its_file(gl, monkeypatch):
+    broken = "#version 450\nlayout(local_size_x = 1) in;\nvoid main() { undeclared_name += 1.0; }\n"
+    monkeypatch.setattr("gpu_impl.context.program_sources", lambda name, defines: {"compute_shader": broken})
+    with pytest.raises(InputError) as caught:
+        gl.program("broken_for_test", SOME_FLAG=1)
+    message = str(caught.value)
+    assert message.startswith("gpu_impl/shaders/broken_for_test.glsl: the GL driver (")
+    assert "SOME_FLAG=1" in message and "undeclared_name" in message and "\n" not in message
+
+
 def test_free_memory_is_what_the_system_says(gl):
     free, source = gl.free_memory()  # llvmpipe: system memory
     with open("/proc/meminfo") as f:
