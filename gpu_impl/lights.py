@@ -433,7 +433,7 @@ class ShadowLights:
     def nbytes(self) -> int:
         texel = 8 if self.triangles is None else 12  # R32F + depth (+ R32UI triangles)
         atlas = 0 if self.atlas is None else self.atlas.size[0] * self.atlas.size[1] * texel
-        return sum(b.size for b in self.buffers.values()) + atlas
+        return sum(b.size for b in self.buffers.values()) + atlas + self.visibility.nbytes
 
     def release(self) -> None:
         for buffer in self.buffers.values():

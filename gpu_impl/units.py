@@ -92,7 +92,9 @@ class BundleMethod(Unit):
 class LightVisibility(Unit):
     """How light vertices (emitter samples, light-path vertices) see the scene: shadow maps of one
     kind. ``maps(gl, gpu_scene, its_settings)`` makes the object that draws them each frame
-    (`gpu_impl.visibility`)."""
+    (`gpu_impl.visibility`): its ``tiles_per_vertex`` and ``map_size`` in the shadow atlas, the
+    ``nbytes`` it holds beside the atlas, ``defines()``, ``check(V)``, ``render(...)`` and
+    ``release()``."""
 
     kind: ClassVar[str] = "light visibility"
     maps: Callable = None

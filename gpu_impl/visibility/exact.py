@@ -32,6 +32,7 @@ class ExactShadowMaps:
     `gpu_impl.lights.ShadowLights`, drawn from the triangles every frame."""
 
     tiles_per_vertex = 6
+    nbytes = 0  # the maps live in the shadow atlas
 
     def __init__(self, gl, gpu_scene, settings: ExactSettings):
         self.map_size = settings.light_sample_map_size

@@ -76,6 +76,12 @@ class ImperfectShadowMaps:
     def defines(self) -> dict:
         return {"LIGHT_VISIBILITY": LIGHT_VISIBILITY_IMPERFECT}
 
+    @property
+    def nbytes(self) -> int:
+        """What these maps hold beside the shadow atlas: the pull-push pyramids."""
+        buffer = None if self.pull_push is None else self.pull_push.buffer
+        return 0 if buffer is None else buffer.size
+
     def check(self, light_vertices: int) -> None:
         """Raises ValueError when ``light_vertices`` maps' points do not fit one draw. The points are
         made in the draw's vertex shader, so they take no memory; a draw counts its vertices in a
