@@ -444,9 +444,7 @@ def _tune(args) -> int:
     if args.json:
         print(json.dumps(result))
         return 0
-    print(
-        f"recommended {settings_text(rec)} (the least {result['chosen_by']} of {len(result['candidates'])} candidates)"
-    )
+    print(f"recommended {settings_text(rec)} ({len(result['candidates'])} candidates, chosen by {result['chosen_by']})")
     print(f"predicted   {predicted['time_s']:.3g} s, {result['metric']} {predicted['error']:.4g}")
     if "measured" in result:
         measured = result["measured"]

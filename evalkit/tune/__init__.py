@@ -47,10 +47,11 @@ mapped from an unbounded variable onto its range), by gradient descent on the sa
 the optimum is rounded to the settings grid below and its neighbours on the grid are checked (the
 rounded setting with the least predicted error within the budget wins). The check renders each
 candidate's optimum and measures its time and error; the recommendation is the one with the least
-measured error (without the check: the least predicted error). Between candidates the choice is left
-to the measurement because the models' residuals are as large as the predicted differences: at
-atrium's 10 s the perfect optimum was predicted 6 % better than the imperfect one and measured
-26 % worse.
+measured error of those that kept the budget (within `BUDGET_TOLERANCE`, a run's timing noise; of
+all, with a warning, where none did; without the check: the least predicted error). Between
+candidates the choice is left to the measurement because the models' residuals are as large as the
+predicted differences: at atrium's 10 s the perfect optimum was predicted 6 % better than the
+imperfect one and measured 26 % worse.
 
 One module per job: `evalkit.tune.models` (the terms and their fit), `evalkit.tune.optimise` (the
 least predicted error within a budget), `evalkit.tune.calibration` (the runs and `tune`),
