@@ -106,7 +106,8 @@ class GLContext:
                 # A driver that cannot compile a shader (one without an extension it needs, or a
                 # shader being edited): the file, the variant and the driver's first complaint.
                 lines = [line.strip() for line in str(e).splitlines() if line.strip()]
-                complaint = next((line for line in lines if "error" in line.lower() and ":" in line), lines[-1])
+                errors = [line for line in lines if "error" in line.lower() and ":" in line]
+                complaint = (errors or lines[-1:] or ["no log"])[0]
                 variant = ", ".join(f"{k}={v}" for k, v in sorted(defines.items())) or "no defines"
                 raise InputError(
                     f"gpu_impl/shaders/{name}.glsl",

@@ -152,7 +152,7 @@ def tune(
     rows += [{**r, "weight": len(Candidate.of(r).calibration()) / 2} for r in anchors]
     models = {c: _fit(c, rows, metric) for c in candidates}
     optima = [optimise(models[c]["time"], models[c]["error"], budget) for c in candidates]
-    measured = {}
+    measured, overran = {}, []
     if check:
         # Every candidate's optimum is rendered and the least measured error within the budget wins:
         # between candidates the models' residuals (0.1-0.3 in log) are as large as the predicted
@@ -164,14 +164,14 @@ def tune(
         }
         kept = [o for o in optima if measured[o.candidate]["time_s"] <= budget * (1 + BUDGET_TOLERANCE)]
         best = min(kept or optima, key=lambda o: measured[o.candidate]["error"])
+        overran = [
+            f"{o.candidate.name} measured {measured[o.candidate]['time_s']:.3g} s, over the budget of {budget:g} s"
+            + (": not recommended" if kept else " (every candidate did: the least error of them is recommended)")
+            for o in optima
+            if o not in kept
+        ]
     else:
         best = min(optima, key=lambda o: o.predicted_error)
-    overran = [
-        f"{o.candidate.name} measured {measured[o.candidate]['time_s']:.3g} s, over the budget of {budget:g} s"
-        + (": not recommended" if o is not best else " (every candidate did: the least error of them is recommended)")
-        for o in optima
-        if measured and measured[o.candidate]["time_s"] > budget * (1 + BUDGET_TOLERANCE)
-    ]
     result = {
         "scene": scene,
         "budget_s": budget,
