@@ -94,6 +94,7 @@ VARIANTS = {
         "NODE_SIDES": (1, 2),
         "NODE_REFERENCE": NODE_REFERENCES,
         "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
+        "ENVIRONMENT": ENVIRONMENTS,
     },
     "resolve_images": [{}],
     "record_strides": {"RECORD_GROUP": (0, 1, 2, 3, 4)},

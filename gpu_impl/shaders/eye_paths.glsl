@@ -38,6 +38,7 @@ uniform uint seed;
 uniform uint frame;
 #if BIDIRECTIONAL
 uniform float light_path_emitter_density;  // V q_emitters / W: light paths' density of an emitter point, over w(y)
+uniform float light_path_environment_density;  // V q_environment / (4 pi^2 r^2): of a ray from the environment
 #endif
 #if EMITTER_SAMPLES || BIDIRECTIONAL
 uniform float emitter_sample_density;  // M / W: M p(y) = emitter_sample_density * emitter_weight (gpu_impl/lights.py)
@@ -108,6 +109,14 @@ void main() {
     } else if (hit == NO_NODE) {
 #if ENVIRONMENT != ENVIRONMENT_NONE
         emitted = throughput * environment(omega);
+#if BIDIRECTIONAL
+        // A light path from the environment could have made this path too: along -omega to this
+        // vertex, its first surface, then a connection from the one before (eye_mis; none at the
+        // G-buffer sample, which light paths do not connect to). Its density b_n b_{n-1} = V q
+        // p(omega) p(disk point) cos_theta over the eye path's a_n = 1 / (2 pi) (light_paths.glsl).
+        float by_light_paths = light_path_environment_density * cos_theta / BUNDLE_DIRECTION_PDF;
+        emitted /= 1.0 + by_light_paths * by_light_paths * eye_mis;
+#endif
 #endif
         alive = false;
     } else {

@@ -5,6 +5,10 @@
 // - From an emitter point the path leaves along a uniformly chosen bundle direction (the side in
 //   the emitter's hemisphere, density 1 / (2 pi)), the frame's paths spread over the bundles, to
 //   the next node, as eye paths do (bundle_step.glsl).
+// - From the environment it enters along a bundle direction (uniform over the sphere: the bundle
+//   spread as above, either way along it), through a point uniform on the frame's disk, and meets
+//   its first surface over the bundles too: the path is an eye path of the reverse direction that
+//   starts outside the scene.
 // - From a point or spot light it leaves along a direction drawn from the light (uniform over the
 //   sphere, or over the spot's cone), and from a directional light through a point drawn uniformly
 //   on the disk the light's shadow view covers. The first surface is the light's shadow map read
@@ -19,7 +23,10 @@
 //   L_{n-1} = (e_n^2 + a_n^2) / (b_n b_{n-1})^2   (an emitter start; a delta light: a_n = 0, e_n = 1)
 //   L_i = (1 + a_{i+1}^2 L_{i+1}) / b_i^2
 // with b the light side's densities per area (b_n: V q p_A of the start), a the eye side's of the
-// vertex before (by a bundle direction: cos / (2 pi t^2)), e_n next-event estimation's.
+// vertex before (by a bundle direction: cos / (2 pi t^2)), e_n next-event estimation's. A ray from
+// the environment or a directional light starts at a direction, not a point: there b_n b_{n-1} is
+// V q p(omega) p(disk point) cos_{n-1} and a_n the eye path's density of that direction (1 / (2 pi)
+// for the environment, which eye paths reach; 0 for a directional light, which they cannot).
 
 #define BUNDLE_LOOKUP
 #define SHADOW_LIGHTS 1
@@ -30,6 +37,7 @@
 #include "bundle_step.glsl"
 #include "lights.glsl"
 #include "light_path_records.glsl"
+#include "environment.glsl"
 
 #if defined COMPUTE_SHADER
 
@@ -43,6 +51,10 @@ uniform usampler2D shadow_triangles;  // the triangle + 1 each shadow texel saw
 uniform int direction_count;    // K
 uniform uint seed;
 uniform uint frame;
+
+// LightPathStart.position.w of the sources that are not fixed lights (strategies/bidirectional.py).
+#define FROM_EMITTERS -1
+#define FROM_ENVIRONMENT -2
 
 struct Surface {
     bool found;
@@ -117,16 +129,17 @@ void main() {
     float mis;       // L of y
     int arrived = -1;  // the bundle y was reached along (none from a light's shadow map)
     uvec4 r = pcg4d(uvec4(id, 0xFFFFFFFFu, seed, frame));
-    if (source < 0) {
+    // Path i leaves along bundle (i + o) mod K, o one random shift per frame: each path's bundle is
+    // still uniform and independent of its start, but the frame's paths spread over the bundles
+    // instead of doubling up. Paths from a small emitter that take the same bundle land side by
+    // side and light the same pixels, so repeats added little: at K = V = 64 on cornell-box this
+    // took the frame means' scatter from 21 % to 15 % (docs/BIDIRECTIONAL.md).
+    uint o = pcg4d(uvec4(0xFFFFFFFFu, 0xFFFFFFFFu, seed, frame)).x;
+    int spread = int((id + o) % uint(direction_count));
+    if (source == FROM_EMITTERS) {
         // An emitter point: along a bundle direction in its hemisphere.
         vec3 x = start.position.xyz, n = start.normal.xyz;
-        // Path i leaves along bundle (i + o) mod K, o one random shift per frame: each path's
-        // bundle is still uniform and independent of its start, but the frame's paths spread over
-        // the bundles instead of doubling up. Paths from a small emitter that take the same bundle
-        // land side by side and light the same pixels, so repeats added little: at K = V = 64 on
-        // cornell-box this took the frame means' scatter from 21 % to 15 % (docs/BIDIRECTIONAL.md).
-        uint o = pcg4d(uvec4(0xFFFFFFFFu, 0xFFFFFFFFu, seed, frame)).x;
-        int k = int((id + o) % uint(direction_count));
+        int k = spread;
         BundleFrame f = frames[k];
         bool forward = dot(f.d.xyz, n) >= 0.0;
         vec3 omega = forward ? f.d.xyz : -f.d.xyz;
@@ -140,6 +153,25 @@ void main() {
         float e = start.radiance.w * t2;
         mis = min((e * e + a_start * a_start) / max(b_start * b_start * b_y * b_y, 1e-30), MAX_MIS_SHARE);
         arrived = k;
+#if ENVIRONMENT != ENVIRONMENT_NONE
+    } else if (source == FROM_ENVIRONMENT) {
+        // Into the scene along omega from a point of the frame's disk (the bundle lines' plane,
+        // behind every node): the first node beyond it, as a step over the bundles finds it.
+        int k = spread;
+        BundleFrame f = frames[k];
+        bool forward = (r.z & 1u) == 0u;
+        vec3 omega = forward ? f.d.xyz : -f.d.xyz;
+        float phi = 2.0 * PI * unit_float(r.y), rho = radius * sqrt(unit_float(r.x));
+        vec3 origin = rho * (cos(phi) * f.u.xyz + sin(phi) * f.v.xyz) - radius * omega;
+        y = landed(bundle_step(k, forward, origin, omega), omega);
+        if (!y.found) return;
+        alpha = environment(-omega) / b_start;
+        // L_{n-1} = a_n^2 / (b_n b_{n-1})^2: the eye path reaches the environment along -omega
+        // from y with a = 1 / (2 pi); the environment has no next-event estimation (e_n = 0).
+        float b = b_start * abs(dot(y.normal, omega));
+        mis = min(BUNDLE_DIRECTION_PDF * BUNDLE_DIRECTION_PDF / max(b * b, 1e-30), MAX_MIS_SHARE);
+        arrived = k;
+#endif
     } else {
         Light light = lights[source];
         vec3 origin, omega;

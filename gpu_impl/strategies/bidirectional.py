@@ -16,11 +16,12 @@ need a visibility test per vertex; no strategy here stands in for it, and its pa
 others.
 
 A light path starts at a source drawn by power (the emitters together, each point, spot and
-directional light), stratified over the V paths: an emitter point by emitted power as next-event
-estimation draws them; a point or spot light's direction uniform over its sphere or cone; a
-directional light's ray through a uniform point of the disk its shadow view covers. Its first
-surface comes from the bundles (an emitter) or from the light's shadow map read as a reflective
-shadow map (a fixed light), its later ones from the bundles.
+directional light, the environment), stratified over the V paths: an emitter point by emitted power
+as next-event estimation draws them; a point or spot light's direction uniform over its sphere or
+cone; a directional light's ray through a uniform point of the disk its shadow view covers; the
+environment's ray along a bundle direction (uniform over the sphere) through a uniform point of the
+frame's disk. Its first surface comes from the bundles (an emitter, the environment) or from the
+light's shadow map read as a reflective shadow map (a fixed light), its later ones from the bundles.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from evalkit.core.scene.model import ENVIRONMENT_KINDS
 from evalkit.core.settings import setting
 from gpu_impl.context import set_uniforms
 from gpu_impl.layout import BINDINGS, LIGHT_PATH_START, LIGHT_PATH_VERTEX
@@ -61,12 +63,11 @@ class BidirectionalPaths(EyePaths):
         self.light_paths = settings.light_paths
         self.bounces = renderer.settings.bounces
         self.sources = LightSources(renderer.gpu_scene, self.light_paths)
-        # No light path without a source that emits (an environment alone is reached by eye paths).
+        # No light path without a source that emits.
         self.path_vertices_per_frame = self.light_paths * self.bounces if self.sources.powers.sum() > 0 else 0
         if not self.path_vertices_per_frame and self.light_paths:
             self.warnings.append(
-                "bidirectional paths: no light that light paths could start at (the environment is reached "
-                "by eye paths only), so these are eye paths"
+                "bidirectional paths: no light that light paths could start at, so these are eye paths"
             )
         self.buffers = {}  # made with the first frame, once the lights have checked that the maps fit
         self.vertex_counts = []
@@ -74,7 +75,7 @@ class BidirectionalPaths(EyePaths):
     lazy_lighting_only = True  # connections depend on the eye path (its MIS share), so no light is precomputed
 
     def defines(self) -> dict:
-        # Without light paths (a scene lit only by its environment) the eye strategy is all there is.
+        # Without light paths (a scene with no light) the eye strategy is all there is.
         return {**super().defines(), "BIDIRECTIONAL": int(self.path_vertices_per_frame > 0)}
 
     def uniforms(self) -> dict:
@@ -85,6 +86,7 @@ class BidirectionalPaths(EyePaths):
             "emitter_sample_density": samples / total,
             "light_path_emitter_density": emitters / total,
             "light_path_emitter_ratio": emitters / samples if samples else 0.0,
+            "light_path_environment_density": self.sources.environment_density,
             "light_path_first": self.renderer.lights.fixed_lights + samples,
         }
 
@@ -96,7 +98,7 @@ class BidirectionalPaths(EyePaths):
         else:  # nothing to light or connect to
             programs["eye_paths"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=0)
         if self.path_vertices_per_frame:
-            keep = ("TEXTURES", "NODE_SIDES", "NODE_REFERENCE", "LIGHT_VISIBILITY")
+            keep = ("TEXTURES", "NODE_SIDES", "NODE_REFERENCE", "LIGHT_VISIBILITY", "ENVIRONMENT")
             programs["light_paths"] = gl.program("light_paths", BIDIRECTIONAL=1, **{k: defines[k] for k in keep})
         return programs
 
@@ -174,10 +176,15 @@ class BidirectionalPaths(EyePaths):
         self.buffers.clear()
 
 
+# LightPathStart.position.w of the sources that are not fixed lights (light_paths.glsl).
+FROM_EMITTERS, FROM_ENVIRONMENT = -1.0, -2.0
+
+
 class LightSources:
-    """Where light paths start, drawn by power: the emitters together (emitted power pi W), and each
-    point (4 pi I), spot (2 pi (1 - cos cutoff) I: an upper bound of its power) and directional light
-    (pi r^2 E over the disk of the bounding sphere), I and E the means of their channels."""
+    """Where light paths start, drawn by power: each point (4 pi I), spot (2 pi (1 - cos cutoff) I:
+    an upper bound of its power) and directional light (pi r^2 E over the disk of the bounding
+    sphere), the emitters together (emitted power pi W) and the environment (4 pi L pi r^2 through
+    that disk, L its radiance's mean over the sphere), I, E and L the means of their channels."""
 
     def __init__(self, gpu_scene, light_paths: int):
         scene, r = gpu_scene.scene, gpu_scene.radius
@@ -194,6 +201,7 @@ class LightSources:
                 solid_angle = math.pi * r * r  # an area: the disk the light's rays cross
             powers.append(mean * solid_angle)
             self.direction_pdfs.append(1.0 / solid_angle)
+        self.ids = list(range(len(fixed)))
         self.emitters = (
             EmitterSamples(scene, light_paths)
             if any(scene.materials[m.material].emissive for m in scene.meshes)
@@ -201,11 +209,21 @@ class LightSources:
         )
         if self.emitters is not None:
             powers.append(math.pi * self.emitters.total)
+            self.ids.append(FROM_EMITTERS)
+        environment = next((light for light in scene.lights if light.kind in ENVIRONMENT_KINDS), None)
+        # Its paths' rays: a direction uniform over the sphere and a point uniform on the disk.
+        rays = 4.0 * math.pi * math.pi * r * r
+        if environment is not None:
+            powers.append(mean_radiance(environment) * rays)
+            self.ids.append(FROM_ENVIRONMENT)
         self.powers = np.asarray(powers, dtype=np.float64)
         total = self.powers.sum()
         self.probabilities = self.powers / total if total > 0 else self.powers
         self.cdf = np.cumsum(self.probabilities)
-        self.emitter_probability = float(self.probabilities[-1]) if self.emitters is not None else 0.0
+        q = dict(zip(self.ids, self.probabilities))
+        self.emitter_probability = float(q.get(FROM_EMITTERS, 0.0))
+        # V q p(omega) p(point): the density of an environment path's ray (b_n b_{n-1} per unit cos).
+        self.environment_density = light_paths * float(q.get(FROM_ENVIRONMENT, 0.0)) / rays
 
     def path_densities(self) -> np.ndarray:
         """Each fixed light's density of starting a light path along a direction (or through a point
@@ -220,8 +238,9 @@ class LightSources:
         u = (np.arange(v) + rng.random(v)) / v
         source = np.minimum(np.searchsorted(self.cdf, u, side="right"), len(self.cdf) - 1)
         records = np.zeros(v, dtype=LIGHT_PATH_START)
-        records["position"][:, 3] = source
-        on_emitters = source == len(self.direction_pdfs) if self.emitters is not None else np.zeros(v, bool)
+        records["position"][:, 3] = np.asarray(self.ids, dtype=np.float64)[source]
+        records["normal"][records["position"][:, 3] == FROM_ENVIRONMENT, 3] = self.environment_density
+        on_emitters = records["position"][:, 3] == FROM_EMITTERS
         if on_emitters.any():
             e = self.emitters = self.emitters.posed(self.gpu_scene.scene)
             n = int(on_emitters.sum())
@@ -229,13 +248,23 @@ class LightSources:
             p_area = e.weights[triangles] / e.total
             samples = 0 if emitter_samples is None else emitter_samples.count
             records["position"][on_emitters, :3] = positions - self.gpu_scene.centre
-            records["position"][on_emitters, 3] = -1.0
             records["normal"][on_emitters, :3] = normals
             records["normal"][on_emitters, 3] = v * self.emitter_probability * p_area
             records["radiance"][on_emitters, :3] = e.radiance[triangles]
             records["radiance"][on_emitters, 3] = samples * p_area
             records["geometric"][on_emitters, :3] = e.face_normals[triangles]
         return records
+
+
+def mean_radiance(environment) -> float:
+    """The environment's radiance averaged over the sphere and the channels: a lat-long map's rows
+    weighted by their solid angle (row j at polar angle pi j / (H - 1), shaders/environment.glsl)."""
+    scale = float(np.mean(environment.intensity))
+    if environment.kind == "constant":
+        return scale
+    rows = environment.envmap.astype(np.float64).mean(axis=(1, 2))
+    weights = np.sin(np.linspace(0.0, math.pi, len(rows))) if len(rows) > 2 else np.ones(len(rows))
+    return scale * float(rows @ weights / weights.sum())
 
 
 def _time(x: dict) -> list:
