@@ -2,8 +2,8 @@
 // starts, from the host, and the vertices it leaves, for the host (light_paths.glsl).
 
 struct LightPathStart {
-    vec4 position;   // xyz relative to the bundle centre (an emitter point); w: -1 an emitter, else the light's index
-    vec4 normal;     // xyz the emitter's shading normal; w: b_n, the light paths' density of the start (V q p_A, or V q)
+    vec4 position;   // xyz relative to the bundle centre (an emitter point); w: -1 an emitter, -2 the environment, else the light's index
+    vec4 normal;     // xyz the emitter's shading normal; w: b_n, the light paths' density of the start (V q p_A, or the environment's V q p(omega) p(disk point))
     vec4 radiance;   // rgb the emitter's radiance; w: e_n, next-event estimation's density of the point (M p_A; 0 for a light)
     vec4 geometric;  // xyz the emitter triangle's geometric normal
 };
