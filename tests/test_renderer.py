@@ -354,9 +354,9 @@ def sky_stage_renders(gl, tmp_path, frames: int, strategies=("eye", "bidirection
 
 def test_light_paths_from_the_environment_cut_the_noise_of_its_indirect_light(gl, tmp_path):
     # The environment is the stage's only light, so every light path starts there. Measured (this
-    # test's settings; 64 frames), indirect relMSE with both images divided by the reference's
-    # mean: eye paths 0.667 (0.226), bidirectional 0.048 (0.016), 14x lower; a frame takes 1.8x
-    # as long (light paths 137 ms, bundles 172 ms). Threshold: a quarter of eye paths'.
+    # test's settings), indirect relMSE with both images divided by the reference's mean: eye
+    # paths 0.667, bidirectional 0.048, 14x lower (at 64 frames 0.226 and 0.016); a frame takes
+    # 1.8x as long (light paths 137 ms, bundles 172 ms). Threshold: a quarter of eye paths'.
     ref, renders = sky_stage_renders(gl, tmp_path, frames=32)
     assert renders["bidirectional"].stats["light_path_vertices_median"] > 0
     errors = {
@@ -372,8 +372,9 @@ def test_light_paths_from_the_environment_keep_the_mean_of_its_indirect_light(gl
     # weight that does not sum to 1 shows in the mean. Measured, ratio to Mitsuba and 95 %
     # interval: bidirectional 1.0232 [0.9924, 1.0540] (this test: 2048 frames, 8 min here); at
     # 1024 frames bidirectional 0.9891 [0.9482, 1.0299] and eye paths 1.0248 [0.9916, 1.0581].
-    # Eye paths sit a few % over Mitsuba on this stage (B=1, 16x16, 512 frames: 1.068 [1.018,
-    # 1.119]), so the bound is the eye paths' own test's 6 %, not 5 %.
+    # Eye paths sit a few % over Mitsuba on this small image (B=1, 16x16, 512 frames: 1.068
+    # [1.018, 1.119]; at 64x64, 256 frames: 1.007 [0.976, 1.038]), so the bound is the eye paths'
+    # own test's 6 %, not 5 %.
     ref, renders = sky_stage_renders(gl, tmp_path, frames=2048, strategies=("bidirectional",))
     whole = mean_interval(renders["bidirectional"], ref, "indirect")
     assert whole["lo"] >= 0.94 and whole["hi"] <= 1.06, describe_interval(whole)
