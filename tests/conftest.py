@@ -14,6 +14,7 @@ import pytest
 
 from evalkit.core.exr import write_exr
 from evalkit.core.mitsuba_env import mitsuba
+from evalkit.core.scene import load_scene
 from evalkit.core.settings import RenderSettings
 from evalkit.figures import error_map_png
 from evalkit.metrics.confidence import mean_ratio
@@ -22,6 +23,7 @@ from gpu_impl.api import bundle_tracer, render, trace_bundles
 from gpu_impl.context import default_context
 from gpu_impl.registry import resolve
 from gpu_impl.shader_source import unlisted_variants
+from references.mitsuba import COMMITTED_STORE, load_reference, store_entry
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # Where tests that compare images keep them when they fail (as Mitsuba's render tests do).
@@ -51,6 +53,13 @@ def gl():
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+def cornell_reference(bounces: int):
+    """cornell-box and its committed Mitsuba reference at B bounces (16384 spp, 128x128, seed 0)."""
+    scene = load_scene("cornell-box")
+    entry = store_entry(scene.name, scene.content_hash(), bounces, 16384, 128, 128, 0, COMMITTED_STORE)
+    return scene, load_reference(entry)
 
 
 # The tracers' hooks, which are not settings (gpu_impl/api.py: bundle_tracer).

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import describe_interval, relmse, render_with, run_evalkit
+from conftest import cornell_reference, describe_interval, relmse, render_with, run_evalkit
 
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.builtin import furnace_radiance
@@ -24,13 +24,6 @@ from gpu_impl.lights import ShadowLights
 from gpu_impl.registry import resolve
 from gpu_impl.scene_buffers import GpuScene
 from gpu_impl.visibility.imperfect import DEFAULT_ISM_POINTS
-from references.mitsuba import COMMITTED_STORE, load_reference, store_entry
-
-
-def cornell_reference(bounces: int):
-    scene = load_scene("cornell-box")
-    entry = store_entry(scene.name, scene.content_hash(), bounces, 16384, 128, 128, 0, COMMITTED_STORE)
-    return scene, load_reference(entry)
 
 
 def test_bidirectional_paths_converge_on_cornell_box_with_less_noise_than_eye_paths(gl):

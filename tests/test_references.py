@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import relmse, run_evalkit
+from conftest import cornell_reference, relmse, run_evalkit
 
 from evalkit.core.cache import CACHE_VARIABLE
 from evalkit.core.errors import InputError
@@ -23,9 +23,7 @@ from evalkit.core.scene.mitsuba_io import to_mitsuba_dict
 from references.mitsuba import (
     COMMITTED_STORE,
     STORE_VARIABLE,
-    load_reference,
     reference,
-    store_entry,
     timed_render,
 )
 
@@ -259,8 +257,7 @@ def test_timed_renders_use_their_sample_count(mi):
     """`timed_render` (error against time in studies): more samples, less error, more time; a
     1-spp warm-up must not leave the sampler at 1 spp."""
 
-    scene = load_scene("cornell-box")
-    ref = load_reference(store_entry(scene.name, scene.content_hash(), 1, 16384, 128, 128, 0, COMMITTED_STORE))
+    scene, ref = cornell_reference(1)
     errors, seconds = [], []
     for spp in (2, 32):
         images, s, info = timed_render(scene, 1, spp, 128, 128, seed=0)

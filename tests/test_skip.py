@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from conftest import make_tracer, trace
+from conftest import cornell_reference, make_tracer, trace
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
@@ -15,7 +15,6 @@ from evalkit.metrics.images import relmse
 from gpu_impl.api import render as render_scene
 from gpu_impl.bundles import CAPACITY_SLACK
 from gpu_impl.scene_buffers import GpuScene
-from references.mitsuba import COMMITTED_STORE, load_reference, store_entry
 
 SMALL = RenderSettings(bounces=4, directions=8, resolution=64, width=32, height=32, frames=2, spp=2)
 
@@ -58,8 +57,7 @@ def test_bounces_stop_once_every_path_has_ended_and_the_image_is_the_same(gl):
 
 
 def test_fixed_directions_reuse_bundles_on_static_scenes_and_the_change_is_bounded(gl, images):
-    scene = load_scene("cornell-box")
-    ref = load_reference(store_entry(scene.name, scene.content_hash(), 3, 16384, 128, 128, 0, COMMITTED_STORE))
+    scene, ref = cornell_reference(3)
     settings = RenderSettings(bounces=3, directions=32, resolution=128, width=128, height=128, frames=8, spp=8)
     fixed = render(gl, scene, replace(settings, rotate_directions=False))
     rotating = render(gl, scene, settings)

@@ -117,6 +117,13 @@ vec3 around(vec3 a, float cos_theta, float phi) {
     return sin_theta * cos(phi) * t + sin_theta * sin(phi) * b + cos_theta * a;
 }
 
+// A point uniform on the frame's disk across omega (the bundle lines' plane, behind every node),
+// where light along omega enters the scene.
+vec3 disk_origin(vec3 omega, uvec4 r) {
+    vec3 disk = around(omega, 0.0, 2.0 * PI * unit_float(r.y)) * (radius * sqrt(unit_float(r.x)));
+    return disk - radius * omega;
+}
+
 void main() {
     uint id = linear_id();
     if (id >= invocations) return;
@@ -155,15 +162,12 @@ void main() {
         arrived = k;
 #if ENVIRONMENT != ENVIRONMENT_NONE
     } else if (source == FROM_ENVIRONMENT) {
-        // Into the scene along omega from a point of the frame's disk (the bundle lines' plane,
-        // behind every node): the first node beyond it, as a step over the bundles finds it.
+        // Into the scene along omega from a point of the frame's disk: the first node beyond it,
+        // as a step over the bundles finds it.
         int k = spread;
-        BundleFrame f = frames[k];
         bool forward = (r.z & 1u) == 0u;
-        vec3 omega = forward ? f.d.xyz : -f.d.xyz;
-        float phi = 2.0 * PI * unit_float(r.y), rho = radius * sqrt(unit_float(r.x));
-        vec3 origin = rho * (cos(phi) * f.u.xyz + sin(phi) * f.v.xyz) - radius * omega;
-        y = landed(bundle_step(k, forward, origin, omega), omega);
+        vec3 omega = forward ? frames[k].d.xyz : -frames[k].d.xyz;
+        y = landed(bundle_step(k, forward, disk_origin(omega, r), omega), omega);
         if (!y.found) return;
         alpha = environment(-omega) / b_start;
         // L_{n-1} = a_n^2 / (b_n b_{n-1})^2: the eye path reaches the environment along -omega
@@ -177,8 +181,7 @@ void main() {
         vec3 origin, omega;
         if (light.position.w == LIGHT_DIRECTIONAL) {
             omega = light.direction.xyz;
-            vec3 disk = around(omega, 0.0, 2.0 * PI * unit_float(r.y)) * (radius * sqrt(unit_float(r.x)));
-            origin = -radius * omega + disk;
+            origin = disk_origin(omega, r);
             alpha = light.intensity.rgb / light.paths.x;
         } else {
             origin = light.position.xyz;
