@@ -2,14 +2,15 @@
 
 A node is 8 bytes on the GPU: its depth along the bundle direction and a reference, a triangle or
 a splat point (``NODE_REFERENCE``, shaders/bundle.glsl); shaders/bundle_hits.glsl computes the rest
-where it is needed. A build is a few passes and two GPU-CPU round-trips, whatever K is:
+where it is needed. A build is a few passes and three GPU-CPU round-trips, whatever K is:
 
 - ``lists``: the method's builder (`BundleTracer.build_lists`) puts every node of every line
   somewhere: appended to per-pixel linked lists by the rasterizer (`LinkedListTracer`, with a
   re-run past the buffer's capacity), or straight into exact-size slot ranges (the compute
   splatter, gpu_impl/methods/imperfect.py); round-trip 1 reads how many there are.
 - ``resolve``: each list sorted (and, for splats, its redundant nodes merged) at the front of its
-  slot range (shaders/resolve_lists.glsl); round-trip 2 reads the statistics.
+  slot range (shaders/resolve_lists.glsl), in two passes: the short lists, then the long ones the
+  first queued (round-trip 2 reads how many); round-trip 3 reads the statistics.
 
 The resolved lists (``LIST_OFFSETS``, ``LIST_COUNTS``, ``NODES``) stay on the GPU for the renderer.
 The builders live with their methods (gpu_impl/methods/); `gpu_impl.registry` finds them.
@@ -38,6 +39,7 @@ from gpu_impl.layout import (
     NODE,
     NODE_TRIANGLE,
     SCAN_PER_THREAD,
+    SHORT_LIST,
     SORT_NETWORK,
     SPLAT_BIT,
 )
@@ -299,8 +301,28 @@ class BundleTracer:
         # shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size,
         # past the list's end: the node buffer keeps that many slots beyond the last list.
         self._grow(("NODES",), NODE.itemsize, total + SORT_NETWORK, self.raw_nodes_are)
+        # The resolve's queue of lists longer than SHORT_LIST: each holds more than that many nodes.
+        self._grow(("LONG_LISTS",), 4, total // (SHORT_LIST + 1) + 1, "long lists queued")
         self.bind()
         return total
+
+    def sort_programs(self, **defines) -> tuple:
+        """shaders/resolve_lists.glsl's two passes of a sort (or merge: ``defines``)."""
+        return tuple(self.gl.program("resolve_lists", **defines, **extra) for extra in ({}, {"LONG_LISTS": True}))
+
+    def sort_lists(self, uniforms: dict | None = None, **defines) -> None:
+        """Each list sorted (or merged, ``defines``) into its slot range: a pass over every list
+        sorts the short ones and queues the rest, then a pass over just those (round-trip 2 reads
+        how many)."""
+        gl = self.gl
+        short, long = self.sort_programs(**defines)
+        for program in (short, long):
+            set_uniforms(program, uniforms or {})
+        gl.dispatch(short, self.list_count)
+        counter = self.buffers["COUNTERS"].read(4, offset=4 * COUNTERS["LONG_LISTS"])
+        queued = int(np.frombuffer(counter, dtype=np.uint32)[0])
+        if queued:
+            gl.dispatch(long, queued)
 
     def _prefix_sum(self, values, count: int, level: int) -> None:
         """Exclusive prefix sum of ``count`` uints of ``values`` in place (shaders/prefix_sum.glsl)."""

@@ -17,9 +17,11 @@ LOCAL_SIZE = 256
 MAX_GROUPS = 65535
 # Values each invocation of the prefix sum scans (shaders/prefix_sum.glsl).
 SCAN_PER_THREAD = np.uint32(16)
-# Lists up to this long are sorted in registers by a sorting network written out for it
-# (shaders/resolve_lists.glsl); it reads that many slots of a short list, past the list's end, so
-# the node buffer keeps that many slots beyond the last list.
+# The resolve's first pass sorts lists of up to SHORT_LIST nodes by a sorting network of that many
+# keys and queues the longer ones for its second pass, whose network sorts up to SORT_NETWORK
+# (shaders/resolve_lists.glsl). A network reads that many slots of a list, past the list's end, so
+# the node buffer keeps SORT_NETWORK slots beyond the last list.
+SHORT_LIST = 8
 SORT_NETWORK = 32
 
 # Storage-buffer binding points.
@@ -46,6 +48,8 @@ BINDINGS = {
     "LIST_OFFSETS": 13,
     "NODES": 14,
     "LIST_COUNTS": 15,
+    # the lists longer than SHORT_LIST, queued by the resolve's first pass for its second
+    "LONG_LISTS": 17,
     # the lines each splat covers, from the compute splatter's count pass to its scatter pass
     "SPLAT_LINES": 16,
     # prefix sums, and node attributes for the host (read-back only)
@@ -99,8 +103,9 @@ SAMPLERS = {"random": 0, "stratified": 1}
 # The build counters (bundle_build.glsl): nodes appended to linked lists (including any past the
 # capacity), perfect bundles' coincident duplicates (all kept; imperfect bundles' redundant nodes
 # are the written less the kept), the longest list, count/scatter mismatches (always 0), the lines
-# splats cover (the nodes there would be without merging), and the nodes the merge kept.
-COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4, "KEPT": 5}
+# splats cover (the nodes there would be without merging), the nodes the merge kept, and the lists
+# the resolve's first pass queued for its second.
+COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4, "KEPT": 5, "LONG_LISTS": 6}
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
 # Path.bundle (paths.glsl) past the bundle indices: the path has ended, or is at its camera vertex.
@@ -127,6 +132,7 @@ SHADER_CONSTANTS = {
     "LIGHT_VISIBILITY_IMPERFECT": LIGHT_VISIBILITY_IMPERFECT,
     "LOCAL_SIZE": LOCAL_SIZE,
     "SCAN_PER_THREAD": SCAN_PER_THREAD,
+    "SHORT_LIST": SHORT_LIST,
     "SORT_NETWORK": SORT_NETWORK,
     **{f"SAMPLER_{name.upper()}": value for name, value in SAMPLERS.items()},
     **{f"COUNTER_{name}": value for name, value in COUNTERS.items()},

@@ -46,9 +46,11 @@ VARIANTS = {
     "splat_lists": [{"COUNT_SPLATS": True}, {"COUNT_SPLATS": True, "COUNT_COVERED": True}, {"SCATTER_SPLATS": True}],
     "resolve_lists": [
         {"COUNT_LISTS": True},
-        {"SORT_LISTS": True},
-        {"MERGE_LISTS": True},
-        {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True},
+        *(
+            {**sort, **long}
+            for sort in ({"SORT_LISTS": True}, {"MERGE_LISTS": True}, {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True})
+            for long in ({}, {"LONG_LISTS": True})
+        ),
     ],
     "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],
     "expand_nodes": {"TEXTURES": (0, 1), "NODE_REFERENCE": NODE_REFERENCES},

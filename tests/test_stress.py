@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from bundle_oracle import agreement, exact_lists
 from conftest import render_with, trace
 from test_bundles import QUAD, QUAD_FACES, build, coplanar_stack, scene_of
 from test_exact_bundles import thin_slabs
@@ -175,6 +176,32 @@ def test_depth_complexity_beyond_the_first_node_buffer_loses_nothing(gl):
     assert stats["overflow_reruns"] == 1
     r = compare_bundles(bundles, ExactTracer(scene).bundles(directions, 32))
     assert r["agreement"] >= 0.995 and bundles.list_lengths().max() == 40
+
+
+def test_lists_of_every_length_sort_and_merge_in_either_pass(gl):
+    # Stacks of 4, 12, 24 and 40 quads side by side: lines through them make lists for the resolve's
+    # first pass (up to 8 nodes), its second pass's sorting network (9 to 32) and its sort in global
+    # memory (over 32), all in one build (shaders/resolve_lists.glsl).
+    meshes = [
+        Mesh(f"s{n}q{i}", QUAD + [1.5 * column, 0.0, 0.025 * i], QUAD_FACES, 0)
+        for column, n in enumerate((4, 12, 24, 40))
+        for i in range(n)
+    ]
+    scene = scene_of(meshes, [Material("grey")])
+    perfect = build(gl, scene, K=4, R=64)
+    assert perfect.check() is None
+    lengths = perfect.list_lengths()
+    assert {4, 12, 24, 40} <= set(lengths.tolist())
+    result = agreement(perfect, exact_lists(scene, perfect), 1e-5 * perfect.radius)
+    assert result["agreement"] >= 0.995 and result["spurious"] <= 0.005 * result["exact_nodes"], result
+    # Splats: unmerged lists sorted whatever their length; merged ones keep one node a crossing.
+    for splatter in ("compute", "raster"):
+        kw = dict(K=4, R=64, points=32768, splat_scale=2.0, splatter=splatter)
+        unmerged = build(gl, scene, "imperfect", merge=False, **kw)
+        merged = build(gl, scene, "imperfect", **kw)
+        assert unmerged.check() is None and merged.check() is None
+        assert unmerged.list_lengths().max() > 32 and merged.list_lengths().max() == 40, splatter
+        assert merged.node_count + merged.stats["redundant_nodes"] == merged.stats["raw_nodes"]
 
 
 @pytest.mark.parametrize("name", sorted(BUILTIN_SCENES))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import moderngl
 import numpy as np
@@ -141,13 +142,11 @@ class SplatTracer(BundleTracer):
         """Every splat's nodes into the lists; returns (re-runs, nodes written)."""
         raise NotImplementedError
 
-    def merge_program(self):
-        raise NotImplementedError
+    # shaders/resolve_lists.glsl's merge variant: where the splatter left each list.
+    merge_defines: ClassVar[dict]
 
     def resolve_lists(self) -> None:
-        merge = self.merge_program()
-        merge["merge_tolerance"] = self.merge_tolerance
-        self.gl.dispatch(merge, self.list_count)
+        self.sort_lists({"merge_tolerance": self.merge_tolerance}, **self.merge_defines)
 
     def covered_nodes(self, counters: np.ndarray, raw: int) -> int | None:
         """Every line a splat covers: without merging, one node each (None: not counted)."""
@@ -217,11 +216,10 @@ class ComputeSplatTracer(SplatTracer):
             self.points_program(),
             gl.program("splat_lists", **self.count_variant),
             gl.program("splat_lists", SCATTER_SPLATS=True),
-            self.merge_program(),
+            *self.sort_programs(**self.merge_defines),
         ]
 
-    def merge_program(self):
-        return self.gl.program("resolve_lists", MERGE_LISTS=True)
+    merge_defines = {"MERGE_LISTS": True}
 
     def splat_lists(self, timer) -> tuple[int, int]:
         gl = self.gl
@@ -268,10 +266,13 @@ class RasterSplatTracer(LinkedListTracer, SplatTracer):
         return super().predicted_nodes(max(1.0, self.splat_scale**2))
 
     def compute_programs(self) -> list:
-        return [self.points_program(), self.gl.program("resolve_lists", COUNT_LISTS=True), self.merge_program()]
+        return [
+            self.points_program(),
+            self.gl.program("resolve_lists", COUNT_LISTS=True),
+            *self.sort_programs(**self.merge_defines),
+        ]
 
-    def merge_program(self):
-        return self.gl.program("resolve_lists", MERGE_LISTS=True, FROM_LINKED_LISTS=True)
+    merge_defines = {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True}
 
     def vertex_array(self, program):
         return self.gl.vertex_array(program, [])

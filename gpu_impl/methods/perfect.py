@@ -31,7 +31,7 @@ class PerfectTracer(LinkedListTracer):
 
     def compute_programs(self) -> list:
         gl = self.gl
-        return [gl.program("resolve_lists", COUNT_LISTS=True), gl.program("resolve_lists", SORT_LISTS=True)]
+        return [gl.program("resolve_lists", COUNT_LISTS=True), *self.sort_programs(SORT_LISTS=True)]
 
     def vertex_array(self, program):
         return self.gpu_scene.vertex_array(program)
@@ -45,7 +45,7 @@ class PerfectTracer(LinkedListTracer):
 
     def resolve_lists(self) -> None:
         self.count_lists()
-        self.gl.dispatch(self.gl.program("resolve_lists", SORT_LISTS=True), self.list_count)
+        self.sort_lists(SORT_LISTS=True)
 
     def build_stats(self, counters: np.ndarray, raw: int) -> dict:
         # Coincident triangles (a two-sided wall of two faces) put two nodes at one depth: all kept.

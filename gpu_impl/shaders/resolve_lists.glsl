@@ -13,6 +13,13 @@
 //                  copy of every node, a fifth of the build (benchmarks/bundles.py), for memory
 //                  the unmerged lists needed anyway.
 //
+// A sort or merge is two passes (bundles.py: BundleTracer.sort_lists). The first runs over every
+// list and sorts those of up to SHORT_LIST nodes, nearly all of them, in a short program; it
+// queues the longer ones in long_lists[], and the second (LONG_LISTS) runs over just those. A CPU
+// rasterizer runs a branch that no invocation of a group takes as well (masked), so one program
+// with every list length's code ran all of it for every list: at K = 256, R = 256 on cornell-box
+// (lists of up to 6 nodes) the sort took 4.8 s a build, 1.7 s with the short program alone.
+//
 // Lists are sorted by depth, then by reference (node keys, bundle_build.glsl): equal node sets
 // give equal lists, whatever order the rasterizer's threads or the scatter's atomics put them in.
 //
@@ -54,32 +61,46 @@ void main() {
 
 // Lists of up to NETWORK nodes are sorted in registers by a sorting network (Batcher's odd-even
 // merge sort: every index a constant, so nothing is addressed indirectly, which a CPU rasterizer
-// runs many times faster); its first 19 compare-exchanges sort 8 keys, the first 63 sort 16, all
-// 191 sort 32, and a list runs only as many as its length needs. Longer lists (a deep stack of
-// surfaces, heavily overlapping splats) are insertion-sorted in place, in global memory.
-#if SORT_NETWORK != 32
-#error "the sorting network below is written out for SORT_NETWORK = 32 keys (gpu_impl/layout.py)"
+// runs many times faster); its first 19 compare-exchanges sort 8 keys (the first pass's network),
+// the first 63 sort 16, all 191 sort 32 (the second pass's), and a list runs only as many as its
+// length needs. Longer lists (a deep stack of surfaces, heavily overlapping splats) are
+// insertion-sorted in place, in global memory, by the second pass.
+#if SHORT_LIST != 8 || SORT_NETWORK != 32
+#error "the sorting networks below are written out for SHORT_LIST = 8 and SORT_NETWORK = 32 keys (gpu_impl/layout.py)"
 #endif
+#if defined LONG_LISTS
 #define NETWORK uint(SORT_NETWORK)
+#else
+#define NETWORK uint(SHORT_LIST)
+#endif
 uint64_t key[NETWORK];
 #define PADDING 0xFFFFFFFFFFFFFFFFul  // sorts last
 
+// The first pass's queue of the lists it leaves to the second, counted in COUNTER_LONG_LISTS.
+layout(std430, binding = BINDING_LONG_LISTS) buffer LongLists { uint long_lists[]; };
+
 // M(i) for i = 0 .. NETWORK - 1 (and backwards), written out so that every index is a constant, in
-// blocks of 8, 8 and 16 that run only as far as the list's `length` reaches.
+// blocks of 8, 8 and 16 (the second pass's lists are all longer than 8).
 #define NODES_0(M) M(0u) M(1u) M(2u) M(3u) M(4u) M(5u) M(6u) M(7u)
 #define NODES_8(M) M(8u) M(9u) M(10u) M(11u) M(12u) M(13u) M(14u) M(15u)
 #define NODES_16(M) M(16u) M(17u) M(18u) M(19u) M(20u) M(21u) M(22u) M(23u) M(24u) M(25u) M(26u) M(27u) M(28u) M(29u) M(30u) M(31u)
-#define FOR_NODES(M) NODES_0(M) if (length > 8u) { NODES_8(M) } if (length > 16u) { NODES_16(M) }
+#if defined LONG_LISTS
+#define FOR_NODES(M) NODES_0(M) NODES_8(M) if (length > 16u) { NODES_16(M) }
 #define FOR_NODES_BACKWARDS(M) if (length > 16u) { M(31u) M(30u) M(29u) M(28u) M(27u) M(26u) M(25u) M(24u) M(23u) M(22u) \
-    M(21u) M(20u) M(19u) M(18u) M(17u) M(16u) } if (length > 8u) { M(15u) M(14u) M(13u) M(12u) M(11u) M(10u) M(9u) M(8u) } \
+    M(21u) M(20u) M(19u) M(18u) M(17u) M(16u) } M(15u) M(14u) M(13u) M(12u) M(11u) M(10u) M(9u) M(8u) \
     M(7u) M(6u) M(5u) M(4u) M(3u) M(2u) M(1u) M(0u)
+#else
+#define FOR_NODES(M) NODES_0(M)
+#define FOR_NODES_BACKWARDS(M) M(7u) M(6u) M(5u) M(4u) M(3u) M(2u) M(1u) M(0u)
+#endif
 
 #define CE(a, b) { uint64_t lower = min(key[a], key[b]); key[b] = max(key[a], key[b]); key[a] = lower; }
 
 void sort_network(uint length) {
     CE(0, 1) CE(2, 3) CE(0, 2) CE(1, 3) CE(1, 2) CE(4, 5) CE(6, 7) CE(4, 6) CE(5, 7) CE(5, 6)
     CE(0, 4) CE(2, 6) CE(2, 4) CE(1, 5) CE(3, 7) CE(3, 5) CE(1, 2) CE(3, 4) CE(5, 6)
-    if (length > 8u) {
+#if defined LONG_LISTS
+    {
         CE(8, 9) CE(10, 11) CE(8, 10) CE(9, 11) CE(9, 10) CE(12, 13) CE(14, 15) CE(12, 14) CE(13, 15) CE(13, 14)
         CE(8, 12) CE(10, 14) CE(10, 12) CE(9, 13) CE(11, 15) CE(11, 13) CE(9, 10) CE(11, 12) CE(13, 14) CE(0, 8)
         CE(4, 12) CE(4, 8) CE(2, 10) CE(6, 14) CE(6, 10) CE(2, 4) CE(6, 8) CE(10, 12) CE(1, 9) CE(5, 13)
@@ -101,6 +122,7 @@ void sort_network(uint length) {
         CE(19, 21) CE(23, 25) CE(27, 29) CE(1, 2) CE(3, 4) CE(5, 6) CE(7, 8) CE(9, 10) CE(11, 12) CE(13, 14)
         CE(15, 16) CE(17, 18) CE(19, 20) CE(21, 22) CE(23, 24) CE(25, 26) CE(27, 28) CE(29, 30)
     }
+#endif
 }
 
 #if defined MERGE_LISTS
@@ -121,11 +143,22 @@ void insert_global(uint first, uint count, uint64_t k) {
 }
 
 void main() {
+#if defined LONG_LISTS
+    if (linear_id() >= invocations) return;
+    uint list = long_lists[linear_id()];
+#else
     uint list = linear_id();
     if (list >= invocations) return;
+#endif
     uint first = list_offsets[list], length = list_offsets[list + 1u] - first;
-#if defined MERGE_LISTS && !defined FROM_LINKED_LISTS
+#if defined MERGE_LISTS && !defined FROM_LINKED_LISTS && !defined LONG_LISTS
     if (list_counts[list] != first) atomicAdd(counters[COUNTER_MISMATCH], 1u);  // the scatter's cursor is off the list's start
+#endif
+#if !defined LONG_LISTS
+    if (length > NETWORK) {
+        long_lists[atomicAdd(counters[COUNTER_LONG_LISTS], 1u)] = list;
+        return;
+    }
 #endif
     uint kept = length, redundant = 0u;
     if (length == 0u) {
@@ -158,8 +191,10 @@ void main() {
 #define KEEP(i) if ((middles & (1u << i)) != 0u) { nodes[first + kept] = key[i]; kept++; }
         FOR_NODES(KEEP)
 #endif
-    } else {
-        // A long list: sorted in place, in global memory.
+    }
+#if defined LONG_LISTS
+    else {
+        // Longer than the network: sorted in place, in global memory.
 #if defined LINKED_LISTS
         uint n = heads[list];
         for (uint i = 0u; i < length; i++, n = node_next[n]) insert_global(first, i, node_key(list_depth[n], list_ref[n]));
@@ -182,6 +217,7 @@ void main() {
         }
 #endif
     }
+#endif
     // Few atomics: a CPU rasterizer runs one per invocation, and all of them on one address.
 #if defined MERGE_LISTS
     list_counts[list] = kept;
