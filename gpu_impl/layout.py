@@ -48,10 +48,10 @@ BINDINGS = {
     "LIST_OFFSETS": 13,
     "NODES": 14,
     "LIST_COUNTS": 15,
-    # the lists longer than SHORT_LIST, queued by the resolve's first pass for its second
-    "LONG_LISTS": 17,
     # the lines each splat covers, from the compute splatter's count pass to its scatter pass
     "SPLAT_LINES": 16,
+    # the lists longer than SHORT_LIST, queued by the resolve's first pass for its second
+    "LONG_LISTS": 17,
     # prefix sums, and node attributes for the host (read-back only)
     "SCAN_DATA": 20,
     "SCAN_SUMS": 21,

@@ -194,7 +194,7 @@ def test_lists_of_every_length_sort_and_merge_in_either_pass(gl):
     assert {4, 12, 24, 40} <= set(lengths.tolist())
     result = agreement(perfect, exact_lists(scene, perfect), 1e-5 * perfect.radius)
     assert result["agreement"] >= 0.995 and result["spurious"] <= 0.005 * result["exact_nodes"], result
-    # Splats: unmerged lists sorted whatever their length; merged ones keep one node a crossing.
+    # Splats: unmerged lists sorted whatever their length; merged ones keep the deepest stack's 40 crossings.
     for splatter in ("compute", "raster"):
         kw = dict(K=4, R=64, points=32768, splat_scale=2.0, splatter=splatter)
         unmerged = build(gl, scene, "imperfect", merge=False, **kw)
