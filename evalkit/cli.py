@@ -30,7 +30,7 @@ from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
 from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png
 from evalkit.metrics.bundles import compare_bundles, resolution_advice
-from evalkit.metrics.confidence import mean_ratio, z_test
+from evalkit.metrics.confidence import mean_ratio, pool_renders, z_test
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
@@ -338,20 +338,24 @@ def _render(args) -> int:
 
 
 def _compare(args) -> int:
-    test, test_meta = read_exr(args.test)
+    test, test_variance, test_meta = _test_image(args.test)
+    test_name = " + ".join(args.test)
     ref, _ = read_exr(args.ref)
     metrics = compare_images(
         test,
         ref,
         args.metrics,
-        args.test,
+        test_name,
         args.ref,
         relmse_eps=args.relmse_eps,
         smape_eps=args.smape_eps,
         flip_ppd=args.flip_ppd,
         exposure=args.exposure,
     )
-    print(f"compare     {args.test} against {args.ref} ({test.shape[1]}x{test.shape[0]})")
+    print(f"compare     {test_name} against {args.ref} ({test.shape[1]}x{test.shape[0]})")
+    if len(args.test) > 1:
+        seeds = ", ".join(str(s) for s in test_meta["seed"])
+        print(f"pooled      {len(args.test)} renders (seeds {seeds}), {test_meta['frames']} frames")
     for m in metrics.values():
         params = ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in m.params.items())
         print(f"{m.name:12}{m.value:12.6g}   {params}")
@@ -363,32 +367,49 @@ def _compare(args) -> int:
             write_exr(out / f"{m.name}.exr", np.repeat(m.map[..., None], 3, axis=2).astype(np.float32), provenance)
             vmax = error_map_png(m.map, out / f"{m.name}.png")
             print(f"map         {out / (m.name + '.exr')} and .png (magma, 0..{vmax:.3g})")
-    confidence = _confidence(args, test, test_meta, ref)
+    confidence = _confidence(args.ref, test, test_variance, test_meta, ref)
     if args.json:
         result = {name: {"value": m.value, "params": m.params} for name, m in metrics.items()}
+        if len(args.test) > 1:
+            result["pooled"] = {"renders": args.test, "seeds": test_meta["seed"], "frames": test_meta["frames"]}
         print(json.dumps({**result, **confidence}, default=float))
     return 0
 
 
-def _confidence(args, test, test_meta, ref) -> dict:
+def _variance_of(path: str) -> np.ndarray | None:
+    """The ``<stem>_variance.exr`` beside an image, if there is one."""
+    sibling = Path(path).with_name(f"{Path(path).stem}_variance.exr")
+    return read_exr(sibling)[0] if sibling.is_file() else None
+
+
+def _test_image(paths: list[str]) -> tuple[np.ndarray, np.ndarray | None, dict]:
+    """The test image, its variance of the mean (or None) and provenance; several renders are
+    pooled into one (`pool_renders`)."""
+    renders = []
+    for path in paths:
+        image, meta = read_exr(path)
+        renders.append((path, image, _variance_of(path), meta))
+    if len(renders) == 1:
+        return renders[0][1], renders[0][2], renders[0][3]
+    return pool_renders(renders)
+
+
+def _confidence(ref_path, test, test_variance, test_meta, ref) -> dict:
     """The mean ratio with its interval (the test's frame means and the reference's variance, from
-    their ``_variance.exr`` siblings) and the z-test (both variances), as far as the files allow."""
-    variance = {}
-    for name, path in (("test", Path(args.test)), ("reference", Path(args.ref))):
-        sibling = path.with_name(f"{path.stem}_variance.exr")
-        variance[name] = read_exr(sibling)[0] if sibling.is_file() else None
+    its ``_variance.exr`` sibling) and the z-test (both variances), as far as the files allow."""
+    ref_variance = _variance_of(ref_path)
     out = {}
     frame_means = test_meta.get("frame_means")
-    if variance["reference"] is None:
+    if ref_variance is None:
         print("confidence  none: the reference has no _variance.exr beside it")
         return out
     if frame_means:
-        r = mean_ratio(np.asarray(frame_means), ref, variance["reference"])
+        r = mean_ratio(np.asarray(frame_means), ref, ref_variance)
         out["mean_ratio"] = r
         channels = ", ".join(_interval(c) for c in r["per_channel"])
         print(f"mean ratio  {_interval(r['all'])} ({r['level']:.0%} interval, {r['frames']} frames); rgb {channels}")
-    if variance["test"] is not None:
-        z = z_test(test, variance["test"], ref, variance["reference"])
+    if test_variance is not None:
+        z = z_test(test, test_variance, ref, ref_variance)
         out["z_test"] = {k: v for k, v in z.items() if k != "map"}
         print(
             f"z-test      {z['outside_share']:.3%} of {z['tested']:,} values outside |z| > {z['threshold']:.2f} "
@@ -730,9 +751,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_render)
 
     p = sub.add_parser(
-        "compare", help="MSE, relMSE, SMAPE, FLIP and Delta E 2000 of a test image against a reference, with error maps"
+        "compare",
+        help="MSE, relMSE, SMAPE, FLIP and Delta E 2000 of a test image against a reference, with error maps; "
+        "several test images (renders of one setting under different seeds) are pooled into one",
     )
-    p.add_argument("test", metavar="TEST.exr")
+    p.add_argument("test", metavar="TEST.exr", nargs="+")
     p.add_argument("ref", metavar="REF.exr")
     p.add_argument("--metrics", nargs="+", choices=METRICS, default=list(METRICS))
     p.add_argument(

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from conftest import render_with, run_evalkit
 
-from evalkit.core.exr import read_exr
-from evalkit.metrics.confidence import mean_ratio, within, z_test
+from evalkit.core.exr import read_exr, write_exr
+from evalkit.metrics.confidence import mean_ratio, pool_renders, within, z_test
+from gpu_impl.renderer import write_render
 
 
 def test_the_interval_covers_the_true_ratio_as_often_as_it_says():
@@ -79,3 +80,43 @@ def test_render_files_and_compare_carry_the_confidence(tmp_path):
     assert "mean ratio" in done.stdout and "z-test" in done.stdout
     result = json.loads(done.stdout.splitlines()[-1])
     assert result["mean_ratio"]["frames"] == 4 and result["z_test"]["tested"] > 0
+
+
+def test_compare_pools_renders_of_one_setting_and_refuses_what_would_not_pool(gl, tmp_path):
+    # A long check in pieces: renders of one setting under different seeds are one estimate whose
+    # frames weigh the same, whatever each render's count.
+    kw = dict(bounces=1, directions=4, resolution=32, width=12, height=10, spp=1)
+    pieces = {"a": dict(seed=1, frames=2), "b": dict(seed=2, frames=3), "k": dict(seed=3, frames=2, directions=8)}
+    for name, extra in pieces.items():
+        write_render(render_with(gl, "cornell-box", **{**kw, **extra}), tmp_path / name)
+    paths = [str(tmp_path / name / "indirect.exr") for name in ("a", "b")]
+    read = [(p, *read_exr(p)) for p in paths]
+    variances = [read_exr(p.replace(".exr", "_variance.exr"))[0] for p in paths]
+    image, variance, meta = pool_renders([(p, img, v, m) for (p, img, m), v in zip(read, variances)])
+    a, b = (r[1].astype(np.float64) for r in read)
+    assert np.allclose(image, (2 * a + 3 * b) / 5, rtol=1e-6)
+    assert np.allclose(variance, (4 * variances[0] + 9 * variances[1]) / 25, rtol=1e-6)
+    assert meta["frame_means"] == read[0][2]["frame_means"] + read[1][2]["frame_means"] and meta["seed"] == [1, 2]
+
+    # The CLI: pooled against a reference of its own size (any image with a variance beside it).
+    ref = tmp_path / "ref.exr"
+    write_exr(ref, np.full_like(image, 0.05), {})
+    write_exr(tmp_path / "ref_variance.exr", np.full_like(image, 1e-6), {})
+    done = run_evalkit("compare", *paths, str(ref), "--metrics", "mse", "--json")
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout.splitlines()[-1])
+    frames = np.asarray(meta["frame_means"])
+    assert result["pooled"]["frames"] == 5 and result["mean_ratio"]["frames"] == 5
+    assert result["mean_ratio"]["all"]["ratio"] == pytest.approx(frames.mean() / 0.05, rel=1e-5)
+    assert result["mse"]["value"] == pytest.approx(float(np.mean((image - 0.05) ** 2)), rel=1e-4)
+
+    # The same seed twice, another setting, and an image that is not a render: one line each.
+    refused = {
+        "the same frames twice": [paths[0], paths[0]],
+        "directions 8 against 4": [paths[0], str(tmp_path / "k" / "indirect.exr")],
+        "has no frame means": [paths[0], str(ref)],
+    }
+    for problem, tests in refused.items():
+        done = run_evalkit("compare", *tests, str(ref))
+        lines = done.stderr.strip().splitlines()
+        assert done.returncode == 2 and problem in done.stderr and len(lines) == 1, done.stderr

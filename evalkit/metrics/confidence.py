@@ -9,6 +9,9 @@
   every pixel's sampler apart), so the standard error of its image mean is the root of the summed
   per-pixel variances of the mean over the number of values. The two combine by the delta method
   (relative errors add in quadrature) with Welch-Satterthwaite's degrees of freedom.
+- `pool_renders`: one estimate from renders of the same settings under different seeds, so that
+  a long check runs in pieces (on several machines, or over several sessions): their frames
+  together, as if one render had made them all.
 - `z_test`: Mitsuba's render tests' per-pixel test (src/render/tests/test_renders.py): each
   pixel and channel's difference over the root of the two variances of the mean, a two-sided
   test at level alpha with a Sidak correction for the number of values; the share of values the
@@ -24,6 +27,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from evalkit.core.errors import InputError
 
 LEVEL = 0.95  # the confidence of the intervals
 Z_ALPHA = 0.01  # the z-test's family-wise significance (Mitsuba's render tests use 0.01)
@@ -70,6 +75,54 @@ def mean_ratio(test_frame_means: np.ndarray, ref: np.ndarray, ref_variance: np.n
 def within(ratio: dict, bound: float) -> bool:
     """Whether the interval of a `mean_ratio` entry lies inside 1 +- ``bound``."""
     return ratio["lo"] is not None and 1 - bound <= ratio["lo"] and ratio["hi"] <= 1 + bound
+
+
+# What may differ between renders pooled into one estimate: what seeds them, what their frames
+# came to, and where they ran. Everything else in their provenance must match.
+POOLED_FREELY = ("seed", "frames", "frames_rendered", "paths_per_pixel", "frame_means", "time_budget", "warnings", "gl")
+
+
+Render = tuple[str, np.ndarray, np.ndarray | None, dict]  # path, image, variance of its mean, provenance
+
+
+def pool_renders(renders: list[Render]) -> tuple[np.ndarray, np.ndarray | None, dict]:
+    """One render from several of the same settings and different seeds: each (path, image,
+    per-pixel variance of its mean or None, provenance with ``frame_means``). Every frame weighs
+    the same: the image is the frames' mean (each render's image weighted by its frames), its
+    variance of the mean sums (F_i / F)^2 var_i (None where a render has none), and the frame means
+    are all of them, in order. Renders of one seed share their frames, and renders of other
+    settings estimate something else: both are refused, naming the file."""
+    first_path, first_image, _, first = renders[0]
+    seeds: dict[int, str] = {}
+    for path, image, _, meta in renders:
+        if not meta.get("frame_means"):
+            raise InputError(path, "has no frame means: only the toolkit's renders can be pooled")
+        if image.shape != first_image.shape:
+            raise InputError(path, f"is {image.shape[:2]} pixels, {first_path} {first_image.shape[:2]}: no pooling")
+        differ = sorted(k for k in set(meta) | set(first) if k not in POOLED_FREELY and meta.get(k) != first.get(k))
+        if differ:
+            shown = ", ".join(f"{k} {meta.get(k)!r} against {first.get(k)!r}" for k in differ[:3])
+            raise InputError(path, f"has other settings than {first_path} ({shown}): it estimates something else")
+        seed = meta.get("seed")
+        if seed in seeds:
+            raise InputError(path, f"has seed {seed}, as {seeds[seed]} has: the same frames twice")
+        seeds[seed] = path
+    counts = np.array([len(r[3]["frame_means"]) for r in renders], dtype=np.float64)
+    weights = counts / counts.sum()
+    image = sum(w * r[1].astype(np.float64) for w, r in zip(weights, renders))
+    have_variance = all(r[2] is not None for r in renders)
+    variance = sum(w * w * r[2].astype(np.float64) for w, r in zip(weights, renders)) if have_variance else None
+    pooled = {
+        **first,
+        "seed": list(seeds),
+        "frames": int(counts.sum()),
+        "frames_rendered": int(counts.sum()),
+        "paths_per_pixel": sum(r[3].get("paths_per_pixel", 0) for r in renders),
+        "frame_means": [m for r in renders for m in r[3]["frame_means"]],
+        "warnings": list(dict.fromkeys(w for r in renders for w in r[3].get("warnings", []))),
+        "pooled": [r[0] for r in renders],
+    }
+    return image.astype(np.float32), None if variance is None else variance.astype(np.float32), pooled
 
 
 def z_test(test: np.ndarray, test_variance: np.ndarray, ref: np.ndarray, ref_variance: np.ndarray,
