@@ -15,11 +15,11 @@
 //
 // A sort or merge is two passes (bundles.py: BundleTracer.sort_lists). The first runs over every
 // list and sorts those of up to SHORT_LIST nodes, nearly all of them, in a short program; it
-// queues the longer ones in long_lists[], and the second (LONG_LISTS) runs over just those. A CPU
-// rasterizer pays for code that no invocation of a group needs (it runs it masked, or the unused
-// keys spill), so one program with every list length's code cost that for every list: at K = 256,
-// R = 256 on cornell-box (lists of up to 6 nodes) the sort took 4.8 s a build, 1.7 s with the
-// short program alone (docs/MEASURED_FACTS.md).
+// queues the longer ones in long_lists[], and the second (LONG_LISTS) runs over just those. One
+// program with every list length's code cost its length for every list on a CPU rasterizer, even
+// though it skips the blocks no invocation of a group enters (most likely the 32 keys' array no
+// longer fits in registers): at K = 256, R = 256 on cornell-box (lists of up to 6 nodes) the sort
+// took 4.8 s a build, 1.7 s with the short program alone (docs/MEASURED_FACTS.md).
 //
 // Lists are sorted by depth, then by reference (node keys, bundle_build.glsl): equal node sets
 // give equal lists, whatever order the rasterizer's threads or the scatter's atomics put them in.
