@@ -36,6 +36,7 @@ from gpu_impl.layout import (
     FACING_BIT,
     LINKED_NODE_BYTES,
     LOCAL_SIZE,
+    MAX_DIRECTIONS,
     NODE,
     NODE_TRIANGLE,
     SCAN_PER_THREAD,
@@ -102,6 +103,11 @@ class BundleTracer:
         for name, value in (("directions", self.K), ("resolution", self.R)):
             if value < 1:
                 raise ValueError(f"{name} must be at least 1, got {value}")
+        if self.K > MAX_DIRECTIONS:
+            raise ValueError(
+                f"K={self.K} directions exceed the {MAX_DIRECTIONS} a frame holds (their frames are one uniform "
+                "block of 64 KiB, shaders/bundle.glsl); render more frames instead"
+            )
         self.node_budget = int(settings.node_budget)
         self.list_count = self.K * self.R * self.R
         if self.list_count >= 2**32 - 1:
@@ -113,7 +119,7 @@ class BundleTracer:
         self._scan_sums: list = []
         self._check_budget(self.fixed_bytes, self.fixed_items)  # before anything is allocated
         lists = 4 * (self.list_count + 1)
-        self._ensure("FRAMES", BUNDLE_FRAME.itemsize * self.K)
+        self._ensure("FRAMES", BUNDLE_FRAME.itemsize * MAX_DIRECTIONS)  # the uniform block's whole size
         self._ensure("COUNTERS", 4 * len(COUNTERS))
         self._ensure("LIST_OFFSETS", lists)
         self._ensure("LIST_COUNTS", lists)
@@ -163,12 +169,12 @@ class BundleTracer:
     @property
     def fixed_bytes(self) -> int:
         """What the tracer holds whatever the node count: frames and the per-list arrays."""
-        return BUNDLE_FRAME.itemsize * self.K + 4 * (self.list_count + 1) * 2
+        return BUNDLE_FRAME.itemsize * MAX_DIRECTIONS + 4 * (self.list_count + 1) * 2
 
     @property
     def fixed_items(self) -> str:
         """What `fixed_bytes` holds, in words."""
-        return f"the {self.list_count:,} lists' counts and offsets"
+        return f"the frames and the {self.list_count:,} lists' counts and offsets"
 
     # -- memory --------------------------------------------------------------------------
 
@@ -253,7 +259,10 @@ class BundleTracer:
     def bind(self) -> None:
         self.gpu_scene.bind()
         for name, buffer in self.buffers.items():
-            buffer.bind_to_storage_buffer(BINDINGS[name])
+            if name == "FRAMES":
+                buffer.bind_to_uniform_block(BINDINGS[name])
+            else:
+                buffer.bind_to_storage_buffer(BINDINGS[name])
 
     def _uniforms(self, program, **overrides) -> None:
         """Set the bundle programs' uniforms (those a variant compiled away are skipped)."""

@@ -24,7 +24,7 @@ SCAN_PER_THREAD = np.uint32(16)
 SHORT_LIST = 8
 SORT_NETWORK = 32
 
-# Storage-buffer binding points.
+# Storage-buffer binding points (FRAMES: a uniform-block binding point).
 BINDINGS = {
     # the scene (scene_buffers.py)
     "MATERIALS": 0,
@@ -111,6 +111,9 @@ FACING_BIT = np.uint32(0x80000000)
 # Path.bundle (paths.glsl) past the bundle indices: the path has ended, or is at its camera vertex.
 PATH_ENDED = np.uint32(0xFFFFFFFF)
 PATH_FROM_CAMERA = np.uint32(0xFFFFFFFE)
+# The most directions a frame may have: the frames (bundle.glsl: BundleFrame, 48 bytes) are one
+# uniform block, and llvmpipe and NVIDIA's driver allow 64 KiB of one (GL_MAX_UNIFORM_BLOCK_SIZE).
+MAX_DIRECTIONS = 65536 // 48
 
 SHADER_CONSTANTS = {
     "SPLAT_BIT": SPLAT_BIT,
@@ -134,6 +137,7 @@ SHADER_CONSTANTS = {
     "SCAN_PER_THREAD": SCAN_PER_THREAD,
     "SHORT_LIST": SHORT_LIST,
     "SORT_NETWORK": SORT_NETWORK,
+    "MAX_DIRECTIONS": MAX_DIRECTIONS,
     **{f"SAMPLER_{name.upper()}": value for name, value in SAMPLERS.items()},
     **{f"COUNTER_{name}": value for name, value in COUNTERS.items()},
 }
@@ -143,7 +147,8 @@ MATERIAL = np.dtype([("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "
 TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.glsl: Triangle
 VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
 SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4")])  # bundle.glsl: SplatPoint (unorm16 b1, b2)
-BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])  # bundle.glsl: BundleFrame
+# bundle.glsl: BundleFrame, in a uniform block: three vec4, so std140 lays it out as std430 would.
+BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])
 LIGHT = np.dtype(
     [
         ("position", "<f4", 4),
@@ -191,7 +196,6 @@ RECORDS = {
     "Material": (MATERIAL, "MATERIALS"),
     "Triangle": (TRIANGLE, "TRIANGLES"),
     "Vertex": (VERTEX, "VERTICES"),
-    "BundleFrame": (BUNDLE_FRAME, "FRAMES"),
     "SplatPoint": (SPLAT_POINT, "POINTS"),
     "Light": (LIGHT, "LIGHTS"),
     "LightPathStart": (LIGHT_PATH_START, "LIGHT_PATH_STARTS"),

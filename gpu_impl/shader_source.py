@@ -99,7 +99,7 @@ VARIANTS = {
         "ENVIRONMENT": ENVIRONMENTS,
     },
     "resolve_images": [{}],
-    "record_strides": {"RECORD_GROUP": (0, 1, 2, 3, 4)},
+    "record_strides": {"RECORD_GROUP": (0, 1, 2, 3, 4, 5)},
 }
 
 

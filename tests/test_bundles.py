@@ -17,6 +17,7 @@ from evalkit.core.scene.colour import sample_texture
 from evalkit.core.scene.tessellate import box
 from gpu_impl.bundles import NodeBudgetExceeded
 from gpu_impl.context import GLContext
+from gpu_impl.layout import MAX_DIRECTIONS
 from gpu_impl.methods.imperfect import splat_centres
 from gpu_impl.scene_buffers import GpuScene
 
@@ -217,10 +218,11 @@ def test_node_budget_is_a_clear_error_with_the_memory_needed(gl):
     with pytest.raises(
         NodeBudgetExceeded,
         match=r"analytic: perfect bundles \(K=8, R=32\) need [\d.]+ KiB for [\d,]+ nodes in "
-        r"linked lists, over the node budget of 128.00 KiB",
+        r"linked lists, over the node budget of 192.00 KiB",
     ):
-        build(gl, nested_boxes(), K=8, R=32, node_budget=128 * 1024)
-    with pytest.raises(NodeBudgetExceeded, match=r"need 96.38 KiB for the 8,192 lists' counts and offsets, over"):
+        build(gl, nested_boxes(), K=8, R=32, node_budget=192 * 1024)
+    # The frames' uniform block (64 KiB less 16 bytes), then 8,192 lists' offset, count and head.
+    with pytest.raises(NodeBudgetExceeded, match=r"need 159.99 KiB for the frames and the 8,192 lists' counts and"):
         build(gl, nested_boxes(), K=8, R=32, node_budget=64 * 1024)  # checked before they are allocated
     with pytest.raises(
         NodeBudgetExceeded, match=r"imperfect bundles \(K=8, R=32, N=20000\) need .* for 160,000 splat points"
@@ -414,7 +416,7 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
         (["--splat-scale", "-1"], "argument --splat-scale: -1.0 must be positive and finite"),
         (
             ["--points", "65536", "--node-budget", "10MiB"],
-            "need 416.01 MiB for 16,777,216 splat points, their lines and the list offsets, "
+            "need 416.06 MiB for 16,777,216 splat points, their lines and the list offsets, "
             "over the node budget of 10.00 MiB",
         ),
     ],
@@ -458,3 +460,14 @@ def test_prefix_sum_is_exact_across_block_and_level_boundaries(gl):
                 buffer.release()
             expected = np.concatenate([[0], np.cumsum(values[:-1], dtype=np.uint64)]).astype(np.uint32)
             assert np.array_equal(scanned, expected), count
+
+
+@pytest.mark.parametrize("method", ["perfect", "imperfect"])
+def test_more_directions_than_a_frame_holds_is_one_line_saying_the_limit(tmp_path, method):
+    k = MAX_DIRECTIONS + 1
+    r = run_evalkit(
+        "render", "cornell-box", "--method", method, "--directions", str(k), "--resolution", "8",
+        "--width", "8", "--height", "8", "--out", str(tmp_path / "r"),
+    )  # fmt: skip
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"K={k} directions exceed the {MAX_DIRECTIONS} a frame holds" in r.stderr

@@ -7,7 +7,7 @@ import pytest
 
 from evalkit.core.errors import InputError
 from gpu_impl.context import GLContext, default_context, gl_integer, system_free_memory
-from gpu_impl.layout import BINDINGS, RECORDS, SHADER_CONSTANTS, glsl_literal
+from gpu_impl.layout import BINDINGS, BUNDLE_FRAME, MAX_DIRECTIONS, RECORDS, SHADER_CONSTANTS, glsl_literal
 from gpu_impl.shader_source import SHADER_DIR, SHADER_VARIANTS, is_program
 
 
@@ -21,7 +21,7 @@ def test_every_shader_compiles(gl):
 
 # The records of gpu_impl/layout.py by RECORD_GROUP of shaders/record_strides.glsl, in its order.
 RECORD_GROUPS = {
-    0: ["Material", "Triangle", "Vertex", "BundleFrame", "SplatPoint"],
+    0: ["Material", "Triangle", "Vertex", "SplatPoint"],
     1: ["Light", "ShadowView"],
     2: ["Path", "PathSums"],
     3: ["Node", "NodeNext", "NodeDepth", "NodeRef", "SplatLines"],
@@ -45,6 +45,21 @@ def test_python_records_have_the_shaders_strides(gl):
         assert dict(zip(names, found.tolist())) == dict.fromkeys(names, n)
         for buffer in [*buffers, lengths]:
             buffer.release()
+
+
+def test_bundle_frames_have_the_python_layout_in_their_uniform_block(gl):
+    # std140 fixes the block's length, so the last frame's d.w is written where the Python layout
+    # puts it, and must be what the shader reads there.
+    frames = np.zeros(MAX_DIRECTIONS, dtype=BUNDLE_FRAME)
+    frames["d"][:, 3] = np.arange(MAX_DIRECTIONS)
+    block, read = gl.buffer(frames.tobytes()), gl.buffer(reserve=4)
+    block.bind_to_uniform_block(BINDINGS["FRAMES"])
+    read.bind_to_storage_buffer(BINDINGS["SCAN_DATA"])
+    gl.run_groups(gl.program("record_strides", RECORD_GROUP=5), 1)
+    assert np.frombuffer(read.read(), dtype=np.uint32)[0] == MAX_DIRECTIONS - 1
+    assert BUNDLE_FRAME.itemsize * MAX_DIRECTIONS <= int(gl.limit("GL_MAX_UNIFORM_BLOCK_SIZE"))
+    for buffer in (block, read):
+        buffer.release()
 
 
 def test_shared_constants_are_written_as_glsl_literals_of_their_type():

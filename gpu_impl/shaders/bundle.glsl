@@ -20,7 +20,11 @@ struct BundleFrame {
     vec4 d;  // xyz: the direction
 };
 
-layout(std430, binding = BINDING_FRAMES) readonly buffer Frames { BundleFrame frames[]; };
+// A uniform block, not a storage buffer: llvmpipe loads a storage buffer's values lane by lane (a
+// vec4 about 8 times the time of a uniform block's), and every fragment of the lists pass reads
+// its direction's frame: the lists pass took 1.2 to 1.7 times as long (docs/MEASURED_FACTS.md).
+// The block is always MAX_DIRECTIONS frames long (bundles.py sizes the buffer so).
+layout(std140, binding = BINDING_FRAMES) uniform Frames { BundleFrame frames[MAX_DIRECTIONS]; };
 
 #if NODE_REFERENCE == NODE_SPLAT_POINT
 // A surface point of imperfect bundles: its triangle and barycentrics (b1, b2) as two unorm16, so

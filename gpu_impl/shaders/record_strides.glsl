@@ -1,12 +1,13 @@
 // The strides of the records the Python side builds or sizes (gpu_impl/layout.py: RECORDS), as this
 // driver lays them out: the length() of each record array over a buffer of a known size. The test
 // suite runs it (tests/test_gl_context.py); RECORD_GROUP picks the includes, which together would
-// exceed a compute shader's 16 storage blocks.
+// exceed a compute shader's 16 storage blocks. Group 5 reads the bundle frames' uniform block,
+// whose length is fixed: the last frame's d.w, which the test writes where the Python layout puts it.
 
 #extension GL_ARB_gpu_shader_int64 : require
 #include "common.glsl"
 
-#if RECORD_GROUP == 0
+#if RECORD_GROUP == 0 || RECORD_GROUP == 5
 #define NODE_REFERENCE NODE_SPLAT_POINT
 #include "scene.glsl"
 #include "bundle.glsl"
@@ -35,8 +36,9 @@ void main() {
     lengths[0] = uint(materials.length());
     lengths[1] = uint(triangles.length());
     lengths[2] = uint(vertices.length());
-    lengths[3] = uint(frames.length());
-    lengths[4] = uint(points.length());
+    lengths[3] = uint(points.length());
+#elif RECORD_GROUP == 5
+    lengths[0] = uint(frames[MAX_DIRECTIONS - 1].d.w);
 #elif RECORD_GROUP == 1
     lengths[0] = uint(lights.length());
     lengths[1] = uint(shadow_views.length());
