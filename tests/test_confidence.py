@@ -110,8 +110,10 @@ def test_compare_pools_renders_of_one_setting_and_refuses_what_would_not_pool(gl
     assert result["mean_ratio"]["all"]["ratio"] == pytest.approx(frames.mean() / 0.05, rel=1e-5)
     assert result["mse"]["value"] == pytest.approx(float(np.mean((image - 0.05) ** 2)), rel=1e-4)
 
-    # The same seed twice, another setting, and an image that is not a render: one line each.
+    # The same seed twice, another setting, another size, and an image that is not a render.
+    write_exr(tmp_path / "small.exr", np.zeros((5, 6, 3), np.float32), {**read[0][2], "seed": 9})
     refused = {
+        "images of two sizes do not pool": [paths[0], str(tmp_path / "small.exr")],
         "the same frames twice": [paths[0], paths[0]],
         "directions 8 against 4": [paths[0], str(tmp_path / "k" / "indirect.exr")],
         "has no frame means": [paths[0], str(ref)],

@@ -98,7 +98,8 @@ def pool_renders(renders: list[Render]) -> tuple[np.ndarray, np.ndarray | None, 
         if not meta.get("frame_means"):
             raise InputError(path, "has no frame means: only the toolkit's renders can be pooled")
         if image.shape != first_image.shape:
-            raise InputError(path, f"is {image.shape[:2]} pixels, {first_path} {first_image.shape[:2]}: no pooling")
+            (h, w), (fh, fw) = image.shape[:2], first_image.shape[:2]
+            raise InputError(path, f"is {w}x{h} and {first_path} {fw}x{fh}: images of two sizes do not pool")
         differ = sorted(k for k in set(meta) | set(first) if k not in POOLED_FREELY and meta.get(k) != first.get(k))
         if differ:
             shown = ", ".join(f"{k} {meta.get(k)!r} against {first.get(k)!r}" for k in differ[:3])
