@@ -21,8 +21,9 @@ struct BundleFrame {
 };
 
 // A uniform block, not a storage buffer: llvmpipe loads a storage buffer's values lane by lane (a
-// vec4 about 8 times the time of a uniform block's), and every fragment of the lists pass reads
-// its direction's frame: the lists pass took 1.2 to 1.7 times as long (docs/MEASURED_FACTS.md).
+// vec4 about ten times the time of a uniform block's, benchmarks/gl_loads.py), and every fragment
+// of the lists pass reads its direction's frame: that pass took 1.2 to 1.7 times as long with
+// storage (docs/MEASURED_FACTS.md).
 // The block is always MAX_DIRECTIONS frames long (bundles.py sizes the buffer so).
 layout(std140, binding = BINDING_FRAMES) uniform Frames { BundleFrame frames[MAX_DIRECTIONS]; };
 
