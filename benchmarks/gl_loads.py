@@ -44,13 +44,13 @@ def main() -> None:
     sums = ctx.buffer(reserve=4 * args.invocations)
     source = Path(__file__).with_suffix(".glsl").read_text()
     groups = args.invocations // 256
+    defines = "".join(f"#define SOURCE_{s} {i}\n" for i, s in enumerate(SOURCES))
+    defines += f"#define LOADS {args.loads}u\n#define RECORDS {args.records}u\n"
     rows = {}
     for name in SOURCES:
         if name == "UNIFORM_VEC4" and args.records > UNIFORM_BLOCK_RECORDS:
             continue
-        defines = "".join(f"#define SOURCE_{s} {i}\n" for i, s in enumerate(SOURCES))
-        header = f"#version 450\n{defines}#define SOURCE SOURCE_{name}\n#define LOADS {args.loads}u\n"
-        program = ctx.compute_shader(header + f"#define RECORDS {args.records}u\n" + source)
+        program = ctx.compute_shader(f"#version 450\n{defines}#define SOURCE SOURCE_{name}\n{source}")
         records.bind_to_storage_buffer(0)
         if name == "UNIFORM_VEC4":
             records.bind_to_uniform_block(0)

@@ -50,6 +50,8 @@ from gpu_impl.timing import PassTimer
 # How much a buffer grows past a measured count, so the next frame's rotated directions (a
 # slightly different count) rarely need it to grow again.
 CAPACITY_SLACK = 1.125
+# The frames' uniform block is always its whole size, MAX_DIRECTIONS frames (shaders/bundle.glsl).
+FRAMES_BYTES = BUNDLE_FRAME.itemsize * MAX_DIRECTIONS
 # The share of the free memory a build may take: the rest is for the process and the driver. On
 # llvmpipe the raster pass of atrium-dense (2.4 M triangles, K=256, R=1024) took 1.4 GiB beyond
 # its buffers, and with 80 % the memory cgroup killed it (docs/MEASURED_FACTS.md).
@@ -119,7 +121,7 @@ class BundleTracer:
         self._scan_sums: list = []
         self._check_budget(self.fixed_bytes, self.fixed_items)  # before anything is allocated
         lists = 4 * (self.list_count + 1)
-        self._ensure("FRAMES", BUNDLE_FRAME.itemsize * MAX_DIRECTIONS)  # the uniform block's whole size
+        self._ensure("FRAMES", FRAMES_BYTES)
         self._ensure("COUNTERS", 4 * len(COUNTERS))
         self._ensure("LIST_OFFSETS", lists)
         self._ensure("LIST_COUNTS", lists)
@@ -169,7 +171,7 @@ class BundleTracer:
     @property
     def fixed_bytes(self) -> int:
         """What the tracer holds whatever the node count: frames and the per-list arrays."""
-        return BUNDLE_FRAME.itemsize * MAX_DIRECTIONS + 4 * (self.list_count + 1) * 2
+        return FRAMES_BYTES + 4 * (self.list_count + 1) * 2
 
     @property
     def fixed_items(self) -> str:
