@@ -34,6 +34,7 @@ from gpu_impl.layout import (
     BUNDLE_FRAME,
     COUNTERS,
     FACING_BIT,
+    LINKED_NODE,
     LINKED_NODE_BYTES,
     LOCAL_SIZE,
     MAX_DIRECTIONS,
@@ -500,11 +501,12 @@ class LinkedListTracer(BundleTracer):
         # Never more than fits: a first guess over the machine's memory would be touched, and
         # killed for, as the raster pass fills it; an overflowing pass is counted and refused.
         budget_nodes = max(1, (self.memory_limit()[0] - self.fixed_bytes) // LINKED_NODE_BYTES)
-        self.capacity = min(nodes, budget_nodes, self.gl.max_storage_bytes // 4)
-        for name in ("NEXT", "LIST_DEPTH", "LIST_REF"):
-            if name in self.buffers and self.buffers[name].size != 4 * self.capacity:
+        self.capacity = min(nodes, budget_nodes, self.gl.max_storage_bytes // NODE.itemsize)
+        for dtype, name in LINKED_NODE.values():
+            size = dtype.itemsize * self.capacity
+            if name in self.buffers and self.buffers[name].size != size:
                 self.buffers.pop(name).release()
-            self._ensure(name, 4 * self.capacity)
+            self._ensure(name, size)
 
     def vertex_array(self, program):
         """The raster pass's vertex array for ``program``."""
@@ -556,7 +558,7 @@ class LinkedListTracer(BundleTracer):
             if nodes <= self.capacity:
                 return reruns, nodes
             self._check_budget(self.fixed_bytes + nodes * LINKED_NODE_BYTES, f"{nodes:,} nodes in linked lists")
-            self._check_buffer(4 * nodes, "NEXT")
+            self._check_buffer(NODE.itemsize * nodes, "LIST_KEYS")
             self._grow_linked(max(nodes, int(nodes * CAPACITY_SLACK)))
             self.bind()
             reruns += 1

@@ -41,8 +41,7 @@ BINDINGS = {
     # linked lists, appended to by the raster passes
     "HEADS": 9,
     "NEXT": 10,
-    "LIST_DEPTH": 11,
-    "LIST_REF": 12,
+    "LIST_KEYS": 11,
     # the lists in exact-size slot ranges: where each starts, its nodes (keys), and its length
     # (the build's counts, then the resolved lists the eye paths read)
     "LIST_OFFSETS": 13,
@@ -181,11 +180,10 @@ PATH = np.dtype(
 PATH_SUMS = np.dtype([("direct", "<f4", 4), ("indirect", "<f4", 4)])  # paths.glsl: PathSums
 # A resolved node: one 64-bit key, depth and reference (bundle_build.glsl: nodes).
 NODE = np.dtype("<u8")
-# A node while linked lists are built: its link, depth and reference, one array each (bundle_build.glsl).
+# A node while linked lists are built: its link and its key, one array each (bundle_build.glsl).
 LINKED_NODE = {
     "NodeNext": (np.dtype("<u4"), "NEXT"),
-    "NodeDepth": (np.dtype("<f4"), "LIST_DEPTH"),
-    "NodeRef": (np.dtype("<u4"), "LIST_REF"),
+    "NodeKey": (NODE, "LIST_KEYS"),
 }
 LINKED_NODE_BYTES = sum(dtype.itemsize for dtype, _ in LINKED_NODE.values())
 # The compute splatter's record of the lines a splat covers (bundle_build.glsl: splat_lines).

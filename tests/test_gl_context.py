@@ -24,7 +24,7 @@ RECORD_GROUPS = {
     0: ["Material", "Triangle", "Vertex", "SplatPoint"],
     1: ["Light", "ShadowView"],
     2: ["Path", "PathSums"],
-    3: ["Node", "NodeNext", "NodeDepth", "NodeRef", "SplatLines"],
+    3: ["Node", "NodeNext", "NodeKey", "SplatLines"],
     4: ["LightPathStart", "LightPathVertex"],
 }
 

@@ -5,11 +5,34 @@
 
 layout(std430, binding = BINDING_COUNTERS) buffer Counters { uint counters[]; };
 
+#if defined LINKED_LISTS && !defined NODE_KEYS
+#define NODE_KEYS  // a linked node is a key too
+#endif
+
+#if defined NODE_KEYS
+// A node as one 64-bit key that sorts as (depth, reference) does: the depth's order bits
+// (common.glsl) in the high word, then the reference with FACING_BIT in the low word. Sorting and
+// moving one key per node costs half what a depth and a reference apart cost. The raster passes
+// append keys too: one store per fragment and one load per node in the resolve, where a depth
+// and a reference apart cost two of each (llvmpipe runs every storage access lane by lane; at
+// K = 256, R = 256 on cornell-box the sort pass took a fifth less time, docs/MEASURED_FACTS.md).
+uint64_t node_key(float depth, uint ref) {
+    return (uint64_t(depth_order_bits(depth)) << 32) | uint64_t(ref);
+}
+
+float key_depth(uint64_t key) {
+    return order_bits_depth(uint(key >> 32));
+}
+
+uint key_ref(uint64_t key) {
+    return uint(key);
+}
+#endif
+
 #if defined LINKED_LISTS
 layout(std430, binding = BINDING_HEADS) buffer Heads { uint heads[]; };
 layout(std430, binding = BINDING_NEXT) buffer Next { uint node_next[]; };
-layout(std430, binding = BINDING_LIST_DEPTH) buffer ListDepth { float list_depth[]; };
-layout(std430, binding = BINDING_LIST_REF) buffer ListRef { uint list_ref[]; };
+layout(std430, binding = BINDING_LIST_KEYS) buffer ListKeys { uint64_t list_keys[]; };
 
 uniform uint capacity;  // nodes the linked-list buffers hold
 
@@ -20,8 +43,7 @@ uniform uint capacity;  // nodes the linked-list buffers hold
 void append_node(uint list, float depth, uint ref) {
     uint index = atomicAdd(counters[COUNTER_NODES], 1u);
     if (index >= capacity) return;
-    list_depth[index] = depth;
-    list_ref[index] = ref;
+    list_keys[index] = node_key(depth, ref);
     node_next[index] = atomicExchange(heads[list], index);
 }
 #endif
@@ -42,21 +64,4 @@ layout(std430, binding = BINDING_LIST_COUNTS) buffer ListCounts { uint list_coun
 // The lines each splat covers, from the compute splatter's count pass to its scatter pass
 // (splat_lists.glsl says what the four words hold).
 layout(std430, binding = BINDING_SPLAT_LINES) buffer SplatLines { uvec4 splat_lines[]; };
-#endif
-
-#if defined NODE_KEYS
-// A node as one 64-bit key that sorts as (depth, reference) does: the depth's order bits
-// (common.glsl) in the high word, then the reference with FACING_BIT in the low word. Sorting and
-// moving one key per node costs half what a depth and a reference apart cost.
-uint64_t node_key(float depth, uint ref) {
-    return (uint64_t(depth_order_bits(depth)) << 32) | uint64_t(ref);
-}
-
-float key_depth(uint64_t key) {
-    return order_bits_depth(uint(key >> 32));
-}
-
-uint key_ref(uint64_t key) {
-    return uint(key);
-}
 #endif

@@ -8,6 +8,7 @@
 
 #define NODE_REFERENCE NODE_SPLAT_POINT
 #define LINKED_LISTS
+#extension GL_ARB_gpu_shader_int64 : require
 #include "common.glsl"
 #include "scene.glsl"
 #include "bundle.glsl"

@@ -15,6 +15,7 @@
 
 #define NODE_REFERENCE NODE_TRIANGLE
 #define LINKED_LISTS
+#extension GL_ARB_gpu_shader_int64 : require
 #include "common.glsl"
 #include "scene.glsl"
 #include "bundle.glsl"

@@ -51,9 +51,8 @@ void main() {
 #else
     lengths[0] = uint(nodes.length());
     lengths[1] = uint(node_next.length());
-    lengths[2] = uint(list_depth.length());
-    lengths[3] = uint(list_ref.length());
-    lengths[4] = uint(splat_lines.length());
+    lengths[2] = uint(list_keys.length());
+    lengths[3] = uint(splat_lines.length());
 #endif
 }
 

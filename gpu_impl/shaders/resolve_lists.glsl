@@ -167,7 +167,7 @@ void main() {
         // Load (padding sorts last), sort in registers.
 #if defined LINKED_LISTS
         uint n = heads[list];
-#define LOAD(i) { bool here = i < length; key[i] = here ? node_key(list_depth[n], list_ref[n]) : PADDING; if (here) n = node_next[n]; }
+#define LOAD(i) { bool here = i < length; key[i] = here ? list_keys[n] : PADDING; if (here) n = node_next[n]; }
 #else
 #define LOAD(i) { key[i] = i < length ? nodes[first + i] : PADDING; }
 #endif
@@ -198,7 +198,7 @@ void main() {
         // Longer than the network: sorted in place, in global memory.
 #if defined LINKED_LISTS
         uint n = heads[list];
-        for (uint i = 0u; i < length; i++, n = node_next[n]) insert_global(first, i, node_key(list_depth[n], list_ref[n]));
+        for (uint i = 0u; i < length; i++, n = node_next[n]) insert_global(first, i, list_keys[n]);
 #else
         for (uint i = 1u; i < length; i++) insert_global(first, i, nodes[first + i]);
 #endif
