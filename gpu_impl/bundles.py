@@ -501,7 +501,8 @@ class LinkedListTracer(BundleTracer):
         # Never more than fits: a first guess over the machine's memory would be touched, and
         # killed for, as the raster pass fills it; an overflowing pass is counted and refused.
         budget_nodes = max(1, (self.memory_limit()[0] - self.fixed_bytes) // LINKED_NODE_BYTES)
-        self.capacity = min(nodes, budget_nodes, self.gl.max_storage_bytes // NODE.itemsize)
+        widest = max(dtype.itemsize for dtype, _ in LINKED_NODE.values())
+        self.capacity = min(nodes, budget_nodes, self.gl.max_storage_bytes // widest)
         for dtype, name in LINKED_NODE.values():
             size = dtype.itemsize * self.capacity
             if name in self.buffers and self.buffers[name].size != size:
@@ -558,7 +559,8 @@ class LinkedListTracer(BundleTracer):
             if nodes <= self.capacity:
                 return reruns, nodes
             self._check_budget(self.fixed_bytes + nodes * LINKED_NODE_BYTES, f"{nodes:,} nodes in linked lists")
-            self._check_buffer(NODE.itemsize * nodes, "LIST_KEYS")
+            for dtype, name in LINKED_NODE.values():
+                self._check_buffer(dtype.itemsize * nodes, name)
             self._grow_linked(max(nodes, int(nodes * CAPACITY_SLACK)))
             self.bind()
             reruns += 1
