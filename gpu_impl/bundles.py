@@ -281,11 +281,11 @@ class BundleTracer:
         start = time.perf_counter()
         timer = PassTimer(self.gl)
         self.buffers["FRAMES"].write(_frames(directions).tobytes())
-        self.buffers["COUNTERS"].clear()
+        self.gl.fill(self.buffers["COUNTERS"])
         reruns, raw = self.build_lists(directions, timer)
         with timer.measure("resolve"):
             self.resolve_lists()
-        counters = np.frombuffer(self.buffers["COUNTERS"].read(4 * len(COUNTERS)), dtype=np.uint32)
+        counters = np.frombuffer(self.gl.read(self.buffers["COUNTERS"], 4 * len(COUNTERS)), dtype=np.uint32)
         self.directions = directions
         stats = self.build_stats(counters, raw)
         self.stats = {
@@ -309,7 +309,7 @@ class BundleTracer:
         offsets = self.buffers["LIST_OFFSETS"]
         self.gl.copy_buffer(offsets, self.buffers["LIST_COUNTS"], 4 * (self.list_count + 1))
         self._prefix_sum(offsets, self.list_count + 1, level=0)
-        total = int(np.frombuffer(offsets.read(4, offset=4 * self.list_count), dtype=np.uint32)[0])
+        total = int(np.frombuffer(self.gl.read(offsets, 4, offset=4 * self.list_count), dtype=np.uint32)[0])
         # shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size,
         # past the list's end: the node buffer keeps that many slots beyond the last list.
         self._grow(("NODES",), NODE.itemsize, total + SORT_NETWORK, self.raw_nodes_are)
@@ -331,7 +331,7 @@ class BundleTracer:
         for program in (short, long):
             set_uniforms(program, uniforms or {})
         gl.dispatch(short, self.list_count)
-        counter = self.buffers["COUNTERS"].read(4, offset=4 * COUNTERS["LONG_LISTS"])
+        counter = self.gl.read(self.buffers["COUNTERS"], 4, offset=4 * COUNTERS["LONG_LISTS"])
         queued = int(np.frombuffer(counter, dtype=np.uint32)[0])
         if queued:
             gl.dispatch(long, queued)
@@ -536,7 +536,7 @@ class LinkedListTracer(BundleTracer):
     def _draw_lists(self, null_fragment: bool) -> None:
         """Every direction's nodes, appended to the pixel lists: one draw per atlas."""
         program, vao = self._raster(null_fragment)
-        self.buffers["HEADS"].clear(chunk=b"\xff\xff\xff\xff")
+        self.gl.fill(self.buffers["HEADS"], 0xFFFFFFFF)
         for base in range(0, self.K, self.directions_per_draw):
             self._uniforms(program, direction_base=base)
             self.draw(vao, base, min(self.directions_per_draw, self.K - base))
@@ -552,10 +552,10 @@ class LinkedListTracer(BundleTracer):
             self.bind()
         reruns = 0
         while True:
-            self.buffers["COUNTERS"].clear()
+            self.gl.fill(self.buffers["COUNTERS"])
             with timer.measure("lists"):
                 self._draw_lists(null_fragment=False)
-            nodes = int(np.frombuffer(self.buffers["COUNTERS"].read(4), dtype=np.uint32)[0])
+            nodes = int(np.frombuffer(self.gl.read(self.buffers["COUNTERS"], 4), dtype=np.uint32)[0])
             if nodes <= self.capacity:
                 return reruns, nodes
             self._check_budget(self.fixed_bytes + nodes * LINKED_NODE_BYTES, f"{nodes:,} nodes in linked lists")

@@ -23,6 +23,7 @@ from gpu_impl.shader_source import COMPILED, program_sources, variant_key
 
 GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
 GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX = 0x9049  # in KiB
+GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT = 0x8236, 0x8D94, 0x1405
 
 
 def _default_raster_threads() -> int:
@@ -60,6 +61,7 @@ class GLContext:
                 f"EGL device {device_index}", f"no OpenGL 4.5 context ({e}); `evalkit doctor` says what to install"
             ) from None
         self._programs: dict = {}
+        self._staging = None  # the small buffer `read` copies through
         # GL calls go to the context current on the thread, and making a context makes it current:
         # a second one would take the GL calls of objects made on the first (seen as buffers that
         # cannot be mapped, and a hung pass). So the process's first context is the one the
@@ -166,6 +168,29 @@ class GLContext:
         """Copy ``size`` bytes of ``src`` (from ``read_offset``) into ``dst`` (at ``write_offset``), on the GPU."""
         self.ctx.copy_buffer(dst, src, size, read_offset=read_offset, write_offset=write_offset)
 
+    # Buffers that shaders use are filled and read on the GPU's side of the bus. moderngl's
+    # Buffer.clear maps the buffer and fills it on the CPU, and Buffer.read maps it: on a GPU each
+    # map waits for the passes before it, and a buffer the CPU keeps touching may be moved to
+    # system memory, where every atomic of the next pass crosses the bus (on an H100 a perfect
+    # frame of parts at K=64, R=512 took 1.7 s with maps and 0.04 s without,
+    # docs/MEASURED_FACTS.md). llvmpipe's buffers are system memory either way.
+    def fill(self, buffer, value: int = 0) -> None:
+        """Every 32-bit word of ``buffer`` set to ``value``, by the GL (glClearNamedBufferData)."""
+        if buffer.size % 4:
+            raise ValueError(f"a buffer of {buffer.size} bytes is not whole 32-bit words")
+        word = ctypes.c_uint32(value & 0xFFFFFFFF)
+        _gl_clear_named_buffer_data()(buffer.glo, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
+
+    def read(self, buffer, size: int, offset: int = 0) -> bytes:
+        """``size`` bytes of ``buffer`` from ``offset``, copied by the GL into a staging buffer and
+        read from there, so that the buffer itself (a counter the passes update) is never mapped."""
+        if self._staging is None or self._staging.size < size:
+            if self._staging is not None:
+                self._staging.release()
+            self._staging = self.ctx.buffer(reserve=max(size, 4096))
+        self.ctx.copy_buffer(self._staging, buffer, size, read_offset=offset)
+        return self._staging.read(size)
+
     def vertex_array(self, program, content: list, **kw):
         return self.ctx.vertex_array(program, content, **kw)
 
@@ -192,6 +217,9 @@ class GLContext:
         global _DEFAULT
         if _DEFAULT is self:
             _DEFAULT = None
+        if self._staging is not None:
+            self._staging.release()
+            self._staging = None
         self.ctx.release()
         self._programs.clear()
 
@@ -264,16 +292,30 @@ def gl_integer(pname: int) -> int | None:
 
 
 @functools.cache
-def _gl_get_integerv():
-    """glGetIntegerv through EGL's loader, looked up once (None where there is no libEGL)."""
+def _gl_function(name: str, *argtypes):
+    """A GL entry point moderngl does not expose, through EGL's loader, looked up once (None where
+    there is no libEGL or no such function)."""
     try:
         egl = ctypes.CDLL("libEGL.so.1")
     except OSError:
         return None
     egl.eglGetProcAddress.restype = ctypes.c_void_p
     egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
-    address = egl.eglGetProcAddress(b"glGetIntegerv")
-    return ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.POINTER(ctypes.c_int))(address) if address else None
+    address = egl.eglGetProcAddress(name.encode())
+    return ctypes.CFUNCTYPE(None, *argtypes)(address) if address else None
+
+
+def _gl_get_integerv():
+    return _gl_function("glGetIntegerv", ctypes.c_uint, ctypes.POINTER(ctypes.c_int))
+
+
+def _gl_clear_named_buffer_data():
+    clear = _gl_function(
+        "glClearNamedBufferData", ctypes.c_uint, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p
+    )
+    if clear is None:  # an OpenGL 4.5 context has it: only a missing libEGL gets here
+        raise RuntimeError("glClearNamedBufferData not found through libEGL.so.1")
+    return clear
 
 
 def default_context() -> GLContext:

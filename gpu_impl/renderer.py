@@ -196,7 +196,7 @@ class Renderer:
         """All frames; ``progress`` (optional) gets one line per frame."""
         st = self.settings
         start = time.perf_counter()
-        self.buffers["PATH_SUMS"].clear()
+        self.gl.fill(self.buffers["PATH_SUMS"])
         frames, bundle_stats, frame_s, self.frame_sums = [], [], [], []
         self.skipped_bounces = 0
         self.lighting_used: list[str] = []
@@ -310,7 +310,8 @@ class Renderer:
             resolve_images["sample_weight"] = 1.0 / (st.supersampling**2 * st.spp * (frame + 1))
             resolve_images["frame"] = frame & 0xFFFFFFFF
             self.gl.dispatch(resolve_images, self.width * self.height)
-        sums = np.frombuffer(self.buffers["FRAME_SUMS"].read(), dtype=np.float32).reshape(-1, 2, 4)
+        frame_sums = self.buffers["FRAME_SUMS"]
+        sums = np.frombuffer(self.gl.read(frame_sums, frame_sums.size), dtype=np.float32).reshape(-1, 2, 4)
         self.frame_sums.append(sums[..., :3].astype(np.float64).sum(axis=0))  # direct, indirect
 
     def _lighting(self, alive: int, build: int) -> bool:
@@ -357,7 +358,7 @@ class Renderer:
         self.gl.dispatch(program, self.paths)
 
     def _alive_paths(self) -> int:
-        return int(np.frombuffer(self.buffers["ALIVE_PATHS"].read(4), dtype=np.uint32)[0])
+        return int(np.frombuffer(self.gl.read(self.buffers["ALIVE_PATHS"], 4), dtype=np.uint32)[0])
 
     def bind(self) -> None:
         """Every buffer and texture the frame's compute passes read, at their bindings."""

@@ -159,3 +159,26 @@ def test_the_one_call_api_uses_the_processs_first_context(gl):
     # A second context would be made current and take the GL calls of objects made on this one
     # (buffers that could not be mapped, a hung pass, when a notebook test rendered in-process).
     assert default_context() is gl
+
+
+def test_buffers_are_filled_and_read_by_the_gl_without_mapping_them(gl):
+    # fill sets every word (what the list heads' 0xFFFFFFFF and the counters' 0 need), and read
+    # returns a range through the staging buffer, also past the staging buffer's first size.
+    words = 3000
+    buffer = gl.buffer(reserve=4 * words)
+    try:
+        gl.fill(buffer, 0xFFFFFFFF)
+        assert (np.frombuffer(buffer.read(), dtype=np.uint32) == 0xFFFFFFFF).all()
+        buffer.write(np.arange(words, dtype=np.uint32).tobytes())
+        got = np.frombuffer(gl.read(buffer, 4 * 10, offset=4 * 2990), dtype=np.uint32)
+        np.testing.assert_array_equal(got, np.arange(2990, 3000))
+        gl.fill(buffer)
+        assert not np.frombuffer(gl.read(buffer, 4 * words), dtype=np.uint32).any()
+    finally:
+        buffer.release()
+    odd = gl.buffer(reserve=6)
+    try:
+        with pytest.raises(ValueError, match="not whole 32-bit words"):
+            gl.fill(odd)
+    finally:
+        odd.release()

@@ -91,7 +91,7 @@ class SplatTracer(BundleTracer):
         if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
             raise ValueError(f"the splat radius must be positive and finite, got {self.splat_radius}")
         super().__init__(gl, gpu_scene, settings, **hooks)
-        self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N).clear()  # triangle 0 for a warm-up draw
+        self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N))  # triangle 0 for a warm-up draw
 
     points_are = "splat points"
 
@@ -129,7 +129,7 @@ class SplatTracer(BundleTracer):
         return self.gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler])
 
     def build_lists(self, directions, timer) -> tuple[int, int]:
-        self.buffers["LIST_COUNTS"].clear()
+        self.gl.fill(self.buffers["LIST_COUNTS"])
         self.bind()
         with timer.measure("points"):
             shader = self.points_program()
