@@ -285,7 +285,7 @@ class BundleTracer:
         reruns, raw = self.build_lists(directions, timer)
         with timer.measure("resolve"):
             self.resolve_lists()
-        counters = np.frombuffer(self.gl.read(self.buffers["COUNTERS"], 4 * len(COUNTERS)), dtype=np.uint32)
+        counters = self.gl.read(self.buffers["COUNTERS"], np.uint32, len(COUNTERS))
         self.directions = directions
         stats = self.build_stats(counters, raw)
         self.stats = {
@@ -309,7 +309,7 @@ class BundleTracer:
         offsets = self.buffers["LIST_OFFSETS"]
         self.gl.copy_buffer(offsets, self.buffers["LIST_COUNTS"], 4 * (self.list_count + 1))
         self._prefix_sum(offsets, self.list_count + 1, level=0)
-        total = int(np.frombuffer(self.gl.read(offsets, 4, offset=4 * self.list_count), dtype=np.uint32)[0])
+        total = int(self.gl.read(offsets, np.uint32, 1, first=self.list_count)[0])
         # shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size,
         # past the list's end: the node buffer keeps that many slots beyond the last list.
         self._grow(("NODES",), NODE.itemsize, total + SORT_NETWORK, self.raw_nodes_are)
@@ -331,8 +331,7 @@ class BundleTracer:
         for program in (short, long):
             set_uniforms(program, uniforms or {})
         gl.dispatch(short, self.list_count)
-        counter = self.gl.read(self.buffers["COUNTERS"], 4, offset=4 * COUNTERS["LONG_LISTS"])
-        queued = int(np.frombuffer(counter, dtype=np.uint32)[0])
+        queued = int(self.gl.read(self.buffers["COUNTERS"], np.uint32, 1, first=COUNTERS["LONG_LISTS"])[0])
         if queued:
             gl.dispatch(long, queued)
 
@@ -555,7 +554,7 @@ class LinkedListTracer(BundleTracer):
             self.gl.fill(self.buffers["COUNTERS"])
             with timer.measure("lists"):
                 self._draw_lists(null_fragment=False)
-            nodes = int(np.frombuffer(self.gl.read(self.buffers["COUNTERS"], 4), dtype=np.uint32)[0])
+            nodes = int(self.gl.read(self.buffers["COUNTERS"], np.uint32, 1)[0])
             if nodes <= self.capacity:
                 return reruns, nodes
             self._check_budget(self.fixed_bytes + nodes * LINKED_NODE_BYTES, f"{nodes:,} nodes in linked lists")

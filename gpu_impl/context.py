@@ -16,6 +16,7 @@ import math
 import os
 
 import moderngl
+import numpy as np
 
 from evalkit.core.errors import InputError
 from gpu_impl.layout import LOCAL_SIZE, MAX_GROUPS
@@ -181,15 +182,19 @@ class GLContext:
         word = ctypes.c_uint32(value & 0xFFFFFFFF)
         _gl_clear_named_buffer_data()(buffer.glo, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
 
-    def read(self, buffer, size: int, offset: int = 0) -> bytes:
-        """``size`` bytes of ``buffer`` from ``offset``, copied by the GL into a staging buffer and
-        read from there, so that the buffer itself (a counter the passes update) is never mapped."""
+    def read(self, buffer, dtype=np.uint32, count: int | None = None, first: int = 0) -> np.ndarray:
+        """``count`` records of ``dtype`` from record ``first`` of ``buffer`` (default: to its end),
+        copied by the GL into a staging buffer and read from there, so that the buffer itself (a
+        counter the passes update) is never mapped."""
+        dtype = np.dtype(dtype)
+        count = buffer.size // dtype.itemsize - first if count is None else count
+        size = dtype.itemsize * count
         if self._staging is None or self._staging.size < size:
             if self._staging is not None:
                 self._staging.release()
             self._staging = self.ctx.buffer(reserve=max(size, 4096))
-        self.ctx.copy_buffer(self._staging, buffer, size, read_offset=offset)
-        return self._staging.read(size)
+        self.ctx.copy_buffer(self._staging, buffer, size, read_offset=dtype.itemsize * first)
+        return np.frombuffer(self._staging.read(size), dtype=dtype)
 
     def vertex_array(self, program, content: list, **kw):
         return self.ctx.vertex_array(program, content, **kw)

@@ -310,8 +310,7 @@ class Renderer:
             resolve_images["sample_weight"] = 1.0 / (st.supersampling**2 * st.spp * (frame + 1))
             resolve_images["frame"] = frame & 0xFFFFFFFF
             self.gl.dispatch(resolve_images, self.width * self.height)
-        frame_sums = self.buffers["FRAME_SUMS"]
-        sums = np.frombuffer(self.gl.read(frame_sums, frame_sums.size), dtype=np.float32).reshape(-1, 2, 4)
+        sums = self.gl.read(self.buffers["FRAME_SUMS"], np.float32).reshape(-1, 2, 4)
         self.frame_sums.append(sums[..., :3].astype(np.float64).sum(axis=0))  # direct, indirect
 
     def _lighting(self, alive: int, build: int) -> bool:
@@ -358,7 +357,7 @@ class Renderer:
         self.gl.dispatch(program, self.paths)
 
     def _alive_paths(self) -> int:
-        return int(np.frombuffer(self.gl.read(self.buffers["ALIVE_PATHS"], 4), dtype=np.uint32)[0])
+        return int(self.gl.read(self.buffers["ALIVE_PATHS"], np.uint32, 1)[0])
 
     def bind(self) -> None:
         """Every buffer and texture the frame's compute passes read, at their bindings."""

@@ -163,17 +163,17 @@ def test_the_one_call_api_uses_the_processs_first_context(gl):
 
 def test_buffers_are_filled_and_read_by_the_gl_without_mapping_them(gl):
     # fill sets every word (what the list heads' 0xFFFFFFFF and the counters' 0 need), and read
-    # returns a range through the staging buffer, also past the staging buffer's first size.
+    # returns a range of records through the staging buffer, also past the staging buffer's first size.
     words = 3000
     buffer = gl.buffer(reserve=4 * words)
     try:
         gl.fill(buffer, 0xFFFFFFFF)
         assert (np.frombuffer(buffer.read(), dtype=np.uint32) == 0xFFFFFFFF).all()
         buffer.write(np.arange(words, dtype=np.uint32).tobytes())
-        got = np.frombuffer(gl.read(buffer, 4 * 10, offset=4 * 2990), dtype=np.uint32)
+        got = gl.read(buffer, np.uint32, 10, first=2990)
         np.testing.assert_array_equal(got, np.arange(2990, 3000))
         gl.fill(buffer)
-        assert not np.frombuffer(gl.read(buffer, 4 * words), dtype=np.uint32).any()
+        assert not gl.read(buffer).any()
     finally:
         buffer.release()
     odd = gl.buffer(reserve=6)

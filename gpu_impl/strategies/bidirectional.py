@@ -144,8 +144,7 @@ class BidirectionalPaths(EyePaths):
         program = renderer.programs["light_paths"]
         program["frame"] = frame & 0xFFFFFFFF
         renderer.gl.dispatch(program, self.light_paths)
-        vertices = self.buffers["LIGHT_PATH_VERTICES"]
-        records = np.frombuffer(renderer.gl.read(vertices, vertices.size), dtype=LIGHT_PATH_VERTEX)
+        records = renderer.gl.read(self.buffers["LIGHT_PATH_VERTICES"], LIGHT_PATH_VERTEX)
         records = records[: self.path_vertices_per_frame]
         # A vertex that sends nothing (a black surface) needs no shadow map.
         found = records[(records["position"][:, 3] > 0.0) & (records["intensity"][:, :3].max(axis=1) > 0.0)]
