@@ -329,8 +329,10 @@ def bundle_lookup(
     ``arrays`` is the scene's `SceneArrays` (the triangles' corners and planes). Per vertex: the
     direction taken (d_k or -d_k, in the shading hemisphere), whether it leaves the geometric
     surface, the node landed on (index into the set's nodes, -1: none), the landing point, and
-    whether it lies on the node's surface (the ray's own point on it) or is the open side's node
-    where it lies. The four lines around the vertex are searched as the shader searches them."""
+    whether it lies on the node's surface (the ray's own point on it) or is the node, where it
+    lies, of the nearest line that meets a surface where the lines' vote says the ray meets one
+    (shaders/bundle_step.glsl says how they vote). The four lines around the vertex are searched
+    as the shader searches them."""
     ds = bundles.directions
     R, h = bundles.resolution, bundles.pixel_size()
     d, u, v = ds.directions[k], ds.axis_u[k], ds.axis_v[k]
@@ -348,10 +350,7 @@ def bundle_lookup(
         axis=1,
     )
     corner = np.floor(grid).astype(np.int64)
-    above = np.stack([np.einsum("ij,ij->i", geometric, u), np.einsum("ij,ij->i", geometric, v)], axis=1)
-    # The open side's line: of the four, the one offset from the vertex towards its normal.
-    toward = (above >= 0) & (grid > corner)
-    open_side = toward[:, 0].astype(np.int64) + 2 * toward[:, 1]
+    offset = grid - corner
     depths = bundles.depth.astype(np.float64)
     plane = arrays.tri_normal[bundles.node_triangle()]
     on_surface = _on_surface_test(bundles, arrays)
@@ -362,10 +361,11 @@ def bundle_lookup(
     landed = np.zeros(len(k), bool)
     for i in np.nonzero(leaves)[0]:  # vertices are thousands; each search is a few steps
         x, o, f = position[i], omega[i], forward[i]
-        hit = open_hit = -1
-        hit_t = 0.0
-        open_origin = None
-        for c in (open_side[i], *(c for c in range(4) if c != open_side[i])):
+        hit = near_hit = -1
+        hit_t, near_distance, near_origin = 0.0, 4.0, None  # near_*: the nearest line meeting a surface
+        meet_votes = leave_votes = 0  # the lines' votes (shaders/bundle_step.glsl)
+        near_voter, near_voter_meets = 4.0, False
+        for c in range(4):
             pixel = corner[i] + (c & 1, c >> 1)
             if pixel.min() < 0 or pixel.max() >= R:
                 continue
@@ -378,6 +378,10 @@ def bundle_lookup(
                 k[i] * R * R + pixel[1] * R + pixel[0] : k[i] * R * R + pixel[1] * R + pixel[0] + 2
             ]
             j = lo + np.searchsorted(depths[lo:hi], bound, side="right" if f else "left")
+            # Not a voter: a line under the vertex's tangent plane with no node behind the vertex.
+            voter = crossing <= depth or j > lo if f else crossing >= depth or j < hi
+            to_line = np.array([c & 1, c >> 1]) - offset[i]
+            distance, meets = to_line @ to_line, False
             j = j if f else j - 1
             # The first node whose plane the ray from the vertex reaches.
             while lo <= j < hi:
@@ -387,14 +391,18 @@ def bundle_lookup(
                     t = gap / along
                     if (hit < 0 or t < hit_t * (1 - 1e-5)) and on_surface(j, x + t * o):
                         hit, hit_t = j, t
-                    if c == open_side[i]:
-                        open_hit, open_origin = j, origin
+                    meets = True
+                    if distance < near_distance:
+                        near_hit, near_origin, near_distance = j, origin, distance
                     break
                 j = j + 1 if f else j - 1
+            meet_votes, leave_votes = meet_votes + meets, leave_votes + (voter and not meets)
+            if (meets or voter) and distance < near_voter:
+                near_voter, near_voter_meets = distance, meets
         if hit >= 0:
             node[i], point[i], landed[i] = hit, x + hit_t * o, True
-        elif open_hit >= 0:
-            node[i], point[i] = open_hit, open_origin + depths[open_hit] * d[i]
+        elif meet_votes > leave_votes or (meet_votes == leave_votes and near_voter_meets):  # the lines' vote
+            node[i], point[i] = near_hit, near_origin + depths[near_hit] * d[i]
     return {"omega": omega, "leaves": leaves, "node": node, "point": point, "on_surface": landed}
 
 
@@ -481,7 +489,7 @@ def next_hit_errors(
         "false_miss_rate": float(false_miss.sum() / n),
         "false_hit_rate": float(false_hit.sum() / n),
         # Lookups that found nodes but no ray point on their surfaces (the ray passes between the
-        # surfaces the four lines meet): the open side's node stands in, up to a pixel off.
+        # surfaces the four lines meet): the nearest meeting line's node stands in, up to a pixel off.
         "off_surface_rate": float((bundle_hit & ~look["on_surface"][use]).sum() / n),
         "wrong_surface_rate": float(wrong_surface.sum() / n),
         "per_direction": {

@@ -8,13 +8,23 @@
 // first node beyond the vertex whose plane the ray reaches, and the ray's own point on that
 // plane; the ray lands on the nearest of them that lies on its node's surface (inside its
 // triangle, or within its splat). A point on a surface another line meets nearer is behind
-// that surface (the far wall beside a block), so all four are looked at. Where no point lies
-// on its surface (the ray passes between the surfaces the lines meet, or they are triangles
-// smaller than a pixel), the line on the vertex's open side (its geometric normal's, per grid
-// axis) decides, as one line did before. One line's node taken where it lies put the next vertex half a pixel off on
-// average, towards the open side, and lost the light of lines passing beside a concave edge:
-// +2 % and -1 % of cornell-box's and the furnace's indirect light at R = 64
-// (docs/MEASURED_FACTS.md).
+// that surface (the far wall beside a block), so all four are looked at. One line's node taken
+// where it lies put the next vertex half a pixel off on average, towards the open side, and
+// lost the light of lines passing beside a concave edge: +2 % and -1 % of cornell-box's and the
+// furnace's indirect light at R = 64 (docs/MEASURED_FACTS.md).
+//
+// Where no point lies on its surface, the ray passes between the surfaces the lines meet (or
+// they are triangles smaller than a pixel), and the lines vote: the ray meets a surface where
+// more lines meet one than leave the scene, on a tie where the line nearest the vertex among
+// them does, and lands on the node of the nearest line that meets one, where it lies. Every line
+// that meets a surface here meets one the ray misses, so the ray leaves more often than the
+// lines do: in exact bundles of the parts scene, rays with one of four lines meeting a surface
+// left 91-95 % of the time. The line on the vertex's open side, which decided alone before, made
+// the parts' direct sky light 1-3 % short at every R (docs/MEASURED_FACTS.md: "Choosing R"). A
+// line below the vertex's tangent plane with no node behind the vertex does not vote: it passes
+// outside whatever the vertex lies on (under a floor, then behind the wall the ray meets), so
+// its leaving the scene says nothing of the ray's. Counted, it lost the furnace's light at
+// concave edges.
 
 uniform float self_hit_bias;  // in bundle pixels, see below
 
@@ -33,19 +43,18 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng) {
     bool leaves = forward ? cg > 0.0 : cg < 0.0;
     vec2 grid = bundle_grid_position(f, x);
     ivec2 corner = ivec2(floor(grid));
-    // The open side's line: of the four, the one offset from the vertex towards its normal.
-    vec2 above = vec2(dot(ng, f.u.xyz), dot(ng, f.v.xyz));
-    int open_side = (above.x >= 0.0 && grid.x > floor(grid.x) ? 1 : 0) + (above.y >= 0.0 && grid.y > floor(grid.y) ? 2 : 0);
+    vec2 offset = grid - vec2(corner);
     // Nodes up to the vertex's depth along a line are behind it; so are those up to where the line
     // crosses the vertex's tangent plane, should it cross ahead (a line below that plane). A
     // further self-hit bias of self_hit_bias h covers float32 depths: occluders nearer than that
     // to the vertex are missed.
     float bias = self_hit_bias * 2.0 * radius / float(resolution);
-    uint hit = NO_NODE, open_hit = NO_NODE;
-    vec3 open_origin = vec3(0.0);
-    float hit_t = 0.0;
-    for (int i = 0; i < 4 && leaves; i++) {
-        int c = i == 0 ? open_side : (i <= open_side ? i - 1 : i);  // the open side first, then the others
+    uint hit = NO_NODE, near_hit = NO_NODE;  // near_hit: the node of the nearest line that meets a surface
+    int meet_votes = 0, leave_votes = 0;
+    bool near_voter_meets = false;            // the nearest voting line's vote
+    vec3 near_origin = vec3(0.0);
+    float hit_t = 0.0, near_distance = 4.0, near_voter = 4.0;  // squared distances in grid units
+    for (int c = 0; c < 4 && leaves; c++) {
         ivec2 pixel = corner + ivec2(c & 1, c >> 1);
         if (any(lessThan(pixel, ivec2(0))) || any(greaterThanEqual(pixel, ivec2(resolution)))) continue;
         uint list = pixel_list(k, pixel);
@@ -61,6 +70,11 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng) {
             if (forward ? node_depth(mid) <= bound : node_depth(mid) < bound) lo = mid + 1u; else hi = mid;
         }
         uint node = forward ? (lo < last ? lo : NO_NODE) : (lo > first ? lo - 1u : NO_NODE);
+        // Not a voter: a line under the vertex's tangent plane with no node behind the vertex.
+        bool voter = forward ? crossing <= depth || lo > first : crossing >= depth || lo < last;
+        vec2 to_line = vec2(c & 1, c >> 1) - offset;
+        float distance = dot(to_line, to_line);
+        bool meets = false;
         // A node whose plane the ray cannot reach (the plane lies behind the vertex, or through
         // it) is on the line only because the line passes beside the vertex: the next one is
         // taken. Near a concave edge a line may pass behind the other surface (a floor vertex's
@@ -80,24 +94,31 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng) {
                     hit = node;
                     hit_t = t;
                 }
-                if (c == open_side) {
-                    open_hit = node;
-                    open_origin = origin;
+                meets = true;
+                if (distance < near_distance) {
+                    near_hit = node;
+                    near_origin = origin;
+                    near_distance = distance;
                 }
                 break;
             }
             node = forward ? (node + 1u < last ? node + 1u : NO_NODE) : (node > first ? node - 1u : NO_NODE);
         }
+        if (meets) meet_votes++; else if (voter) leave_votes++;
+        if ((meets || voter) && distance < near_voter) {
+            near_voter = distance;
+            near_voter_meets = meets;
+        }
     }
     bool on_surface = hit != NO_NODE;
-    if (!on_surface) hit = open_hit;
+    if (!on_surface && (meet_votes > leave_votes || (meet_votes == leave_votes && near_voter_meets))) hit = near_hit;
     BundleHit node = BundleHit(0u, vec3(0.0), vec3(0.0), vec3(0.0));
     vec3 node_geometric = vec3(0.0);
     if (hit != NO_NODE) {
-        // The ray's point on the node's surface; off it (the open side's line), the node where it
+        // The ray's point on the node's surface; off it (the lines' vote), the node where it
         // lies: a small curved facet's plane carried to the ray put the vertex inside neighbouring
         // parts (-18 % of the parts scene's indirect light at R = 128).
-        vec3 y = on_surface ? x + hit_t * omega : open_origin + node_depth(hit) * f.d.xyz;
+        vec3 y = on_surface ? x + hit_t * omega : near_origin + node_depth(hit) * f.d.xyz;
         node = bundle_hit(y, node_ref(hit));
         node_geometric = triangle_normal(node.triangle);
     }
