@@ -179,8 +179,13 @@ class GLContext:
         """Every 32-bit word of ``buffer`` set to ``value``, by the GL (glClearNamedBufferData)."""
         if buffer.size % 4:
             raise ValueError(f"a buffer of {buffer.size} bytes is not whole 32-bit words")
+        clear = _gl_function(
+            "glClearNamedBufferData", ctypes.c_uint, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p
+        )
+        if clear is None:  # an OpenGL 4.5 context has it: only a missing libEGL gets here
+            raise RuntimeError("glClearNamedBufferData not found through libEGL.so.1")
         word = ctypes.c_uint32(value & 0xFFFFFFFF)
-        _gl_clear_named_buffer_data()(buffer.glo, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
+        clear(buffer.glo, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
 
     def read(self, buffer, dtype=np.uint32, count: int | None = None, first: int = 0) -> np.ndarray:
         """``count`` records of ``dtype`` from record ``first`` of ``buffer`` (default: to its end),
@@ -288,7 +293,7 @@ def _cgroup_memory_files(proc: str, cgroups: str):
 def gl_integer(pname: int) -> int | None:
     """glGetIntegerv(pname) in the current context, for the queries moderngl does not expose;
     None when the entry point cannot be found."""
-    get = _gl_get_integerv()
+    get = _gl_function("glGetIntegerv", ctypes.c_uint, ctypes.POINTER(ctypes.c_int))
     if get is None:
         return None
     value = ctypes.c_int(0)
@@ -308,19 +313,6 @@ def _gl_function(name: str, *argtypes):
     egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
     address = egl.eglGetProcAddress(name.encode())
     return ctypes.CFUNCTYPE(None, *argtypes)(address) if address else None
-
-
-def _gl_get_integerv():
-    return _gl_function("glGetIntegerv", ctypes.c_uint, ctypes.POINTER(ctypes.c_int))
-
-
-def _gl_clear_named_buffer_data():
-    clear = _gl_function(
-        "glClearNamedBufferData", ctypes.c_uint, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p
-    )
-    if clear is None:  # an OpenGL 4.5 context has it: only a missing libEGL gets here
-        raise RuntimeError("glClearNamedBufferData not found through libEGL.so.1")
-    return clear
 
 
 def default_context() -> GLContext:
