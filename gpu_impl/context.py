@@ -187,6 +187,19 @@ class GLContext:
         word = ctypes.c_uint32(value & 0xFFFFFFFF)
         clear(buffer.glo, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
 
+    def fill_texture(self, texture, value: int, rect: tuple[int, int, int, int] | None = None) -> None:
+        """Every texel of an R32UI ``texture`` (or of its ``rect``: x, y, width, height) set to
+        ``value``, by the GL (glClearTexSubImage), as `fill` does for buffers."""
+        clear = _gl_function(
+            "glClearTexSubImage",
+            *[ctypes.c_uint] + [ctypes.c_int] * 7 + [ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p],
+        )
+        if clear is None:  # an OpenGL 4.5 context has it: only a missing libEGL gets here
+            raise RuntimeError("glClearTexSubImage not found through libEGL.so.1")
+        x, y, width, height = (0, 0, *texture.size) if rect is None else rect
+        word = ctypes.c_uint32(value & 0xFFFFFFFF)
+        clear(texture.glo, 0, x, y, 0, width, height, 1, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
+
     def read(self, buffer, dtype=np.uint32, count: int | None = None, first: int = 0) -> np.ndarray:
         """``count`` records of ``dtype`` from record ``first`` of ``buffer`` (default: to its end),
         copied by the GL into a staging buffer and read from there, so that the buffer itself (a

@@ -84,7 +84,9 @@ SPLAT_BIT = np.uint32(0x80000000)  # node prim: a splat of triangle prim & ~SPLA
 MATERIAL_TEXTURED = np.uint32(1)  # Material.texture.w flags
 MATERIAL_TWOSIDED = np.uint32(2)
 TRIANGLE_SMOOTH = np.uint32(0x80000000)  # Triangle.material_flags: interpolate vertex normals
-TRIANGLE_MATERIAL = np.uint32(0x7FFFFFFF)  # Triangle.material_flags: the material index
+# Triangle.material_flags: the triangle bounds a solid (scene_buffers.py: solid_triangles)
+TRIANGLE_SOLID = np.uint32(0x40000000)
+TRIANGLE_MATERIAL = np.uint32(0x3FFFFFFF)  # Triangle.material_flags: the material index
 # Light.position.w; "emitter_sample" is a point drawn on an emissive triangle for next-event
 # estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its
 # normal; "light_path_vertex" is a vertex a light path left on a surface (strategies/bidirectional.py),
@@ -107,6 +109,9 @@ SAMPLERS = {"random": 0, "stratified": 1}
 COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4, "KEPT": 5, "LONG_LISTS": 6}
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
+# The image units the shadow maps' raster pass keeps each texel's two nearest surfaces that face
+# the light at (shadow_maps.glsl), R32UI distances.
+FACING_IMAGE_UNITS = (1, 2)
 # Path.bundle (paths.glsl) past the bundle indices: the path has ended, or is at its camera vertex.
 PATH_ENDED = np.uint32(0xFFFFFFFF)
 PATH_FROM_CAMERA = np.uint32(0xFFFFFFFE)
@@ -120,7 +125,10 @@ SHADER_CONSTANTS = {
     "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,
     "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH,
     "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL,
+    "TRIANGLE_SOLID": TRIANGLE_SOLID,
     "FACING_BIT": FACING_BIT,
+    "FACING_IMAGE_NEAREST": FACING_IMAGE_UNITS[0],
+    "FACING_IMAGE_NEXT": FACING_IMAGE_UNITS[1],
     "PATH_ENDED": PATH_ENDED,
     "PATH_FROM_CAMERA": PATH_FROM_CAMERA,
     **{f"LIGHT_{kind.upper()}": value for kind, value in LIGHT_KINDS.items()},

@@ -23,7 +23,7 @@ import numpy as np
 from evalkit.core.scene.model import Light
 from evalkit.core.settings import RenderSettings
 from gpu_impl.context import GLContext, set_uniforms
-from gpu_impl.layout import BINDINGS, ENVIRONMENT_KINDS, LIGHT, LIGHT_KINDS, SHADOW_VIEW
+from gpu_impl.layout import BINDINGS, ENVIRONMENT_KINDS, FACING_IMAGE_UNITS, LIGHT, LIGHT_KINDS, SHADOW_VIEW
 from gpu_impl.scene_buffers import GpuScene
 
 # A spot light whose cone half-angle is within this of 90 degrees cannot use one perspective view.
@@ -39,6 +39,9 @@ CUBE_FACES = (
 GUARD_TEXELS = 2
 # The texture unit of the fixed lights' seen triangles (light paths; the renderer uses 0 and 1).
 TRIANGLES_UNIT = 2
+# The distance of a texel without a surface (shaders/lights.glsl: NO_SURFACE), and its bits.
+NO_SURFACE = float(np.finfo(np.float32).max)
+NO_SURFACE_BITS = int(np.float32(NO_SURFACE).view(np.uint32))
 # A light vertex sits this far (times the bounding radius) in front of its surface, so that the
 # surface lies behind it and its shadow views leave that surface out (shaders/shadow_maps.glsl).
 LIGHT_VERTEX_OFFSET = 1e-5
@@ -253,6 +256,7 @@ class ShadowLights:
         self.fixed_lights, self.fixed_views = len(records), len(views)
         self.buffers = {}
         self.atlas = self.framebuffer = self.triangles = None
+        self.facing = ()
         visibility.check(self.light_vertices)
         if records_count:
             per_vertex = visibility.tiles_per_vertex
@@ -273,12 +277,21 @@ class ShadowLights:
                 self.records[i] = record
             self.buffers["LIGHTS"] = gl.buffer(self.records.tobytes())
             self.buffers["SHADOW_VIEWS"] = gl.buffer(self.view_records.tobytes())
-            self.atlas = gl.texture(atlas_size, 1, dtype="f4")
+            self.atlas = gl.texture(atlas_size, 2, dtype="f4")  # the first surface, the second
             self.depth = gl.depth_renderbuffer(self.atlas.size)
             if path_vertices:
                 self.triangles = gl.texture(atlas_size, 1, dtype="u4")
             self.framebuffer = gl.framebuffer([self.atlas, *([self.triangles] if path_vertices else [])], self.depth)
-            self.program = gl.program("shadow_maps")
+            # Each texel's two nearest surfaces that face the light, which the raster pass keeps
+            # and `second_surfaces` reads and clears again (shaders/shadow_second_surface.glsl);
+            # a scene whose every triangle bounds a solid has no second surfaces to keep.
+            self.second_surfaces = None
+            if not gpu_scene.solid.all():
+                self.facing = tuple(gl.texture(atlas_size, 1, dtype="u4") for _ in FACING_IMAGE_UNITS)
+                for texture in self.facing:
+                    gl.fill_texture(texture, NO_SURFACE_BITS)
+                self.second_surfaces = gl.program("shadow_second_surface")
+            self.program = gl.program("shadow_maps", SECOND_SURFACES=int(self.second_surfaces is not None))
             self.vao = gpu_scene.vertex_array(self.program)
 
     def set_view(self, i: int, view: tuple, size: int) -> None:
@@ -380,16 +393,23 @@ class ShadowLights:
             return
         self.gpu_scene.bind()
         self.buffers["SHADOW_VIEWS"].bind_to_storage_buffer(BINDINGS["SHADOW_VIEWS"])
-        far = np.finfo(np.float32).max
-        if not clear:
-            self.framebuffer.clear(red=far, depth=1.0)  # a triangle texel is read only where a distance is
-        for i in views:
-            x, y, size, _ = self.view_records["tile"][i]
-            self.framebuffer.viewport = (int(x), int(y), int(size), int(size))
+        tiles = [tuple(int(v) for v in self.view_records["tile"][i][:3]) for i in views]
+        for texture, unit in zip(self.facing, FACING_IMAGE_UNITS):
+            texture.bind_to_image(unit, read=True, write=True)
+        if not clear:  # a triangle texel is read only where a distance is
+            self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0)
+        for i, (x, y, size) in zip(views, tiles):
+            self.framebuffer.viewport = (x, y, size, size)
             if clear:
-                self.framebuffer.clear(red=far, depth=1.0, viewport=self.framebuffer.viewport)
+                self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0, viewport=self.framebuffer.viewport)
             self.program["view_index"] = i
             self.gl.draw(self.vao, moderngl.TRIANGLES, self.framebuffer, depth_test=True)
+        if self.second_surfaces is None:
+            return
+        self.atlas.bind_to_image(0, read=True, write=True)
+        for x, y, size in tiles:
+            set_uniforms(self.second_surfaces, {"corner": (x, y), "width": size})
+            self.gl.dispatch(self.second_surfaces, size * size)
 
     def defines(self) -> dict:
         return {
@@ -431,7 +451,8 @@ class ShadowLights:
 
     @property
     def nbytes(self) -> int:
-        texel = 8 if self.triangles is None else 12  # R32F + depth (+ R32UI triangles)
+        # RG32F + depth (+ R32UI triangles) (+ 2 R32UI facing surfaces)
+        texel = 12 + 4 * (self.triangles is not None) + 4 * len(self.facing)
         atlas = 0 if self.atlas is None else self.atlas.size[0] * self.atlas.size[1] * texel
         return sum(b.size for b in self.buffers.values()) + atlas + self.visibility.nbytes
 
@@ -444,6 +465,8 @@ class ShadowLights:
             self.vao.release()
             self.framebuffer.release()
             self.atlas.release()
+            for texture in self.facing:
+                texture.release()
             self.depth.release()
             if self.triangles is not None:
                 self.triangles.release()

@@ -7,7 +7,16 @@ import numpy as np
 from evalkit.core.bundleset import FRAME_PADDING
 from evalkit.core.scene import Scene
 from gpu_impl.context import GLContext
-from gpu_impl.layout import BINDINGS, MATERIAL, MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE, TRIANGLE_SMOOTH, VERTEX
+from gpu_impl.layout import (
+    BINDINGS,
+    MATERIAL,
+    MATERIAL_TEXTURED,
+    MATERIAL_TWOSIDED,
+    TRIANGLE,
+    TRIANGLE_SMOOTH,
+    TRIANGLE_SOLID,
+    VERTEX,
+)
 
 
 class GpuScene:
@@ -29,6 +38,7 @@ class GpuScene:
         self.centre = np.asarray(centre, dtype=np.float64)
         self.radius = radius * FRAME_PADDING
         self.triangle_count = len(a.faces)
+        self.solid = solid_triangles(a.positions, a.faces)  # rigid poses keep it
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
         textures = []  # every texture of the scene in one texel buffer: materials', then the environment map's
@@ -94,9 +104,11 @@ class GpuScene:
         vertices["position"], vertices["normal"], vertices["uv"] = positions, a.normals, a.uvs
         triangles = np.zeros(len(a.faces), dtype=TRIANGLE)
         triangles["normal"] = a.tri_normal
-        triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(
-            a.tri_smooth, TRIANGLE_SMOOTH, 0
-        ).astype(np.uint32)
+        triangles["material_flags"] = (
+            a.tri_material.astype(np.uint32)
+            | np.where(a.tri_smooth, TRIANGLE_SMOOTH, 0).astype(np.uint32)
+            | np.where(self.solid, TRIANGLE_SOLID, 0).astype(np.uint32)
+        )
         return {
             "POSITIONS": positions[self.raster_sources].tobytes(),
             "VERTICES": vertices.tobytes(),
@@ -189,3 +201,35 @@ def provoking_vertices(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray
     sources = np.concatenate([np.arange(vertex_count), faces[copies, 0]])
     raster[copies, 2] = vertex_count + np.arange(len(copies))
     return raster, sources
+
+
+def solid_triangles(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Per triangle, whether it bounds a solid: its connected surface (triangles joined by shared
+    edges, corners welded where their positions are equal) is closed, every edge shared by exactly
+    two triangles. A box or a ball resting on a floor is one; the floor, a quad light and a room open
+    on one side are not (shaders/shadow_maps.glsl: what lies behind a solid's surface is inside it).
+    A triangle that welding collapses (at a UV sphere's poles) has no area and no say, and is not one."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    solid = np.zeros(len(faces), dtype=bool)
+    if not len(faces):
+        return solid
+    # Corners within a ten-millionth of the scene's extent are one (a seam's copies differ by rounding).
+    extent = float(np.ptp(positions, axis=0).max()) or 1.0
+    _, welded = np.unique(np.round(positions / (1e-7 * extent)), axis=0, return_inverse=True)
+    corners = welded.reshape(-1)[faces]
+    kept = np.flatnonzero((corners != np.roll(corners, 1, axis=1)).all(axis=1))
+    if not len(kept):
+        return solid
+    corners = corners[kept]
+    edges = np.sort(np.stack([corners, np.roll(corners, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    _, edge, shared = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    # Triangles and edges as the nodes of one graph, each triangle joined to its three edges.
+    n = len(kept) + len(shared)
+    triangle = np.repeat(np.arange(len(kept)), 3)
+    graph = coo_matrix((np.ones(len(triangle)), (triangle, len(kept) + edge.reshape(-1))), shape=(n, n))
+    _, component = connected_components(graph, directed=False)
+    open_components = np.unique(component[len(kept) + np.flatnonzero(shared != 2)])
+    solid[kept] = ~np.isin(component[: len(kept)], open_components)
+    return solid

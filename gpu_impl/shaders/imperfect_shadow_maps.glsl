@@ -80,7 +80,7 @@ flat in vec3 v_centre;
 flat in vec3 v_normal;
 flat in vec3 v_axis;
 flat in float v_far;
-layout(location = 0) out float out_distance;
+layout(location = 0) out vec2 out_distance;  // no second surface (lights.glsl: lit_tap)
 
 void main() {
     // A splat near its tile's edge must not spill into the neighbouring vertex's map.
@@ -94,7 +94,7 @@ void main() {
     if (abs(facing) < 1e-6 || !(t > 0.0)) discard;
     vec3 offset = t * direction - v_centre;
     if (dot(offset, offset) > splat_radius * splat_radius) discard;
-    out_distance = t;
+    out_distance = vec2(t, NO_SURFACE);
     gl_FragDepth = clamp(t * v_far, 0.0, 1.0);
 }
 

@@ -18,7 +18,7 @@
 #if defined COMPUTE_SHADER
 
 layout(local_size_x = LOCAL_SIZE) in;
-layout(r32f, binding = 0) uniform image2D atlas;
+layout(rg32f, binding = 0) uniform image2D atlas;
 layout(std430, binding = BINDING_ISM_PYRAMID) buffer Pyramid { float pyramid[]; };
 
 uniform uint invocations;   // maps x texels of this level
@@ -31,7 +31,7 @@ uniform uint map_stride;    // floats of one map's pyramid
 
 // The atlas is cleared to the largest float (gpu_impl/visibility/imperfect.py): a hole is that.
 #define HOLE 3.0e38
-#define HOLE_VALUE uintBitsToFloat(0x7F7FFFFFu)
+#define HOLE_VALUE NO_SURFACE
 
 float texel_at(uint m, int l, int size, int offset, ivec2 xy) {
     if (l == 0) return imageLoad(atlas, ivec2(shadow_views[first_view + int(m)].tile.xy) + xy).r;
@@ -39,7 +39,7 @@ float texel_at(uint m, int l, int size, int offset, ivec2 xy) {
 }
 
 void store(uint m, int l, int size, int offset, ivec2 xy, float value) {
-    if (l == 0) imageStore(atlas, ivec2(shadow_views[first_view + int(m)].tile.xy) + xy, vec4(value));
+    if (l == 0) imageStore(atlas, ivec2(shadow_views[first_view + int(m)].tile.xy) + xy, vec4(value, NO_SURFACE, 0.0, 0.0));
     else pyramid[m * map_stride + uint(offset + xy.y * size + xy.x)] = value;
 }
 

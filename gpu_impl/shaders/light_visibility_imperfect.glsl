@@ -15,5 +15,5 @@ float light_vertex_visibility(Light light, vec3 p, vec3 n, vec3 to_light) {
     if (local.z <= 0.0) return 0.0;  // behind the vertex: it sends no light there
     // One texel spans 2 (1 + cos theta) / size radians at angle theta (tile.w = 2 / size).
     float texel = view.tile.w * (1.0 + local.z) * dist;
-    return filtered_visibility(view, paraboloid_position(local), dist - texel * depth_bias_texels(n, to_light));
+    return filtered_visibility(view, paraboloid_position(local), dist, texel * depth_bias_texels(surface_slope(n, to_light)), 0.0);
 }

@@ -30,7 +30,8 @@ struct Light {
 // LIGHT_LIGHT_PATH_VERTEX (gpu_impl/layout.py).
 
 // One shadow map: a tile of the atlas holding, per texel, the distance from the light to the
-// nearest surface (radial for a perspective view, along the light direction for an orthographic one).
+// nearest surface (radial for a perspective view, along the light direction for an orthographic
+// one), and to the second: the nearest behind it that faces the light (NO_SURFACE where none is).
 struct ShadowView {
     mat4 to_clip;    // position relative to the bundle centre -> clip space of this view
     vec4 tile;       // xy: the tile's first texel in the atlas, z: its size in texels, w: see texel_size
@@ -44,14 +45,30 @@ layout(std430, binding = BINDING_LIGHTS) readonly buffer Lights { Light lights[]
 layout(std430, binding = BINDING_SHADOW_VIEWS) readonly buffer ShadowViews { ShadowView shadow_views[]; };
 
 uniform int light_count;          // the point, spot and directional lights and the emitter samples
-uniform sampler2D shadow_atlas;   // R32F light distances
+uniform sampler2D shadow_atlas;   // RG32F light distances: the first surface, the second (shadow_maps.glsl)
 uniform float shadow_bias;        // constant depth bias, in texels
 uniform float shadow_slope_bias;  // slope-scaled depth bias, in texels per unit tan(angle to the light)
 uniform int shadow_filter;        // PCF: shadow_filter x shadow_filter bilinear taps, one texel apart
 
+// The distance of a texel without a surface (FLT_MAX: a cleared texel, a hole of an imperfect map).
+#define NO_SURFACE uintBitsToFloat(0x7F7FFFFFu)
+// What the raster pass leaves in the second channel where the first surface bounds a solid, until
+// shadow_second_surface.glsl replaces it (shadow_maps.glsl).
+#define SOLID_FIRST_SURFACE 0.0
+
 // The slope term grows without bound as light grazes a surface; past this tangent (about 84
 // degrees) the bias stops growing, and cos(angle) < 0.1 leaves little light to mis-shadow.
 #define MAX_SHADOW_SLOPE 10.0
+// A second surface bounds the bias only where half its gap from the first exceeds this share of
+// how far the receiver's own surface moves in depth across a texel (texel x slope): a closer one
+// cannot be told from the receiver's own surface by a tap a texel away (lit_tap). Measured with
+// exact maps of frame 0's light vertices against Embree rays (camera-seen receivers, light weighted
+// by each connection's geometry term, maps of 256 texels; docs/BIDIRECTIONAL.md):
+// - atrium, light hidden: 0.51 % at 0, 0.28 % at 0.25, 0.22 % with no bound (a wall there has a
+//   second layer facing the light 0.0036 behind it, a 30th of a texel at a distance of 12);
+// - cornell-box's ceiling above its light, light leaked over the true light: 0.42 at 0 and 0.25,
+//   4.7 at 0.5, 45.5 with no bound.
+#define SECOND_SURFACE_MARGIN 0.25
 
 float light_distance(ShadowView view, vec3 p) {
     return view.origin.w > 0.5 ? distance(p, view.origin.xyz) : dot(p - view.origin.xyz, view.axis.xyz);
@@ -76,16 +93,31 @@ int shadow_view_of(Light light, vec3 p) {
     return first + (v.z >= 0.0 ? 4 : 5);
 }
 
-// The depth bias in texels for a surface of normal n lit from to_light: constant and slope-scaled.
-float depth_bias_texels(vec3 n, vec3 to_light) {
+// The tangent of the angle between a surface of normal n and the direction to_light, bounded.
+float surface_slope(vec3 n, vec3 to_light) {
     float cos_l = clamp(dot(n, to_light), 1e-4, 1.0);
-    float slope = min(sqrt(1.0 - cos_l * cos_l) / cos_l, MAX_SHADOW_SLOPE);
+    return min(sqrt(1.0 - cos_l * cos_l) / cos_l, MAX_SHADOW_SLOPE);
+}
+
+// The depth bias in texels for a surface of slope `slope`: constant and slope-scaled.
+float depth_bias_texels(float slope) {
     return shadow_bias + shadow_slope_bias * slope;
 }
 
+// Whether a tap lets the light through to a point at `dist`: the tap's first surface is not nearer
+// than the point, give or take the depth bias. The bias never reaches past the middle between the
+// first surface and its second, the nearest behind it that faces the light (a midpoint shadow map,
+// after Woo 1992), where the gap is wider than `resolved` x 2 (SECOND_SURFACE_MARGIN): a point on
+// the ceiling above a light that hangs a hair under it is in shadow however wide the bias is.
+float lit_tap(ivec2 at, float dist, float bias, float resolved) {
+    vec2 surfaces = texelFetch(shadow_atlas, at, 0).rg;
+    float half_gap = 0.5 * (surfaces.y - surfaces.x);
+    return surfaces.x >= dist - (half_gap > resolved ? min(bias, half_gap) : bias) ? 1.0 : 0.0;
+}
+
 // Percentage-closer filtering around ndc (the tile's [-1, 1]^2) of a shadow view: the share of the
-// taps whose stored distance is no nearer than `reference`.
-float filtered_visibility(ShadowView view, vec2 ndc, float reference) {
+// taps that let the light through to a point at `dist` with depth bias `bias` (lit_tap).
+float filtered_visibility(ShadowView view, vec2 ndc, float dist, float bias, float resolved) {
     int size = int(view.tile.z);
     ivec2 origin = ivec2(view.tile.xy);
     // Texel coordinates in the tile with texel centres at integers.
@@ -96,10 +128,10 @@ float filtered_visibility(ShadowView view, vec2 ndc, float reference) {
             vec2 s = st + vec2(i, j);
             vec2 base = floor(s), w = s - base;
             ivec2 t0 = clamp(ivec2(base), ivec2(0), ivec2(size - 1)), t1 = clamp(ivec2(base) + 1, ivec2(0), ivec2(size - 1));
-            float l00 = texelFetch(shadow_atlas, origin + t0, 0).r >= reference ? 1.0 : 0.0;
-            float l10 = texelFetch(shadow_atlas, origin + ivec2(t1.x, t0.y), 0).r >= reference ? 1.0 : 0.0;
-            float l01 = texelFetch(shadow_atlas, origin + ivec2(t0.x, t1.y), 0).r >= reference ? 1.0 : 0.0;
-            float l11 = texelFetch(shadow_atlas, origin + t1, 0).r >= reference ? 1.0 : 0.0;
+            float l00 = lit_tap(origin + t0, dist, bias, resolved);
+            float l10 = lit_tap(origin + ivec2(t1.x, t0.y), dist, bias, resolved);
+            float l01 = lit_tap(origin + ivec2(t0.x, t1.y), dist, bias, resolved);
+            float l11 = lit_tap(origin + t1, dist, bias, resolved);
             lit += mix(mix(l00, l10, w.x), mix(l01, l11, w.x), w.y);
         }
     }
@@ -116,7 +148,8 @@ float shadow_visibility(int view_index, vec3 p, vec3 n, vec3 to_light) {
     vec2 ndc = clip.xy / clip.w;
     if (any(greaterThan(abs(ndc), vec2(1.0)))) return 1.0;  // outside this view: a spot's cone has no light there
     float dist = light_distance(view, p);
-    return filtered_visibility(view, ndc, dist - texel_size(view, dist) * depth_bias_texels(n, to_light));
+    float texel = texel_size(view, dist), slope = surface_slope(n, to_light);
+    return filtered_visibility(view, ndc, dist, texel * depth_bias_texels(slope), SECOND_SURFACE_MARGIN * texel * slope);
 }
 
 // Mitsuba's spot falloff (src/emitters/spot.cpp): 1 inside the beam width, then linear in angle

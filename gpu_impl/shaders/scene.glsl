@@ -10,7 +10,7 @@ struct Material {
 
 struct Triangle {
     float normal_x, normal_y, normal_z;  // unit geometric normal, counter-clockwise front
-    uint material_flags;                 // material index | TRIANGLE_SMOOTH
+    uint material_flags;                 // material index | TRIANGLE_SMOOTH | TRIANGLE_SOLID
 };
 
 // Scalars, not vec3s: std430 would pad each vec3 to 16 bytes.
@@ -19,7 +19,7 @@ struct Vertex {
     float nx, ny, nz;  // normal; zero where a mesh has none
     float u, v;
 };
-// The flags MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE_SMOOTH and the mask TRIANGLE_MATERIAL
+// The flags MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE_SMOOTH, TRIANGLE_SOLID and the mask TRIANGLE_MATERIAL
 // come from gpu_impl/layout.py.
 
 layout(std430, binding = BINDING_MATERIALS) readonly buffer Materials { Material materials[]; };
@@ -35,6 +35,12 @@ uint triangle_material(uint t) {
 
 bool triangle_smooth(uint t) {
     return (triangles[t].material_flags & TRIANGLE_SMOOTH) != 0u;
+}
+
+// Whether the triangle bounds a solid: every edge of its connected surface is shared by two
+// triangles (gpu_impl/scene_buffers.py: solid_triangles).
+bool triangle_solid(uint t) {
+    return (triangles[t].material_flags & TRIANGLE_SOLID) != 0u;
 }
 
 bool material_twosided(uint m) {

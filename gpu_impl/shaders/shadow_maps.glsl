@@ -4,10 +4,25 @@
 // distances in scene units and its bias is in scene units too. The depth test runs on the same
 // linear distance (gl_FragDepth), not on the projection's hyperbolic depth, which a point light's
 // tiny near plane would leave with too little precision to order nearby surfaces far away.
+//
+// Beside the nearest surface, each texel keeps the two nearest surfaces that face the light, by
+// atomics in the same pass; shadow_second_surface.glsl then takes the nearest of them behind the
+// first surface as the texel's second surface, which bounds the lookups' depth bias (lights.glsl:
+// lit_tap). Only a surface facing the light can receive it: a far side, where a ray grazing an
+// object's silhouette leaves it a hair behind where it entered, would shrink the bias of the near
+// side's own points to that hair. Facing goes by the triangle's winding, as Mitsuba's normals do,
+// for two-sided materials too: a two-sided panel has no second surface of its own, and one whose
+// winding turns it away from the light keeps the full bias. A first surface that bounds a solid
+// (scene.glsl: triangle_solid) has no second surface either: what lies just behind it is inside
+// the solid, such as the floor running on under a box that rests on it, whose nearness would
+// shadow the box's foot and the floor around it. So where every triangle bounds a solid (a closed
+// room), SECOND_SURFACES is 0 and none of this is done.
 
 #define SHADOW_MAP_RASTER
 #define SHADOW_LIGHTS 1
 #include "lights.glsl"
+#define SCENE_MATERIALS_ONLY
+#include "scene.glsl"
 
 uniform int view_index;
 
@@ -24,10 +39,15 @@ void main() {
 #elif defined FRAGMENT_SHADER
 
 in vec3 v_position;
-layout(location = 0) out float out_distance;
+layout(location = 0) out vec2 out_distance;  // the first surface; the second comes after
 // The triangle seen + 1, where the atlas has a second attachment for it: the fixed lights' maps read
 // as reflective shadow maps, where light paths start (light_paths.glsl).
 layout(location = 1) out uint out_triangle;
+// Distances as uint bits (a non-negative float orders as its bits do); cleared to NO_SURFACE's.
+#if SECOND_SURFACES
+layout(r32ui, binding = FACING_IMAGE_NEAREST) uniform coherent uimage2D facing_nearest;
+layout(r32ui, binding = FACING_IMAGE_NEXT) uniform coherent uimage2D facing_next;
+#endif
 
 void main() {
     ShadowView view = shadow_views[view_index];
@@ -35,9 +55,22 @@ void main() {
     // emitter: its own surface, seen almost edge-on from just in front of it, would fill the texels
     // at its horizon with tiny distances and shadow the light that leaves it at grazing angles.
     if (view.origin.w > 0.5 && any(notEqual(view.axis.xyz, vec3(0.0))) && dot(v_position - view.origin.xyz, view.axis.xyz) <= 0.0) discard;
-    out_distance = light_distance(view, v_position);
-    gl_FragDepth = clamp(out_distance * view.axis.w, 0.0, 1.0);
-    out_triangle = uint(gl_PrimitiveID) + 1u;
+    float dist = light_distance(view, v_position);
+    uint t = uint(gl_PrimitiveID);
+    out_distance = vec2(dist, SECOND_SURFACES != 0 && triangle_solid(t) ? SOLID_FIRST_SURFACE : NO_SURFACE);
+    gl_FragDepth = clamp(dist * view.axis.w, 0.0, 1.0);
+    out_triangle = t + 1u;
+#if SECOND_SURFACES
+    // The late depth test (gl_FragDepth) runs this for every fragment, nearest or not. Of the new
+    // distance and the nearest it meets, the larger goes on to the next: every distance but the
+    // least reaches `facing_next` once, in any order, so that ends as the second least.
+    vec3 to_light = view.origin.w > 0.5 ? view.origin.xyz - v_position : -view.axis.xyz;
+    if (dot(triangle_normal(t), to_light) > 0.0) {
+        ivec2 at = ivec2(gl_FragCoord.xy);
+        uint bits = floatBitsToUint(dist);
+        imageAtomicMin(facing_next, at, max(bits, imageAtomicMin(facing_nearest, at, bits)));
+    }
+#endif
 }
 
 #endif

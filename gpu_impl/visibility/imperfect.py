@@ -24,6 +24,7 @@ import numpy as np
 
 from evalkit.core.settings import setting
 from gpu_impl.layout import BINDINGS, LIGHT_VISIBILITY_IMPERFECT
+from gpu_impl.lights import NO_SURFACE
 from gpu_impl.units import LightVisibility
 
 DEFAULT_ISM_SIZE = 64
@@ -109,10 +110,9 @@ class ImperfectShadowMaps:
             tiles.append(i)
         lights.upload()
         fb = lights.framebuffer
-        far = np.finfo(np.float32).max
         for i in tiles:
             x, y, size, _ = lights.view_records["tile"][i]
-            fb.clear(red=far, depth=1.0, viewport=(int(x), int(y), int(size), int(size)))
+            fb.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0, viewport=(int(x), int(y), int(size), int(size)))
         fb.viewport = (0, 0, *lights.atlas.size)
         lights.gpu_scene.bind()  # the area CDF and the triangles the points are drawn on
         for name in ("LIGHTS", "SHADOW_VIEWS"):  # not the atlas itself: it is being drawn into
