@@ -109,8 +109,8 @@ SAMPLERS = {"random": 0, "stratified": 1}
 COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4, "KEPT": 5, "LONG_LISTS": 6}
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
-# The image units the shadow maps' raster pass keeps each texel's two nearest surfaces that face
-# the light at (shadow_maps.glsl), R32UI distances.
+# The image units of the two R32UI images in which the shadow maps' raster pass keeps each texel's
+# two nearest surfaces that face the light (shadow_maps.glsl).
 FACING_IMAGE_UNITS = (1, 2)
 # Path.bundle (paths.glsl) past the bundle indices: the path has ended, or is at its camera vertex.
 PATH_ENDED = np.uint32(0xFFFFFFFF)

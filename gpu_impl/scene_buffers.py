@@ -205,8 +205,8 @@ def provoking_vertices(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray
 
 def solid_triangles(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Per triangle, whether it bounds a solid: its connected surface (triangles joined by shared
-    edges, corners welded where their positions are equal) is closed, every edge shared by exactly
-    two triangles. A box or a ball resting on a floor is one; the floor, a quad light and a room open
+    edges, corners welded within a ten-millionth of the scene's extent) is closed, every edge shared
+    by exactly two triangles. A box or a ball resting on a floor is one; the floor, a quad light and a room open
     on one side are not (shaders/shadow_maps.glsl: what lies behind a solid's surface is inside it).
     A triangle that welding collapses (at a UV sphere's poles) has no area and no say, and is not one."""
     from scipy.sparse import coo_matrix
@@ -215,7 +215,7 @@ def solid_triangles(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     solid = np.zeros(len(faces), dtype=bool)
     if not len(faces):
         return solid
-    # Corners within a ten-millionth of the scene's extent are one (a seam's copies differ by rounding).
+    # A seam's copies of a corner differ by rounding.
     extent = float(np.ptp(positions, axis=0).max()) or 1.0
     _, welded = np.unique(np.round(positions / (1e-7 * extent)), axis=0, return_inverse=True)
     corners = welded.reshape(-1)[faces]
@@ -223,8 +223,9 @@ def solid_triangles(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     if not len(kept):
         return solid
     corners = corners[kept]
-    edges = np.sort(np.stack([corners, np.roll(corners, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-    _, edge, shared = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    ends = np.stack([corners, np.roll(corners, -1, axis=1)], axis=2).reshape(-1, 2)
+    key = ends.min(axis=1).astype(np.int64) * (int(welded.max()) + 1) + ends.max(axis=1)  # one per edge
+    _, edge, shared = np.unique(key, return_inverse=True, return_counts=True)
     # Triangles and edges as the nodes of one graph, each triangle joined to its three edges.
     n = len(kept) + len(shared)
     triangle = np.repeat(np.arange(len(kept)), 3)
