@@ -4,14 +4,17 @@ from Embree rays (the truth both approximate), over map sizes and points per map
 default size and points, pull-push hole filling against larger splats (the splat scales given).
 
     python benchmarks/shadow_maps.py [--scene atrium] [--vertices 256] [--receivers 2048]
-                                     [--sizes 32 64 128] [--points 1024 4096 16384]
+                                     [--exact-sizes 256] [--sizes 32 64 128]
+                                     [--points 1024 4096 16384]
                                      [--splat-scales 1.0 1.6 2.5] [--repeats 3]
 
 The light vertices are the first ``--vertices`` that frame 0's light paths leave (B=2, perfect
 bundles K=32 R=128); the receivers are surface points the camera sees. Times are medians over the
 repeats after a warm-up, host time around glFinish. "hidden" and "leaked" split the changed
-connections: seen through exact maps but not through imperfect ones, and the reverse. Prints a
-table; the last line is one JSON object with every figure.
+connections: seen through exact maps (of the default size) but not through the others, and the
+reverse. "light leaked" and "light hidden" are each map's own against the rays, weighted by what
+each connection carries (`evalkit.metrics.light_visibility.light_shares`). Prints a table; the
+last line is one JSON object with every figure.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from evalkit.metrics.light_visibility import (
     changed_shares,
     differing_share,
     frame_light_vertices,
+    light_shares,
     measure,
     traced_visibility,
 )
@@ -44,6 +48,7 @@ def main() -> None:
     parser.add_argument("--scene", default="atrium")
     parser.add_argument("--vertices", type=int, default=256)
     parser.add_argument("--receivers", type=int, default=2048)
+    parser.add_argument("--exact-sizes", type=int, nargs="+", default=[exact.DEFAULT_MAP_SIZE])
     parser.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
     parser.add_argument("--points", type=int, nargs="+", default=[1024, 4096, 16384])
     parser.add_argument("--splat-scales", type=float, nargs="+", default=[1.0, 1.6, 2.5])
@@ -76,19 +81,31 @@ def main() -> None:
         )
         return measure(gl, scene, s.settings, vertices, receivers, args.repeats)
 
-    exact_maps = run(exact.VISIBILITY.name)
-    rows = [
-        {
-            "maps": exact.VISIBILITY.name,
-            "size": exact.DEFAULT_MAP_SIZE,
-            "points": None,
-            "ms": exact_maps["ms"],
-            "differ_exact": 0.0,
-            "hidden": 0.0,
-            "leaked": 0.0,
-            "differ_rays": differing_share(exact_maps["visibility"], truth),
+    def against_rays(result: dict) -> dict:
+        leaked, hidden = light_shares(result["visibility"], truth, vertices, receivers)
+        return {
+            "differ_rays": differing_share(result["visibility"], truth),
+            "light_leaked_rays": leaked,
+            "light_hidden_rays": hidden,
         }
-    ]
+
+    exact_maps = run(exact.VISIBILITY.name)
+    rows = []
+    for size in sorted(set(args.exact_sizes) | {exact.DEFAULT_MAP_SIZE}):
+        r = exact_maps if size == exact.DEFAULT_MAP_SIZE else run(exact.VISIBILITY.name, light_sample_map_size=size)
+        hidden, leaked = changed_shares(exact_maps["visibility"], r["visibility"])
+        rows.append(
+            {
+                "maps": exact.VISIBILITY.name,
+                "size": size,
+                "points": None,
+                "ms": r["ms"],
+                "differ_exact": hidden + leaked,
+                "hidden": hidden,
+                "leaked": leaked,
+                **against_rays(r),
+            }
+        )
     defaults = imperfect_maps.ImperfectSettings()
     configs = sorted({(s, p) for s in args.sizes for p in args.points} | {(defaults.ism_size, defaults.ism_points)})
     configs = [(size, points, defaults.ism_splat_scale, False) for size, points in configs]
@@ -118,7 +135,7 @@ def main() -> None:
                 "differ_exact": differing_share(exact_maps["visibility"], r["visibility"]),
                 "hidden": hidden,
                 "leaked": leaked,
-                "differ_rays": differing_share(r["visibility"], truth),
+                **against_rays(r),
             }
         )
     gl.release()
@@ -129,7 +146,7 @@ def main() -> None:
     )
     print(
         f"{'maps':<10}{'size':>6}{'points':>8}{'scale':>7}{'pull-push':>11}{'ms':>10}{'/ exact':>9}"
-        f"{'differ':>9}{'hidden':>9}{'leaked':>9}{'vs rays':>9}"
+        f"{'differ':>9}{'hidden':>9}{'leaked':>9}{'vs rays':>9}{'light leaked':>14}{'light hidden':>14}"
     )
     for r in rows:
         print(
@@ -137,6 +154,7 @@ def main() -> None:
             f"{('on' if r.get('pull_push') else 'off') if r['points'] else '':>11}{r['ms']:>10.1f}"
             f"{r['ms'] / exact_maps['ms']:>9.3f}{100 * r['differ_exact']:>8.1f}%{100 * r['hidden']:>8.1f}%"
             f"{100 * r['leaked']:>8.1f}%{100 * r['differ_rays']:>8.1f}%"
+            f"{100 * r['light_leaked_rays']:>13.3f}%{100 * r['light_hidden_rays']:>13.3f}%"
         )
     default = next(
         r

@@ -21,6 +21,7 @@ from evalkit.metrics.light_visibility import (
     changed_shares,
     differing_share,
     frame_light_vertices,
+    light_shares,
     measure,
     traced_visibility,
 )
@@ -181,6 +182,20 @@ def test_exact_shadow_maps_keep_the_nearest_surface_behind_the_first_that_faces_
     panels = assemble("panels", "panels", meshes, [Material("grey", albedo=(0.5, 0.5, 0.5))], [], camera)
     surfaces = centre_surfaces(gl, panels, np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, -1.0]]))
     np.testing.assert_allclose(surfaces[0, 5], [0.5, 1.5], atol=1e-3)  # cube face -z
+
+
+def test_light_shares_weigh_each_connection_by_the_light_it_carries():
+    # One vertex at the origin facing +z; two receivers facing it, at distance 1 on its axis
+    # (weight 1) and at distance 2, 60 degrees off it (cos 1 and 0.5 over d^2 = 4: weight 1/8).
+    vertices = LightVertices(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.ones((1, 3)), np.ones(1))
+    far = 2.0 * np.array([np.sin(np.pi / 3), 0.0, np.cos(np.pi / 3)])
+    receivers = (np.array([[0.0, 0.0, 1.0], far]), np.array([[0.0, 0.0, -1.0], -far / 2.0]))
+    truth = np.array([[1.0], [1.0]])
+    leaked, hidden = light_shares(np.array([[1.0], [0.0]]), truth, vertices, receivers)
+    assert leaked == 0.0 and hidden == pytest.approx((1 / 8) / (1 + 1 / 8))
+    leaked, hidden = light_shares(np.array([[1.0], [1.0]]), np.array([[1.0], [0.0]]), vertices, receivers)
+    assert leaked == pytest.approx(1 / 8) and hidden == 0.0
+    assert light_shares(np.array([[-1.0], [1.0]]), truth, vertices, receivers) == (0.0, 0.0)  # facing away: not counted
 
 
 def test_solid_triangles_are_those_of_closed_surfaces():

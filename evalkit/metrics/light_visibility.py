@@ -116,6 +116,32 @@ def changed_shares(exact: np.ndarray, other: np.ndarray) -> tuple[float, float]:
     return float((seen & ~seen_other).mean()), float((~seen & seen_other).mean())
 
 
+def light_shares(
+    visibility: np.ndarray, truth: np.ndarray, vertices: LightVertices, receivers: tuple[np.ndarray, np.ndarray]
+) -> tuple[float, float]:
+    """The light that maps' ``visibility`` lets through where the rays' ``truth`` is blocked, and
+    the light it hides where the rays get through: (leaked, hidden), each over the light the rays
+    let through, every pair weighted by its geometry term cos_x cos_y / d^2 (what a connection
+    carries), over the pairs facing each other (``visibility`` >= 0). Shares of pairs
+    (`changed_shares`) count a grazing connection as much as a head-on one; this weighs them by
+    the light they carry."""
+    positions, normals = receivers
+    d = vertices.positions[None, :, :] - positions[:, None, :]
+    d2 = np.einsum("rvk,rvk->rv", d, d)
+    u = d / np.sqrt(d2)[..., None]
+    weight = (
+        np.clip(np.einsum("rvk,rk->rv", u, normals), 0.0, None)
+        * np.clip(-np.einsum("rvk,vk->rv", u, vertices.normals), 0.0, None)
+        / d2
+        * (visibility >= 0.0)
+    )
+    seen, true = visibility >= VISIBLE, truth >= VISIBLE
+    total = float((weight * true).sum())
+    if total == 0.0:
+        return 0.0, 0.0
+    return float((weight * (seen & ~true)).sum()) / total, float((weight * (~seen & true)).sum()) / total
+
+
 def traced_visibility(scene: Scene, vertices: LightVertices, receivers: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """The true visibility of every (receiver, vertex) pair, by Embree rays (references.embree), as
     1 or 0: what both kinds of shadow maps approximate. Rays leave each end a millionth of the
