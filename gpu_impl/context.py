@@ -179,26 +179,20 @@ class GLContext:
         """Every 32-bit word of ``buffer`` set to ``value``, by the GL (glClearNamedBufferData)."""
         if buffer.size % 4:
             raise ValueError(f"a buffer of {buffer.size} bytes is not whole 32-bit words")
-        clear = _gl_function(
+        clear = _required_gl_function(
             "glClearNamedBufferData", ctypes.c_uint, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p
         )
-        if clear is None:  # an OpenGL 4.5 context has it: only a missing libEGL gets here
-            raise RuntimeError("glClearNamedBufferData not found through libEGL.so.1")
         word = ctypes.c_uint32(value & 0xFFFFFFFF)
         clear(buffer.glo, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
 
-    def fill_texture(self, texture, value: int, rect: tuple[int, int, int, int] | None = None) -> None:
-        """Every texel of an R32UI ``texture`` (or of its ``rect``: x, y, width, height) set to
-        ``value``, by the GL (glClearTexSubImage), as `fill` does for buffers."""
-        clear = _gl_function(
-            "glClearTexSubImage",
-            *[ctypes.c_uint] + [ctypes.c_int] * 7 + [ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p],
+    def fill_texture(self, texture, value: int) -> None:
+        """Every texel of an R32UI ``texture`` set to ``value``, by the GL (glClearTexImage), as
+        `fill` does for buffers."""
+        clear = _required_gl_function(
+            "glClearTexImage", ctypes.c_uint, ctypes.c_int, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p
         )
-        if clear is None:  # an OpenGL 4.5 context has it: only a missing libEGL gets here
-            raise RuntimeError("glClearTexSubImage not found through libEGL.so.1")
-        x, y, width, height = (0, 0, *texture.size) if rect is None else rect
         word = ctypes.c_uint32(value & 0xFFFFFFFF)
-        clear(texture.glo, 0, x, y, 0, width, height, 1, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
+        clear(texture.glo, 0, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
 
     def read(self, buffer, dtype=np.uint32, count: int | None = None, first: int = 0) -> np.ndarray:
         """``count`` records of ``dtype`` from record ``first`` of ``buffer`` (default: to its end),
@@ -326,6 +320,15 @@ def _gl_function(name: str, *argtypes):
     egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
     address = egl.eglGetProcAddress(name.encode())
     return ctypes.CFUNCTYPE(None, *argtypes)(address) if address else None
+
+
+def _required_gl_function(name: str, *argtypes):
+    """`_gl_function`, for the entry points an OpenGL 4.5 context has: only a missing libEGL makes
+    one None, and that is an error."""
+    function = _gl_function(name, *argtypes)
+    if function is None:
+        raise RuntimeError(f"{name} not found through libEGL.so.1")
+    return function
 
 
 def default_context() -> GLContext:

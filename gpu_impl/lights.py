@@ -286,10 +286,10 @@ class ShadowLights:
             # and `second_surfaces` reads and clears again (shaders/shadow_second_surface.glsl);
             # a scene whose every triangle bounds a solid has no second surfaces to keep.
             self.second_surfaces = None
-            if not gpu_scene.solid.all():
+            if not gpu_scene.solids().all():
                 self.facing = tuple(gl.texture(atlas_size, 1, dtype="u4") for _ in FACING_IMAGE_UNITS)
                 for texture in self.facing:
-                    gl.fill_texture(texture, NO_SURFACE_BITS)
+                    gl.fill_texture(texture, NO_SURFACE_BITS)  # then kept so by the second-surface pass
                 self.second_surfaces = gl.program("shadow_second_surface")
             self.program = gl.program("shadow_maps", SECOND_SURFACES=int(self.second_surfaces is not None))
             self.vao = gpu_scene.vertex_array(self.program)

@@ -38,7 +38,7 @@ class GpuScene:
         self.centre = np.asarray(centre, dtype=np.float64)
         self.radius = radius * FRAME_PADDING
         self.triangle_count = len(a.faces)
-        self.solid = solid_triangles(a.positions, a.faces)  # rigid poses keep it
+        self._solid = None  # `solids`, found when a pass first needs them
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
         textures = []  # every texture of the scene in one texel buffer: materials', then the environment map's
@@ -96,24 +96,38 @@ class GpuScene:
             "CDF_GUIDE": gl.buffer(guide.astype(np.uint32).tobytes()),
         }
 
+    def solids(self) -> np.ndarray:
+        """Per triangle, whether it bounds a solid (`solid_triangles`; TRIANGLE_SOLID in the triangle
+        records). Only the shadow maps' second surfaces ask (gpu_impl/lights.py), so it is found,
+        and uploaded, the first time they do: 2 M triangles take seconds. Rigid poses keep it."""
+        if self._solid is None:
+            self._solid = solid_triangles(self.arrays.positions, self.arrays.faces)
+            self.buffers["TRIANGLES"].write(self._triangles(self.arrays))
+        return self._solid
+
     def _geometry(self, a) -> dict[str, bytes]:
         """The buffers that move with the geometry: positions (the raster passes' vertices),
         vertex records (position, normal, uv: what shaders read) and triangle records."""
         positions = (a.positions - self.centre).astype(np.float32)
         vertices = np.zeros(len(positions), dtype=VERTEX)
         vertices["position"], vertices["normal"], vertices["uv"] = positions, a.normals, a.uvs
-        triangles = np.zeros(len(a.faces), dtype=TRIANGLE)
-        triangles["normal"] = a.tri_normal
-        triangles["material_flags"] = (
-            a.tri_material.astype(np.uint32)
-            | np.where(a.tri_smooth, TRIANGLE_SMOOTH, 0).astype(np.uint32)
-            | np.where(self.solid, TRIANGLE_SOLID, 0).astype(np.uint32)
-        )
         return {
             "POSITIONS": positions[self.raster_sources].tobytes(),
             "VERTICES": vertices.tobytes(),
-            "TRIANGLES": triangles.tobytes(),
+            "TRIANGLES": self._triangles(a),
         }
+
+    def _triangles(self, a) -> bytes:
+        """The triangle records: geometric normal, material and flags (TRIANGLE_SOLID once `solids`
+        has been found)."""
+        triangles = np.zeros(len(a.faces), dtype=TRIANGLE)
+        triangles["normal"] = a.tri_normal
+        triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(
+            a.tri_smooth, TRIANGLE_SMOOTH, 0
+        ).astype(np.uint32)
+        if self._solid is not None:
+            triangles["material_flags"] |= np.where(self._solid, TRIANGLE_SOLID, 0).astype(np.uint32)
+        return triangles.tobytes()
 
     def pose(self, scene: Scene) -> None:
         """Upload ``scene``, the same scene posed at another time (rigid motion: same triangles,
