@@ -133,15 +133,21 @@ class GLContext:
         shader.run(gx, math.ceil(max(1, groups) / gx))
         self.ctx.memory_barrier()
 
-    def draw(self, vertex_array, mode: int, framebuffer, depth_test: bool, **kw) -> None:
+    def draw(self, vertex_array, mode: int, framebuffer, depth_test: bool, commands=None, **kw) -> None:
         """Draw ``vertex_array`` into ``framebuffer`` (no face culling, no blending; the depth test
-        only when asked), then a barrier: what its shaders wrote to storage is visible after it."""
+        only when asked), then a barrier: what its shaders wrote to storage is visible after it.
+        ``commands``: (buffer, count, first) to draw ``count`` indirect commands of ``buffer`` from
+        its ``first``, instead of the whole array."""
         framebuffer.use()
         self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         (self.ctx.enable if depth_test else self.ctx.disable)(moderngl.DEPTH_TEST)
         if mode == moderngl.POINTS:  # splats size themselves (gl_PointSize)
             self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
-        vertex_array.render(mode, **kw)
+        if commands is None:
+            vertex_array.render(mode, **kw)
+        else:
+            buffer, count, first = commands
+            vertex_array.render_indirect(buffer, mode, count=int(count), first=int(first))
         self.ctx.disable(moderngl.DEPTH_TEST)
         self.ctx.memory_barrier()
 

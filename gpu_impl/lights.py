@@ -3,7 +3,9 @@
 Point, spot and directional lights (the fixed lights) get shadow maps in one atlas: a directional
 light one orthographic view fitted to the bounding sphere, a spot light one perspective view over
 its cone (six when the cone is wider than a cube face), a point light six cube faces. Each cube
-face is widened by two texels so that filtering near a face's edge reads rendered texels.
+face is widened by two texels so that filtering near a face's edge reads rendered texels. A view
+draws only the clusters of triangles (runs of the scene's order) whose boxes reach into it, by one
+indirect multi-draw (`view_clusters`): a cube face sees a sixth of the space around its light.
 
 Light vertices are points that light the scene for one frame, each a point light whose intensity
 falls as the cosine to its surface's normal: the path strategy says which (the eye paths' emitter
@@ -24,7 +26,7 @@ from evalkit.core.scene.model import Light
 from evalkit.core.settings import RenderSettings
 from gpu_impl.context import GLContext, set_uniforms
 from gpu_impl.layout import BINDINGS, ENVIRONMENT_KINDS, FACING_IMAGE_UNITS, LIGHT, LIGHT_KINDS, SHADOW_VIEW
-from gpu_impl.scene_buffers import GpuScene
+from gpu_impl.scene_buffers import CLUSTER_TRIANGLES, GpuScene
 
 # A spot light whose cone half-angle is within this of 90 degrees cannot use one perspective view.
 MAX_SPOT_VIEW_DEGREES = 60.0
@@ -45,6 +47,12 @@ NO_SURFACE_BITS = int(np.float32(NO_SURFACE).view(np.uint32))
 # A light vertex sits this far (times the bounding radius) in front of its surface, so that the
 # surface lies behind it and its shadow views leave that surface out (shaders/shadow_maps.glsl).
 LIGHT_VERTEX_OFFSET = 1e-5
+# An indirect draw of indexed triangles (glMultiDrawElementsIndirect), and how many views' clusters
+# are culled in one batch of arrays.
+DRAW_COMMAND = np.dtype(
+    [("count", "<u4"), ("instances", "<u4"), ("first", "<u4"), ("base_vertex", "<i4"), ("base_instance", "<u4")]
+)
+VIEWS_PER_CULL = 64
 
 
 class LightVertices(NamedTuple):
@@ -185,6 +193,34 @@ def cube_views(position: np.ndarray, far: float, size: int, axis: np.ndarray | N
     ]
 
 
+def view_clusters(
+    to_clip: np.ndarray, origin: np.ndarray, axis: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> np.ndarray:
+    """Per view (N) and cluster box (C; corners ``lo`` and ``hi``), whether any of the box lies
+    inside the view's clip volume (``to_clip``: (N, 4, 4), acting on column vectors) and, for a
+    perspective view with an axis (``origin`` and ``axis``: (N, 4) as in `SHADOW_VIEW`), in front
+    of the plane through the origin across the axis, which shaders/shadow_maps.glsl keeps. GL
+    clips away every triangle of a box that lies outside the clip volume, and the shader discards
+    every fragment of a triangle wholly behind the plane, so drawing only the boxes that reach in
+    leaves the map as it was, bit for bit. (N, C) booleans."""
+    m = to_clip.astype(np.float64)
+    # The clip volume's six planes (Gribb and Hartmann): w +- x, w +- y, w +- z >= 0.
+    planes = np.concatenate([m[:, 3:4] + m[:, :3], m[:, 3:4] - m[:, :3]], axis=1)  # (N, 6, 4)
+    axes = axis[:, :3].astype(np.float64)
+    cut = (origin[:, 3] > 0.5) & np.any(axes != 0.0, axis=1)
+    front = np.zeros((len(m), 1, 4))
+    front[:, 0, :3] = axes
+    front[:, 0, 3] = -np.einsum("ij,ij->i", axes, origin[:, :3])
+    front[~cut] = (0.0, 0.0, 0.0, 1.0)  # a plane every point is in front of
+    planes = np.concatenate([planes, front], axis=1)
+    centre, half = (lo + hi) / 2.0, (hi - lo) / 2.0
+    seen = np.ones((len(m), len(lo)), dtype=bool)
+    for plane in planes.transpose(1, 0, 2):  # a plane at a time: (N, C) arrays, not (N, 7, C)
+        # The most any point of the box gets from the plane: at the corner its normal points to.
+        seen &= plane[:, :3] @ centre.T + np.abs(plane[:, :3]) @ half.T + plane[:, 3:] >= 0.0
+    return seen
+
+
 def look_at_view(eye: np.ndarray, forward: np.ndarray) -> np.ndarray:
     """World-to-view matrix (OpenGL convention: the view looks along -z) from eye along forward."""
     f = forward / np.linalg.norm(forward)
@@ -293,6 +329,7 @@ class ShadowLights:
                 self.second_surfaces = gl.program("shadow_second_surface")
             self.program = gl.program("shadow_maps", SECOND_SURFACES=int(self.second_surfaces is not None))
             self.vao = gpu_scene.vertex_array(self.program)
+            self.commands = None  # `draw`'s indirect draw commands, grown as needed
 
     def set_view(self, i: int, view: tuple, size: int) -> None:
         """Shadow view ``i`` of the atlas: (to_clip, texel size term, origin, perspective?, axis,
@@ -394,22 +431,53 @@ class ShadowLights:
         self.gpu_scene.bind()
         self.buffers["SHADOW_VIEWS"].bind_to_storage_buffer(BINDINGS["SHADOW_VIEWS"])
         tiles = [tuple(int(v) for v in self.view_records["tile"][i][:3]) for i in views]
+        commands, counts = self._draw_commands(views)
+        if self.commands is None or self.commands.size < commands.nbytes:
+            if self.commands is not None:
+                self.commands.release()
+            self.commands = self.gl.buffer(reserve=max(commands.nbytes, 2 * DRAW_COMMAND.itemsize))
+        self.commands.write(commands.tobytes())
+        firsts = np.cumsum(counts) - counts
         for texture, unit in zip(self.facing, FACING_IMAGE_UNITS):
             texture.bind_to_image(unit, read=True, write=True)
         if not clear:  # a triangle texel is read only where a distance is
             self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0)
-        for i, (x, y, size) in zip(views, tiles):
+        for i, (x, y, size), count, first in zip(views, tiles, counts, firsts):
             self.framebuffer.viewport = (x, y, size, size)
             if clear:
                 self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0, viewport=self.framebuffer.viewport)
-            self.program["view_index"] = i
-            self.gl.draw(self.vao, moderngl.TRIANGLES, self.framebuffer, depth_test=True)
+            if count:
+                self.program["view_index"] = i
+                commands = (self.commands, count, first)
+                self.gl.draw(self.vao, moderngl.TRIANGLES, self.framebuffer, depth_test=True, commands=commands)
         if self.second_surfaces is None:
             return
         self.atlas.bind_to_image(0, read=True, write=True)
         for x, y, size in tiles:
             set_uniforms(self.second_surfaces, {"corner": (x, y), "width": size})
             self.gl.dispatch(self.second_surfaces, size * size)
+
+    def _draw_commands(self, views) -> tuple[np.ndarray, np.ndarray]:
+        """Indirect draw commands (`DRAW_COMMAND`) of the triangles each view can see, a command per
+        run of consecutive clusters whose boxes reach into the view (`view_clusters`), and how many
+        commands each view has."""
+        lo, hi = self.gpu_scene.cluster_bounds()
+        triangles = self.gpu_scene.triangle_count
+        records = self.view_records[list(views)]
+        commands, counts = [], []
+        for chunk in range(0, len(records), VIEWS_PER_CULL):
+            part = records[chunk : chunk + VIEWS_PER_CULL]
+            seen = view_clusters(part["to_clip"].transpose(0, 2, 1), part["origin"], part["axis"], lo, hi)
+            for row in seen:
+                edges = np.diff(np.concatenate([[0], row.astype(np.int8), [0]]))
+                starts, ends = np.nonzero(edges > 0)[0], np.nonzero(edges < 0)[0]
+                first = starts * CLUSTER_TRIANGLES
+                last = np.minimum(ends * CLUSTER_TRIANGLES, triangles)
+                command = np.zeros(len(starts), dtype=DRAW_COMMAND)
+                command["count"], command["instances"], command["first"] = 3 * (last - first), 1, 3 * first
+                commands.append(command)
+                counts.append(len(starts))
+        return np.concatenate(commands), np.asarray(counts, dtype=np.int64)
 
     def defines(self) -> dict:
         return {
@@ -470,3 +538,5 @@ class ShadowLights:
             self.depth.release()
             if self.triangles is not None:
                 self.triangles.release()
+            if self.commands is not None:
+                self.commands.release()

@@ -18,6 +18,12 @@ from gpu_impl.layout import (
     VERTEX,
 )
 
+# Triangles per cluster of the culled raster passes (shadow maps), runs of the scene's own order:
+# meshes list neighbours together, and their shared vertices stay near in the draw. How far (times
+# the frame radius) a cluster's box is widened.
+CLUSTER_TRIANGLES = 128
+CLUSTER_PADDING = 1e-5
+
 
 class GpuScene:
     """The scene's triangles, materials and textures in GPU buffers (shaders/scene.glsl).
@@ -39,6 +45,7 @@ class GpuScene:
         self.radius = radius * FRAME_PADDING
         self.triangle_count = len(a.faces)
         self._solid = None  # `solids`, found when a pass first needs them
+        self._cluster_bounds = None  # `cluster_bounds`, found when a pass first culls
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
         textures = []  # every texture of the scene in one texel buffer: materials', then the environment map's
@@ -105,6 +112,21 @@ class GpuScene:
             self.buffers["TRIANGLES"].write(self._triangles(self.arrays))
         return self._solid
 
+    def cluster_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The corners (lowest, highest; (C, 3) each, relative to the bundle centre) of the box
+        around each run of `CLUSTER_TRIANGLES` triangles in the scene's order: a pass that draws
+        only what lies in a view draws the runs whose boxes reach into it (gpu_impl/lights.py:
+        `view_clusters`). Boxes are widened by `CLUSTER_PADDING` of the frame radius, more than
+        float32 clipping rounds. Found the first time a pass asks, and again after a pose."""
+        if self._cluster_bounds is None:
+            corners = self.arrays.positions[self.arrays.faces] - self.centre  # (T, 3, 3)
+            pad = CLUSTER_PADDING * self.radius
+            starts = np.arange(0, self.triangle_count, CLUSTER_TRIANGLES)
+            lo = np.minimum.reduceat(corners.min(axis=1), starts) - pad
+            hi = np.maximum.reduceat(corners.max(axis=1), starts) + pad
+            self._cluster_bounds = (lo, hi)
+        return self._cluster_bounds
+
     def _geometry(self, a) -> dict[str, bytes]:
         """The buffers that move with the geometry: positions (the raster passes' vertices),
         vertex records (position, normal, uv: what shaders read) and triangle records."""
@@ -144,6 +166,7 @@ class GpuScene:
         for name, data in self._geometry(a).items():
             self.buffers[name].write(data)
         self.scene, self.arrays = scene, a
+        self._cluster_bounds = None
 
     @property
     def nbytes(self) -> int:

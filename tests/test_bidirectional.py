@@ -12,7 +12,7 @@ from conftest import cornell_reference, describe_interval, relmse, render_with, 
 from evalkit.core.scene import Material, Mesh, assemble, load_scene
 from evalkit.core.scene.assemble import look_at
 from evalkit.core.scene.builtin import furnace_radiance
-from evalkit.core.scene.model import Camera
+from evalkit.core.scene.model import Camera, Light
 from evalkit.core.scene.tessellate import box, unit_sphere
 from evalkit.core.settings import RenderSettings
 from evalkit.metrics.confidence import mean_ratio
@@ -25,6 +25,7 @@ from evalkit.metrics.light_visibility import (
     measure,
     traced_visibility,
 )
+from gpu_impl import lights as gpu_lights
 from gpu_impl.lights import LightVertices, ShadowLights
 from gpu_impl.registry import resolve
 from gpu_impl.scene_buffers import GpuScene, solid_triangles
@@ -182,6 +183,60 @@ def test_exact_shadow_maps_keep_the_nearest_surface_behind_the_first_that_faces_
     panels = assemble("panels", "panels", meshes, [Material("grey", albedo=(0.5, 0.5, 0.5))], [], camera)
     surfaces = centre_surfaces(gl, panels, np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, -1.0]]))
     np.testing.assert_allclose(surfaces[0, 5], [0.5, 1.5], atol=1e-3)  # cube face -z
+
+
+def test_shadow_maps_drawn_by_the_clusters_each_view_sees_are_those_of_every_triangle(gl, monkeypatch):
+    # Balls and boxes over a floor under a point, a spot and a directional light, and light
+    # vertices on the floor and the balls: every kind of view (cube faces with and without an
+    # axis, a perspective spot view, an orthographic one). Drawing only the clusters whose boxes
+    # reach into a view must leave the atlas (distances and the triangles seen) as drawing every
+    # triangle into every view does, bit for bit.
+    p, f, n, uv = unit_sphere((48, 24))
+    floor = np.array([[-6.0, 0, -6], [6, 0, -6], [6, 0, 6], [-6, 0, 6]])
+    centres = [(-3.0, 0.5, -3.0), (3.0, 0.5, 3.0), (-3.0, 0.5, 3.0), (0.0, 1.5, 0.0)]
+    meshes = [Mesh("floor", floor, np.array([[0, 2, 1], [0, 3, 2]]), 0)]
+    meshes += [Mesh(f"ball{i}", p * 0.5 + c, f, 0, normals=n, uvs=uv) for i, c in enumerate(centres)]
+    meshes += [Mesh("box", *box(np.array([2.0, 0.0, -3.0]), np.array([3.0, 2.0, -2.0])), 0)]
+    lights = [
+        Light("point", (10.0, 10.0, 10.0), position=np.array([0.5, 3.0, 0.5])),
+        Light("spot", (10.0, 10.0, 10.0), position=np.array([-2.0, 4.0, 2.0]), direction=np.array([0.0, -1.0, 0.0]),
+              cutoff_angle=40.0, beam_width=30.0),
+        Light("directional", (1.0, 1.0, 1.0), direction=np.array([0.3, -1.0, 0.2]) / np.linalg.norm([0.3, -1.0, 0.2])),
+    ]  # fmt: skip
+    eye = look_at([0.0, 5.0, 9.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    camera = Camera(eye, fov=50.0, fov_axis="x", width=8, height=8)
+    scene = assemble("clusters", "clusters", meshes, [Material("grey", albedo=(0.5, 0.5, 0.5))], lights, camera)
+    settings = resolve(
+        RenderSettings(method="perfect", strategy="bidirectional", light_visibility="exact", light_sample_map_size=64),
+        "drop",
+    )
+    # Light vertices on the floor, two balls and the box (triangle centroids of the recentred scene).
+    a = scene.arrays()
+    chosen = [0, 1, 2 + 300, 2 + len(f) + 900, len(a.faces) - 3]
+    positions, normals = a.positions[a.faces[chosen]].mean(axis=1), a.tri_normal[chosen]
+
+    def atlas_and_share():
+        gpu_scene = GpuScene(gl, scene)
+        maps = settings.units["light_visibility"].maps(gl, gpu_scene, settings.unit_settings["light_visibility"])
+        lights = ShadowLights(gl, gpu_scene, settings.settings, maps, 0, len(positions))
+        try:
+            lights.render_shadow_maps()
+            m = len(positions)
+            lights.set_light_vertices(LightVertices(positions, normals, np.ones((m, 3)), np.ones(m)), 0, 0)
+            commands, _ = lights._draw_commands(range(len(lights.view_records)))
+            drawn = commands["count"].sum() / 3 / (len(lights.view_records) * gpu_scene.triangle_count)
+            maps_read = np.frombuffer(lights.atlas.read(), dtype=np.float32)
+            return np.concatenate([maps_read.view(np.uint32), np.frombuffer(lights.triangles.read(), np.uint32)]), drawn
+        finally:
+            maps.release()
+            lights.release()
+            gpu_scene.release()
+
+    culled, drawn = atlas_and_share()
+    monkeypatch.setattr(gpu_lights, "view_clusters", lambda *args: np.ones((len(args[0]), len(args[3])), dtype=bool))
+    every, all_drawn = atlas_and_share()
+    assert all_drawn == 1.0 and drawn < 0.5  # the views did leave out most clusters
+    np.testing.assert_array_equal(culled, every)
 
 
 def test_light_shares_weigh_each_connection_by_the_light_it_carries():

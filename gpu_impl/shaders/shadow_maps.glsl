@@ -29,16 +29,28 @@ uniform int view_index;
 #if defined VERTEX_SHADER
 
 layout(location = 0) in vec3 in_position;  // relative to the bundle centre
+// On the triangle's provoking vertex (scene_buffers.py): gl_PrimitiveID would count from each
+// cluster's draw (gpu_impl/lights.py draws the clusters a view sees).
+layout(location = 1) in uint in_triangle;
 out vec3 v_position;
+flat out uint v_triangle;
+// How far the point lies in front of the plane across the view's axis (below), from the vertices:
+// interpolated, it keeps the sign of a triangle that lies wholly behind, as a point interpolated
+// a hair from the view's origin would not (gpu_impl/lights.py culls such triangles by that sign).
+out float v_front;
 
 void main() {
     v_position = in_position;
+    v_triangle = in_triangle;
+    v_front = dot(in_position - shadow_views[view_index].origin.xyz, shadow_views[view_index].axis.xyz);
     gl_Position = shadow_views[view_index].to_clip * vec4(in_position, 1.0);
 }
 
 #elif defined FRAGMENT_SHADER
 
 in vec3 v_position;
+flat in uint v_triangle;
+in float v_front;
 layout(location = 0) out vec2 out_distance;  // the first surface; the second comes after
 // The triangle seen + 1, where the atlas has a second attachment for it: the fixed lights' maps read
 // as reflective shadow maps, where light paths start (light_paths.glsl).
@@ -54,9 +66,9 @@ void main() {
     // An emitter sample's views (axis: its emitter's normal) keep only what lies in front of the
     // emitter: its own surface, seen almost edge-on from just in front of it, would fill the texels
     // at its horizon with tiny distances and shadow the light that leaves it at grazing angles.
-    if (view.origin.w > 0.5 && any(notEqual(view.axis.xyz, vec3(0.0))) && dot(v_position - view.origin.xyz, view.axis.xyz) <= 0.0) discard;
+    if (view.origin.w > 0.5 && any(notEqual(view.axis.xyz, vec3(0.0))) && v_front <= 0.0) discard;
     float dist = light_distance(view, v_position);
-    uint t = uint(gl_PrimitiveID);
+    uint t = v_triangle;
     out_distance = vec2(dist, SECOND_SURFACES != 0 && triangle_solid(t) ? SOLID_FIRST_SURFACE : NO_SURFACE);
     gl_FragDepth = clamp(dist * view.axis.w, 0.0, 1.0);
     out_triangle = t + 1u;

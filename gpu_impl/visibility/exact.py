@@ -1,5 +1,6 @@
 """Exact shadow maps for light vertices: a cube of shadow maps per vertex, rasterized from the
-scene's triangles into tiles of the shadow atlas (shaders/shadow_maps.glsl), looked up with the
+scene's triangles (those of the clusters each face sees) into tiles of the shadow atlas
+(shaders/shadow_maps.glsl), looked up with the
 same filtering and bias as the point lights' maps (shaders/light_visibility_exact.glsl). Faces
 wholly behind the vertex's surface are never looked up, so they are not drawn.
 """
@@ -29,7 +30,8 @@ class ExactSettings:
 
 class ExactShadowMaps:
     """Each light vertex's six cube faces (`tiles_per_vertex`) in the shadow atlas of
-    `gpu_impl.lights.ShadowLights`, drawn from the triangles every frame."""
+    `gpu_impl.lights.ShadowLights`, drawn from the triangles every frame (the clusters each face
+    sees: `gpu_impl.lights.view_clusters`)."""
 
     tiles_per_vertex = 6
     nbytes = 0  # the maps live in the shadow atlas

@@ -1,0 +1,135 @@
+"""Shadow maps drawn from the clusters each view sees against every triangle into every view, side by
+side in one run: the fixed lights' maps and a frame's light vertices' exact cube maps, their times,
+the share of triangles in the views' clusters (over every view of the atlas), and whether the two
+atlases agree bit for bit.
+
+    python benchmarks/shadow_map_culling.py [--scenes atrium lit-room cornell-box] [--vertices 64]
+                                            [--map-size 256] [--repeats 3]
+
+The light vertices are the first ``--vertices`` that frame 0's light paths leave (B=2, perfect
+bundles K=32 R=128). Times are medians over the repeats after a warm-up, host time around glFinish.
+"Every triangle" is the same pass with the culling test answering yes for every cluster. Prints a
+table; the last line is one JSON object with every figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from unittest import mock
+
+import numpy as np
+
+from evalkit.core.scene import load_scene
+from evalkit.core.settings import RenderSettings
+from evalkit.metrics.light_visibility import frame_light_vertices
+from gpu_impl import lights as gpu_lights
+from gpu_impl.context import GLContext
+from gpu_impl.lights import ShadowLights
+from gpu_impl.registry import resolve
+from gpu_impl.scene_buffers import GpuScene
+from gpu_impl.visibility import exact
+
+
+def every_cluster(to_clip, origin, axis, lo, hi) -> np.ndarray:
+    return np.ones((len(to_clip), len(lo)), dtype=bool)
+
+
+def timed(gl: GLContext, work, repeats: int) -> float:
+    """The median ms of ``work`` over ``repeats`` runs after a warm-up."""
+    times = []
+    for _ in range(repeats + 1):
+        gl.finish()
+        start = time.perf_counter()
+        work()
+        gl.finish()
+        times.append(1e3 * (time.perf_counter() - start))
+    return statistics.median(times[1:])
+
+
+def measure(gl: GLContext, scene, settings, vertices, repeats: int) -> dict:
+    """Times of the fixed lights' maps and of the light vertices' maps, the triangles of the clusters
+    that reach into the views over views x triangles, and the atlas' bits (distances, then the triangles seen)."""
+    gpu_scene = GpuScene(gl, scene)
+    resolved = resolve(settings)
+    maps = resolved.units["light_visibility"].maps(gl, gpu_scene, resolved.unit_settings["light_visibility"])
+    lights = ShadowLights(gl, gpu_scene, resolved.settings, maps, 0, len(vertices.positions))
+    try:
+        fixed_ms = timed(gl, lights.render_shadow_maps, repeats) if lights.fixed_views else 0.0
+        vertex_ms = timed(gl, lambda: lights.set_light_vertices(vertices, 0, 0), repeats)
+        commands, _ = lights._draw_commands(range(len(lights.view_records)))
+        in_view = commands["count"].sum() / 3 / (len(lights.view_records) * gpu_scene.triangle_count)
+        atlas = np.frombuffer(lights.atlas.read(), dtype=np.uint32)
+        return {
+            "fixed_ms": fixed_ms,
+            "vertex_ms": vertex_ms,
+            "in_view": float(in_view),
+            "bits": np.concatenate([atlas, np.frombuffer(lights.triangles.read(), dtype=np.uint32)]),
+        }
+    finally:
+        maps.release()
+        lights.release()
+        gpu_scene.release()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", nargs="+", default=["atrium", "lit-room", "cornell-box"])
+    parser.add_argument("--vertices", type=int, default=64)
+    parser.add_argument("--map-size", type=int, default=exact.DEFAULT_MAP_SIZE)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+
+    gl = GLContext()
+    rows = []
+    for name in args.scenes:
+        scene = load_scene(name)
+        settings = RenderSettings(
+            method="perfect",
+            strategy="bidirectional",
+            directions=32,
+            resolution=128,
+            bounces=2,
+            frames=1,
+            light_paths=args.vertices,
+            light_visibility=exact.VISIBILITY.name,
+            light_sample_map_size=args.map_size,
+        )
+        settings = resolve(settings, "drop").settings
+        vertices = frame_light_vertices(gl, scene, settings, args.vertices)
+        culled = measure(gl, scene, settings, vertices, args.repeats)
+        with mock.patch.object(gpu_lights, "view_clusters", every_cluster):
+            every = measure(gl, scene, settings, vertices, args.repeats)
+        rows.append(
+            {
+                "scene": name,
+                "triangles": len(scene.arrays().faces),
+                "light_vertices": len(vertices.positions),
+                "fixed_ms": [every["fixed_ms"], culled["fixed_ms"]],
+                "vertex_ms": [every["vertex_ms"], culled["vertex_ms"]],
+                "vertex_speedup": every["vertex_ms"] / culled["vertex_ms"],
+                "in_view": culled["in_view"],
+                "identical": bool(np.array_equal(every["bits"], culled["bits"])),
+            }
+        )
+    gl.release()
+
+    print(f"exact maps of {args.map_size} texels, medians of {args.repeats}; ms: every triangle -> culled")
+    print(
+        f"{'scene':<13}{'triangles':>11}{'vertices':>10}{'fixed lights ms':>20}{'light vertices ms':>22}"
+        f"{'speed-up':>10}{'in view':>9}{'same bits':>11}"
+    )
+    for r in rows:
+        fixed = f"{r['fixed_ms'][0]:.1f} -> {r['fixed_ms'][1]:.1f}"
+        vertex = f"{r['vertex_ms'][0]:.1f} -> {r['vertex_ms'][1]:.1f}"
+        print(
+            f"{r['scene']:<13}{r['triangles']:>11,}{r['light_vertices']:>10}{fixed:>20}{vertex:>22}"
+            f"{r['vertex_speedup']:>9.2f}x{100 * r['in_view']:>8.1f}%{'yes' if r['identical'] else 'NO':>11}"
+        )
+    print(json.dumps({"map_size": args.map_size, "repeats": args.repeats, "rows": rows}))
+
+
+if __name__ == "__main__":
+    main()
