@@ -28,7 +28,7 @@ from evalkit.metrics.light_visibility import frame_light_vertices
 from gpu_impl import lights as gpu_lights
 from gpu_impl.context import GLContext
 from gpu_impl.lights import ShadowLights
-from gpu_impl.registry import resolve
+from gpu_impl.registry import METHODS, resolve
 from gpu_impl.scene_buffers import GpuScene
 from gpu_impl.visibility import exact
 
@@ -87,7 +87,7 @@ def main() -> None:
     for name in args.scenes:
         scene = load_scene(name)
         settings = RenderSettings(
-            method="perfect",
+            method=METHODS.default.name,
             strategy="bidirectional",
             directions=32,
             resolution=128,
