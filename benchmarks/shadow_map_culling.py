@@ -59,7 +59,7 @@ def measure(gl: GLContext, scene, settings, vertices, repeats: int) -> dict:
     try:
         fixed_ms = timed(gl, lights.render_shadow_maps, repeats) if lights.fixed_views else 0.0
         vertex_ms = timed(gl, lambda: lights.set_light_vertices(vertices, 0, 0), repeats)
-        commands, _ = lights._draw_commands(range(len(lights.view_records)))
+        commands, _ = lights.draw_commands(range(len(lights.view_records)))
         in_view = commands["count"].sum() / 3 / (len(lights.view_records) * gpu_scene.triangle_count)
         atlas = np.frombuffer(lights.atlas.read(), dtype=np.uint32)
         return {

@@ -431,7 +431,7 @@ class ShadowLights:
         self.gpu_scene.bind()
         self.buffers["SHADOW_VIEWS"].bind_to_storage_buffer(BINDINGS["SHADOW_VIEWS"])
         tiles = [tuple(int(v) for v in self.view_records["tile"][i][:3]) for i in views]
-        commands, counts = self._draw_commands(views)
+        commands, counts = self.draw_commands(views)
         if self.commands is None or self.commands.size < commands.nbytes:
             if self.commands is not None:
                 self.commands.release()
@@ -457,7 +457,7 @@ class ShadowLights:
             set_uniforms(self.second_surfaces, {"corner": (x, y), "width": size})
             self.gl.dispatch(self.second_surfaces, size * size)
 
-    def _draw_commands(self, views) -> tuple[np.ndarray, np.ndarray]:
+    def draw_commands(self, views) -> tuple[np.ndarray, np.ndarray]:
         """Indirect draw commands (`DRAW_COMMAND`) of the triangles each view can see, a command per
         run of consecutive clusters whose boxes reach into the view (`view_clusters`), and how many
         commands each view has."""

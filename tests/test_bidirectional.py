@@ -231,7 +231,7 @@ def test_shadow_maps_drawn_by_the_clusters_each_view_sees_are_those_of_every_tri
 
     def atlas_and_share():
         with vertex_maps(gl, scene, exact_settings(), vertices) as lights:
-            commands, _ = lights._draw_commands(range(len(lights.view_records)))
+            commands, _ = lights.draw_commands(range(len(lights.view_records)))
             drawn = commands["count"].sum() / 3 / (len(lights.view_records) * len(a.faces))
             maps_read = np.frombuffer(lights.atlas.read(), dtype=np.float32)
             return np.concatenate([maps_read.view(np.uint32), np.frombuffer(lights.triangles.read(), np.uint32)]), drawn

@@ -66,6 +66,7 @@ void main() {
     // An emitter sample's views (axis: its emitter's normal) keep only what lies in front of the
     // emitter: its own surface, seen almost edge-on from just in front of it, would fill the texels
     // at its horizon with tiny distances and shadow the light that leaves it at grazing angles.
+    // So do a light vertex's views (axis: its surface's normal).
     if (view.origin.w > 0.5 && any(notEqual(view.axis.xyz, vec3(0.0))) && v_front <= 0.0) discard;
     float dist = light_distance(view, v_position);
     uint t = v_triangle;

@@ -1,8 +1,8 @@
 """Exact shadow maps for light vertices: a cube of shadow maps per vertex, rasterized from the
 scene's triangles (those of the clusters each face sees) into tiles of the shadow atlas
-(shaders/shadow_maps.glsl), looked up with the
-same filtering and bias as the point lights' maps (shaders/light_visibility_exact.glsl). Faces
-wholly behind the vertex's surface are never looked up, so they are not drawn.
+(shaders/shadow_maps.glsl), looked up with the same filtering and bias as the point lights' maps
+(shaders/light_visibility_exact.glsl). Faces wholly behind the vertex's surface are never looked
+up, so they are not drawn.
 """
 
 from __future__ import annotations
