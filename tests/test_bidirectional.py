@@ -203,8 +203,8 @@ def test_exact_shadow_maps_keep_the_nearest_surface_behind_the_first_that_faces_
 
 
 def test_shadow_maps_drawn_by_the_clusters_each_view_sees_are_those_of_every_triangle(gl, monkeypatch):
-    # Balls and boxes over a floor under a point, a spot and a directional light, and light
-    # vertices on the floor and the balls: every kind of view (cube faces with and without an
+    # Balls and a box on a floor under a point, a spot and a directional light, and light
+    # vertices on the floor, the balls and the box: every kind of view (cube faces with and without an
     # axis, a perspective spot view, an orthographic one). Drawing only the clusters whose boxes
     # reach into a view must leave the atlas (distances and the triangles seen) as drawing every
     # triangle into every view does, bit for bit.
