@@ -16,20 +16,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
-import time
 from unittest import mock
 
 import numpy as np
 
 from evalkit.core.scene import load_scene
 from evalkit.core.settings import RenderSettings
-from evalkit.metrics.light_visibility import frame_light_vertices
+from evalkit.metrics.light_visibility import frame_light_vertices, median_ms, vertex_shadow_maps
 from gpu_impl import lights as gpu_lights
 from gpu_impl.context import GLContext
-from gpu_impl.lights import ShadowLights
 from gpu_impl.registry import METHODS, resolve
-from gpu_impl.scene_buffers import GpuScene
 from gpu_impl.visibility import exact
 
 
@@ -37,30 +33,15 @@ def every_cluster(to_clip, origin, axis, lo, hi) -> np.ndarray:
     return np.ones((len(to_clip), len(lo)), dtype=bool)
 
 
-def timed(gl: GLContext, work, repeats: int) -> float:
-    """The median ms of ``work`` over ``repeats`` runs after a warm-up."""
-    times = []
-    for _ in range(repeats + 1):
-        gl.finish()
-        start = time.perf_counter()
-        work()
-        gl.finish()
-        times.append(1e3 * (time.perf_counter() - start))
-    return statistics.median(times[1:])
-
-
 def measure(gl: GLContext, scene, settings, vertices, repeats: int) -> dict:
     """Times of the fixed lights' maps and of the light vertices' maps, the triangles of the clusters
-    that reach into the views over views x triangles, and the atlas' bits (distances, then the triangles seen)."""
-    gpu_scene = GpuScene(gl, scene)
-    resolved = resolve(settings)
-    maps = resolved.units["light_visibility"].maps(gl, gpu_scene, resolved.unit_settings["light_visibility"])
-    lights = ShadowLights(gl, gpu_scene, resolved.settings, maps, 0, len(vertices.positions))
-    try:
-        fixed_ms = timed(gl, lights.render_shadow_maps, repeats) if lights.fixed_views else 0.0
-        vertex_ms = timed(gl, lambda: lights.set_light_vertices(vertices, 0, 0), repeats)
+    that reach into the views over views x triangles, and the atlas' bits (distances, then the
+    triangles seen)."""
+    with vertex_shadow_maps(gl, scene, settings, len(vertices.positions)) as lights:
+        fixed_ms = median_ms(gl, lights.render_shadow_maps, repeats) if lights.fixed_views else 0.0
+        vertex_ms = median_ms(gl, lambda: lights.set_light_vertices(vertices, 0, 0), repeats)
         commands, _ = lights.draw_commands(range(len(lights.view_records)))
-        in_view = commands["count"].sum() / 3 / (len(lights.view_records) * gpu_scene.triangle_count)
+        in_view = commands["count"].sum() / 3 / (len(lights.view_records) * lights.gpu_scene.triangle_count)
         atlas = np.frombuffer(lights.atlas.read(), dtype=np.uint32)
         return {
             "fixed_ms": fixed_ms,
@@ -68,10 +49,6 @@ def measure(gl: GLContext, scene, settings, vertices, repeats: int) -> dict:
             "in_view": float(in_view),
             "bits": np.concatenate([atlas, np.frombuffer(lights.triangles.read(), dtype=np.uint32)]),
         }
-    finally:
-        maps.release()
-        lights.release()
-        gpu_scene.release()
 
 
 def main() -> None:

@@ -26,11 +26,12 @@ from evalkit.metrics.light_visibility import (
     light_shares,
     measure,
     traced_visibility,
+    vertex_shadow_maps,
 )
 from gpu_impl import lights as gpu_lights
-from gpu_impl.lights import LightVertices, ShadowLights
+from gpu_impl.lights import LightVertices
 from gpu_impl.registry import resolve
-from gpu_impl.scene_buffers import GpuScene, solid_triangles
+from gpu_impl.scene_buffers import solid_triangles
 from gpu_impl.visibility.imperfect import DEFAULT_ISM_POINTS
 
 
@@ -134,29 +135,21 @@ def test_imperfect_shadow_maps_agree_with_exact_maps_and_rays_on_most_connection
 
 
 @contextmanager
-def vertex_maps(gl, scene, settings, vertices: LightVertices):
-    """The `ShadowLights` of ``scene`` with the fixed lights' maps and ``vertices``' maps drawn as
-    ``settings`` (resolved) asks; every GL object released after."""
-    gpu_scene = GpuScene(gl, scene)
-    visibility = settings.units["light_visibility"].maps(gl, gpu_scene, settings.unit_settings["light_visibility"])
-    lights = ShadowLights(gl, gpu_scene, settings.settings, visibility, 0, len(vertices.positions))
-    try:
+def vertex_maps(gl, scene, settings: RenderSettings, vertices: LightVertices):
+    """`vertex_shadow_maps` of ``scene`` with the fixed lights' maps and ``vertices``' maps drawn."""
+    with vertex_shadow_maps(gl, scene, settings, len(vertices.positions)) as lights:
         lights.render_shadow_maps()
         lights.set_light_vertices(vertices, 0, 0)
         yield lights
-    finally:
-        visibility.release()
-        lights.release()
-        gpu_scene.release()
 
 
-def exact_settings(size: int = 64, **options):
+def exact_settings(size: int = 64, **options) -> RenderSettings:
     return resolve(
         RenderSettings(
             method="perfect", strategy="bidirectional", light_visibility="exact", light_sample_map_size=size, **options
         ),
         "drop",
-    )
+    ).settings
 
 
 def centre_surfaces(gl, scene, positions: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -251,7 +244,7 @@ def test_a_light_vertex_s_maps_never_hold_its_own_surface(gl):
     # at distances up to 0.24, shadowing what lies beyond them at grazing angles.
     scene = load_scene("cornell-box")
     settings = exact_settings(256, directions=32, resolution=128, bounces=2, frames=1, light_paths=64)
-    vertices = frame_light_vertices(gl, scene, settings.settings, 64)
+    vertices = frame_light_vertices(gl, scene, settings, 64)
     a = scene.arrays()
     with vertex_maps(gl, scene, settings, vertices) as lights:
         seen = np.frombuffer(lights.triangles.read(), np.uint32).reshape(lights.atlas.size[::-1])
@@ -331,7 +324,7 @@ def test_pull_push_fills_every_hole_of_sparse_imperfect_shadow_maps_and_keeps_wh
             ),
             "drop",
         )  # fmt: skip
-        with vertex_maps(gl, scene, resolved, vertices) as lights:
+        with vertex_maps(gl, scene, resolved.settings, vertices) as lights:
             # The atlas' first surfaces; imperfect maps and their filling keep no second ones.
             atlas = np.frombuffer(lights.atlas.read(), dtype=np.float32).reshape(*lights.atlas.size[::-1], 2)
             tiles = lights.view_records["tile"][lights.fixed_views : lights.fixed_views + count]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -65,24 +66,14 @@ def measure(
     """The light vertices' maps of the light visibility ``settings`` names: the median time to make
     them (ms, after one warm-up) and the visibility of every (receiver, vertex) pair (R, V: -1 where
     they do not face each other)."""
-    resolved = resolve(settings)
     count = len(vertices.positions)
-    gpu_scene = GpuScene(gl, scene)
-    maps = resolved.units["light_visibility"].maps(gl, gpu_scene, resolved.unit_settings["light_visibility"])
-    lights = ShadowLights(gl, gpu_scene, settings, maps, 0, count)
-    try:
-        times = []
-        for _ in range(repeats + 1):
-            gl.finish()
-            start = time.perf_counter()
-            lights.set_light_vertices(vertices, settings.seed, 0)
-            gl.finish()
-            times.append(1e3 * (time.perf_counter() - start))
+    with vertex_shadow_maps(gl, scene, settings, count) as lights:
+        ms = median_ms(gl, lambda: lights.set_light_vertices(vertices, settings.seed, 0), repeats)
         positions, normals = receivers
         records = np.zeros((len(positions), 2, 4), dtype=np.float32)
-        records[:, 0, :3] = positions - gpu_scene.centre
+        records[:, 0, :3] = positions - lights.gpu_scene.centre
         records[:, 1, :3] = normals
-        program = gl.program("connection_visibility", **maps.defines())
+        program = gl.program("connection_visibility", **lights.visibility.defines())
         lights.set_uniforms(program, ATLAS_UNIT)
         set_uniforms(program, {"first_vertex": lights.fixed_lights, "vertex_count": count})
         receiver_buffer = gl.buffer(records.tobytes())
@@ -94,10 +85,35 @@ def measure(
         result = np.frombuffer(visible.read(), dtype=np.float32).reshape(len(positions), count).copy()
         receiver_buffer.release()
         visible.release()
+    return {"ms": ms, "visibility": result}
+
+
+@contextmanager
+def vertex_shadow_maps(gl: GLContext, scene: Scene, settings: RenderSettings, count: int):
+    """The `ShadowLights` of ``scene`` with places for ``count`` light vertices, whose maps the light
+    visibility ``settings`` names makes; nothing drawn yet. Its GL objects and the uploaded scene
+    (``lights.gpu_scene``) are released after."""
+    resolved = resolve(settings)
+    gpu_scene = GpuScene(gl, scene)
+    maps = resolved.units["light_visibility"].maps(gl, gpu_scene, resolved.unit_settings["light_visibility"])
+    lights = ShadowLights(gl, gpu_scene, resolved.settings, maps, 0, count)
+    try:
+        yield lights
     finally:
-        lights.release()
+        lights.release()  # and the maps
         gpu_scene.release()
-    return {"ms": statistics.median(times[1:]), "visibility": result}
+
+
+def median_ms(gl: GLContext, work, repeats: int) -> float:
+    """The median host time of ``work`` (ms, around glFinish) over ``repeats`` runs after a warm-up."""
+    times = []
+    for _ in range(repeats + 1):
+        gl.finish()
+        start = time.perf_counter()
+        work()
+        gl.finish()
+        times.append(1e3 * (time.perf_counter() - start))
+    return statistics.median(times[1:])
 
 
 def differing_share(exact: np.ndarray, other: np.ndarray) -> float:

@@ -29,9 +29,9 @@ uniform ivec3 sizes;        // texels a side of levels l - 1, l and l + 1
 uniform ivec3 offsets;      // where levels l - 1, l and l + 1 start in a map's pyramid (level 0: unused)
 uniform uint map_stride;    // floats of one map's pyramid
 
-// The atlas is cleared to the largest float (gpu_impl/visibility/imperfect.py): a hole is that.
+// The atlas is cleared to the largest float, NO_SURFACE (gpu_impl/visibility/imperfect.py): a hole
+// is that, and a distance past HOLE is one.
 #define HOLE 3.0e38
-#define HOLE_VALUE NO_SURFACE
 
 float texel_at(uint m, int l, int size, int offset, ivec2 xy) {
     if (l == 0) return imageLoad(atlas, ivec2(shadow_views[first_view + int(m)].tile.xy) + xy).r;
@@ -59,7 +59,7 @@ void main() {
                 covered += 1.0;
             }
         }
-        store(m, level, sizes.y, offsets.y, xy, covered > 0.0 ? sum / covered : HOLE_VALUE);
+        store(m, level, sizes.y, offsets.y, xy, covered > 0.0 ? sum / covered : NO_SURFACE);
     } else if (texel_at(m, level, sizes.y, offsets.y, xy) >= HOLE) {
         float parent = texel_at(m, level + 1, sizes.z, offsets.z, xy / 2);
         if (parent < HOLE) store(m, level, sizes.y, offsets.y, xy, parent);
