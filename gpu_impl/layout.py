@@ -167,7 +167,13 @@ LIGHT = np.dtype(
 )  # lights.glsl: Light
 # Where a light path starts and what its first vertex leaves (light_paths.glsl).
 LIGHT_PATH_START = np.dtype(
-    [("position", "<f4", 4), ("normal", "<f4", 4), ("radiance", "<f4", 4), ("geometric", "<f4", 4)]
+    [
+        ("position", "<f4", 4),
+        ("normal", "<f4", 4),
+        ("radiance", "<f4", 4),
+        ("geometric", "<f4", 4),
+        ("square_point", "<f4", 4),
+    ]
 )  # light_paths.glsl: LightPathStart
 LIGHT_PATH_VERTEX = np.dtype(
     [("position", "<f4", 4), ("normal", "<f4", 4), ("intensity", "<f4", 4)]

@@ -11,7 +11,8 @@
 //   starts outside the scene.
 // - From a point or spot light it leaves along a direction drawn from the light (uniform over the
 //   sphere, or over the spot's cone), and from a directional light through a point drawn uniformly
-//   on the disk the light's shadow view covers. The first surface is the light's shadow map read
+//   on the disk the light's shadow view covers. These and the environment's disk points come from
+//   the start's point of the unit square, which the host stratifies over the source's paths. The first surface is the light's shadow map read
 //   as a reflective shadow map: the triangle its texel saw (shadow_maps.glsl), met exactly by the
 //   ray. The texel stands for the ray, as a bundle pixel stands for a ray.
 // - Every later vertex takes a uniformly chosen bundle of the frame, but not the one it arrived
@@ -117,10 +118,10 @@ vec3 around(vec3 a, float cos_theta, float phi) {
     return sin_theta * cos(phi) * t + sin_theta * sin(phi) * b + cos_theta * a;
 }
 
-// A point uniform on the frame's disk across omega (the bundle lines' plane, behind every node),
-// where light along omega enters the scene.
-vec3 disk_origin(vec3 omega, uvec4 r) {
-    vec3 disk = around(omega, 0.0, 2.0 * PI * unit_float(r.y)) * (radius * sqrt(unit_float(r.x)));
+// The point of the frame's disk across omega (the bundle lines' plane, behind every node) where light
+// along omega enters the scene, from point u of the unit square (uniform there: uniform on the disk).
+vec3 disk_origin(vec3 omega, vec2 u) {
+    vec3 disk = around(omega, 0.0, 2.0 * PI * u.y) * (radius * sqrt(u.x));
     return disk - radius * omega;
 }
 
@@ -135,7 +136,6 @@ void main() {
     vec3 alpha;      // the throughput arriving at y
     float mis;       // L of y
     int arrived = -1;  // the bundle y was reached along (none from a light's shadow map)
-    uvec4 r = pcg4d(uvec4(id, 0xFFFFFFFFu, seed, frame));
     // Path i leaves along bundle (i + o) mod K, o one random shift per frame: each path's bundle is
     // still uniform and independent of its start, but the frame's paths spread over the bundles
     // instead of doubling up. Paths from a small emitter that take the same bundle land side by
@@ -165,9 +165,9 @@ void main() {
         // Into the scene along omega from a point of the frame's disk: the first node beyond it,
         // as a step over the bundles finds it.
         int k = spread;
-        bool forward = (r.z & 1u) == 0u;
+        bool forward = (pcg4d(uvec4(id, 0xFFFFFFFFu, seed, frame)).z & 1u) == 0u;
         vec3 omega = forward ? frames[k].d.xyz : -frames[k].d.xyz;
-        y = landed(bundle_step(k, forward, disk_origin(omega, r), omega), omega);
+        y = landed(bundle_step(k, forward, disk_origin(omega, start.square_point.xy), omega), omega);
         if (!y.found) return;
         alpha = environment(-omega) / b_start;
         // L_{n-1} = a_n^2 / (b_n b_{n-1})^2: the eye path reaches the environment along -omega
@@ -181,16 +181,16 @@ void main() {
         vec3 origin, omega;
         if (light.position.w == LIGHT_DIRECTIONAL) {
             omega = light.direction.xyz;
-            origin = disk_origin(omega, r);
+            origin = disk_origin(omega, start.square_point.xy);
             alpha = light.intensity.rgb / light.paths.x;
         } else {
             origin = light.position.xyz;
             if (light.position.w == LIGHT_SPOT) {
-                float cos_theta = 1.0 - unit_float(r.x) * (1.0 - light.direction.w);
-                omega = around(light.direction.xyz, cos_theta, 2.0 * PI * unit_float(r.y));
+                float cos_theta = 1.0 - start.square_point.x * (1.0 - light.direction.w);
+                omega = around(light.direction.xyz, cos_theta, 2.0 * PI * start.square_point.y);
                 alpha = light.intensity.rgb * spot_falloff(light, cos_theta);
             } else {
-                omega = around(vec3(0.0, 0.0, 1.0), 1.0 - 2.0 * unit_float(r.x), 2.0 * PI * unit_float(r.y));
+                omega = around(vec3(0.0, 0.0, 1.0), 1.0 - 2.0 * start.square_point.x, 2.0 * PI * start.square_point.y);
                 alpha = light.intensity.rgb;
             }
             alpha /= light.paths.x;  // V q p(omega)
