@@ -329,10 +329,11 @@ def bundle_lookup(
     ``arrays`` is the scene's `SceneArrays` (the triangles' corners and planes). Per vertex: the
     direction taken (d_k or -d_k, in the shading hemisphere), whether it leaves the geometric
     surface, the node landed on (index into the set's nodes, -1: none), the landing point, and
-    whether it lies on the node's surface (the ray's own point on it) or is the node, where it
-    lies, of the nearest line that meets a surface where the lines' vote says the ray meets one
-    (shaders/bundle_step.glsl says how they vote). The four lines around the vertex are searched
-    as the shader searches them."""
+    whether it lies on the node's surface (the ray's own point on it) or is a node where it lies:
+    the heaviest line's where lines that meet a surface smaller than a pixel in front of the ray's
+    point weigh more than half, else the nearest line's that meets a surface where the lines' vote
+    says the ray meets one (shaders/bundle_step.glsl says why and how they vote). The four lines
+    around the vertex are searched as the shader searches them."""
     ds = bundles.directions
     R, h = bundles.resolution, bundles.pixel_size()
     d, u, v = ds.directions[k], ds.axis_u[k], ds.axis_v[k]
@@ -355,6 +356,7 @@ def bundle_lookup(
     plane = arrays.tri_normal[bundles.node_triangle()]
     on_surface = _on_surface_test(bundles, arrays)
     own_surface = _own_surface_test(bundles, plane)
+    smaller_than_pixel = _smaller_than_pixel(bundles, arrays)
     bias = self_hit_bias * h
     node = np.full(len(k), -1, np.int64)
     point = np.full((len(k), 3), np.nan)
@@ -365,6 +367,7 @@ def bundle_lookup(
         hit_t, near_distance, near_origin = 0.0, 4.0, None  # near_*: the nearest line meeting a surface
         meet_votes = leave_votes = 0  # the lines' votes (shaders/bundle_step.glsl)
         near_voter, near_voter_meets = 4.0, False
+        blockers, total = [], 0.0  # (weight, t, node, origin) of lines meeting a surface smaller than a pixel
         for c in range(4):
             pixel = corner[i] + (c & 1, c >> 1)
             if pixel.min() < 0 or pixel.max() >= R:
@@ -382,6 +385,8 @@ def bundle_lookup(
             voter = crossing <= depth or j > lo if f else crossing >= depth or j < hi
             to_line = np.array([c & 1, c >> 1]) - offset[i]
             distance, meets = to_line @ to_line, False
+            weight = (1.0 - abs(to_line[0])) * (1.0 - abs(to_line[1]))
+            total += weight
             j = j if f else j - 1
             # The first node whose plane the ray from the vertex reaches.
             while lo <= j < hi:
@@ -389,8 +394,11 @@ def bundle_lookup(
                 along = np.dot(plane[j], o)
                 if gap * along > 0 and not own_surface(j, x, geometric[i]):
                     t = gap / along
-                    if (hit < 0 or t < hit_t * (1 - 1e-5)) and on_surface(j, x + t * o):
+                    on = on_surface(j, x + t * o)
+                    if (hit < 0 or t < hit_t * (1 - 1e-5)) and on:
                         hit, hit_t = j, t
+                    if not on and smaller_than_pixel(j):
+                        blockers.append((weight, t, j, origin))
                     meets = True
                     if distance < near_distance:
                         near_hit, near_origin, near_distance = j, origin, distance
@@ -399,7 +407,11 @@ def bundle_lookup(
             meet_votes, leave_votes = meet_votes + meets, leave_votes + (voter and not meets)
             if (meets or voter) and distance < near_voter:
                 near_voter, near_voter_meets = distance, meets
-        if hit >= 0:
+        nearer = [b for b in blockers if b[1] < hit_t * (1 - 1e-3)] if hit >= 0 else []
+        if sum(b[0] for b in nearer) > 0.5 * total:  # a surface smaller than a pixel in front
+            _, _, j, origin = max(nearer, key=lambda b: b[0])
+            node[i], point[i] = j, origin + depths[j] * d[i]
+        elif hit >= 0:
             node[i], point[i], landed[i] = hit, x + hit_t * o, True
         elif meet_votes > leave_votes or (meet_votes == leave_votes and near_voter_meets):  # the lines' vote
             node[i], point[i] = near_hit, near_origin + depths[near_hit] * d[i]
@@ -419,6 +431,18 @@ def _own_surface_test(bundles: BundleSet, plane):
         return plane[j] @ ng > 0 and abs(along) <= r and q @ q - along * along <= r * r
 
     return covers
+
+
+def _smaller_than_pixel(bundles: BundleSet, arrays):
+    """Whether node j's surface is smaller than a bundle pixel, as shaders/bundle_hits.glsl tells: a
+    splat's diameter, or its triangle's longest edge."""
+    h = bundles.pixel_size()
+    if bundles.has_splats:
+        small = 2.0 * float(bundles.params["splat_radius"]) < h
+        return lambda j: small
+    corners = arrays.positions[arrays.faces[bundles.node_triangle()]]
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    return lambda j: longest[j] < h
 
 
 def _on_surface_test(bundles: BundleSet, arrays):

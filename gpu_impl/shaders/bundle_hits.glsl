@@ -81,3 +81,16 @@ bool on_node_surface(uint ref, vec3 y) {
     return b.x >= -1e-4 && b.y >= -1e-4 && b.x + b.y <= 1.0 + 1e-4;
 #endif
 }
+
+// Whether a node's surface is smaller than a bundle pixel (h, the lines' spacing): a triangle whose
+// longest edge, or a splat whose diameter, is shorter. Lines a pixel apart cannot tell a ray's miss
+// of such a triangle or splat from a miss of the surface it is part of (bundle_step.glsl).
+bool smaller_than_pixel(uint ref, float h) {
+#if NODE_REFERENCE == NODE_SPLAT_POINT
+    return 2.0 * splat_radius < h;
+#else
+    uvec3 v = triangle_vertices(ref);
+    vec3 a = vertex_position(v.x), b = vertex_position(v.y), c = vertex_position(v.z);
+    return max(max(dot(b - a, b - a), dot(c - b, c - b)), dot(a - c, a - c)) < h * h;
+#endif
+}
