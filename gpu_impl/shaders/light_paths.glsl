@@ -11,10 +11,11 @@
 //   starts outside the scene.
 // - From a point or spot light it leaves along a direction drawn from the light (uniform over the
 //   sphere, or over the spot's cone), and from a directional light through a point drawn uniformly
-//   on the disk the light's shadow view covers. These and the environment's disk points come from
-//   the start's point of the unit square, which the host stratifies over the source's paths. The first surface is the light's shadow map read
+//   on the disk the light's shadow view covers. The first surface is the light's shadow map read
 //   as a reflective shadow map: the triangle its texel saw (shadow_maps.glsl), met exactly by the
 //   ray. The texel stands for the ray, as a bundle pixel stands for a ray.
+// - These directions and disk points, and the environment's disk points, come from the start's
+//   point of the unit square, which the host stratifies over each source's paths.
 // - Every later vertex takes a uniformly chosen bundle of the frame, but not the one it arrived
 //   along, and its next node.
 //
