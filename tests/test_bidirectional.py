@@ -403,20 +403,19 @@ def test_bidirectional_images_stay_finite_where_vertices_nearly_meet(gl):
 
 
 def gpu_light_paths(gl, scene: Scene, settings: RenderSettings, frames: int):
-    """The frames' light paths: per frame, each path's source (`LightSources.ids`) and the (V, B)
-    records it left; the sources' probabilities, and the bundle centre and radius they used."""
-    out = []
+    """The records the frames' light paths left (`LIGHT_PATH_VERTEX`, a row of B per path, the
+    frames' rows one after another), and the bundle centre and radius they used."""
+    rows = []
     with Renderer(gl, scene, settings) as renderer:
         strategy = renderer.strategy
         renderer.lights.render_shadow_maps()
         for frame in range(frames):
             renderer.tracer.build(DirectionSet.make(settings.directions, seed=settings.seed, frame=frame, jitter=True))
-            source = strategy.sources.starts(settings.seed, frame, strategy.emitter_samples)["position"][:, 3]
             strategy.light_vertices(settings.seed, frame)
             left = gl.read(strategy.buffers["LIGHT_PATH_VERTICES"], LIGHT_PATH_VERTEX)
-            out.append((source, left[: strategy.light_paths * strategy.bounces].reshape(strategy.light_paths, -1)))
-        sources, centre, radius = strategy.sources, renderer.gpu_scene.centre, renderer.gpu_scene.radius
-    return out, dict(zip(sources.ids, sources.probabilities)), centre, radius
+            rows.append(left[: strategy.light_paths * strategy.bounces].reshape(strategy.light_paths, -1))
+        centre, radius = renderer.gpu_scene.centre, renderer.gpu_scene.radius
+    return np.concatenate(rows), centre, radius
 
 
 def traced_light_flux(scene: Scene, light: Light, centre, radius: float, bounces: int, paths: int, seed: int):
@@ -488,8 +487,7 @@ def test_light_paths_from_fixed_lights_carry_the_flux_that_embree_light_paths_do
     settings = exact_settings(bounces=2, directions=32, resolution=128, light_paths=paths, width=8, height=8, seed=4)
     for index, light in enumerate(scene.lights):
         alone = replace(scene, lights=[light])  # all of the light paths start at this light
-        frames, _, centre, radius = gpu_light_paths(gl, alone, settings, frames=16)
-        left = np.concatenate([records for _, records in frames])
+        left, centre, radius = gpu_light_paths(gl, alone, settings, frames=16)
         traced = traced_light_flux(alone, light, centre, radius, bounces=2, paths=400_000, seed=index)
         for d in range(2):
             # Each path's intensity there (alpha albedo / pi) times V q, q = 1.
@@ -544,8 +542,7 @@ def test_light_path_steps_over_the_bundles_land_on_the_first_surface_along_their
     # meeting atrium's columns, whose facets are a sixth of a pixel wide, stopped the step there.
     scene = load_scene("atrium")
     settings = exact_settings(bounces=3, directions=32, resolution=128, light_paths=1024, width=8, height=8, seed=3)
-    frames, _, centre, radius = gpu_light_paths(gl, scene, settings, frames=6)
-    left = np.concatenate([records for _, records in frames])
+    left, centre, radius = gpu_light_paths(gl, scene, settings, frames=6)
     steps = (left["position"][:, 1:, 3] > 0) & (left["position"][:, :-1, 3] > 0)
     position = left["position"][..., :3].astype(np.float64) + centre
     start, end = position[:, :-1][steps], position[:, 1:][steps]

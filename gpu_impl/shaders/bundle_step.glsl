@@ -126,7 +126,7 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng) {
     // surface it is part of (a column of facets a sixth of a pixel wide, a curtain). It does, where
     // the lines that meet it weigh more than half of all four, bilinearly: the ray then lands on
     // the heaviest of those lines' nodes, where it lies. Without this, 9 % of the lookups from
-    // atrium's eye vertices at R = 128 landed a pixel or more behind the ray's first surface, and
+    // atrium's eye vertices at R = 128 landed over half a pixel behind the ray's first surface, and
     // 1.6 % in front of it; with it, 5.6 and 2.7 % (docs/MEASURED_FACTS.md).
     bool on_surface = hit != NO_NODE;
     if (on_surface) {
