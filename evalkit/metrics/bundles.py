@@ -440,9 +440,10 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
     if bundles.has_splats:
         small = 2.0 * float(bundles.params["splat_radius"]) < h
         return lambda j: small
-    corners = arrays.positions[arrays.faces[bundles.node_triangle()]]
-    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
-    return lambda j: longest[j] < h
+    triangles = bundles.node_triangle()
+    corners = arrays.positions[arrays.faces]  # per triangle, not per node: nodes are many more
+    small = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1) < h
+    return lambda j: small[triangles[j]]
 
 
 def _on_surface_test(bundles: BundleSet, arrays):
