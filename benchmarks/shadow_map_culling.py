@@ -40,7 +40,7 @@ def measure(gl: GLContext, scene, settings, vertices, repeats: int) -> dict:
     with vertex_shadow_maps(gl, scene, settings, len(vertices.positions)) as lights:
         fixed_ms = median_ms(gl, lights.render_shadow_maps, repeats) if lights.fixed_views else 0.0
         vertex_ms = median_ms(gl, lambda: lights.set_light_vertices(vertices, 0, 0), repeats)
-        commands, _ = lights.draw_commands(range(len(lights.view_records)))
+        commands = lights.draw_commands(range(len(lights.view_records)))
         in_view = commands["count"].sum() / 3 / (len(lights.view_records) * lights.gpu_scene.triangle_count)
         atlas = np.frombuffer(lights.atlas.read(), dtype=np.uint32)
         return {

@@ -24,6 +24,7 @@ from gpu_impl.shader_source import COMPILED, program_sources, variant_key
 
 GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
 GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX = 0x9049  # in KiB
+GL_CLIP_DISTANCE0 = 0x3000
 GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT = 0x8236, 0x8D94, 0x1405
 
 
@@ -133,14 +134,19 @@ class GLContext:
         shader.run(gx, math.ceil(max(1, groups) / gx))
         self.ctx.memory_barrier()
 
-    def draw(self, vertex_array, mode: int, framebuffer, depth_test: bool, commands=None, **kw) -> None:
+    def draw(
+        self, vertex_array, mode: int, framebuffer, depth_test: bool, commands=None, clip_distances: int = 0, **kw
+    ) -> None:
         """Draw ``vertex_array`` into ``framebuffer`` (no face culling, no blending; the depth test
         only when asked), then a barrier: what its shaders wrote to storage is visible after it.
         ``commands``: (buffer, count, first) to draw ``count`` indirect commands of ``buffer`` from
-        its ``first``, instead of the whole array."""
+        its ``first``, instead of the whole array. ``clip_distances``: how many gl_ClipDistance the
+        vertex shader writes (enabled for this draw only)."""
         framebuffer.use()
         self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         (self.ctx.enable if depth_test else self.ctx.disable)(moderngl.DEPTH_TEST)
+        for i in range(clip_distances):
+            self.ctx.enable_direct(GL_CLIP_DISTANCE0 + i)
         if mode == moderngl.POINTS:  # splats size themselves (gl_PointSize)
             self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
         if commands is None:
@@ -148,6 +154,8 @@ class GLContext:
         else:
             buffer, count, first = commands
             vertex_array.render_indirect(buffer, mode, count=int(count), first=int(first))
+        for i in range(clip_distances):
+            self.ctx.disable_direct(GL_CLIP_DISTANCE0 + i)
         self.ctx.disable(moderngl.DEPTH_TEST)
         self.ctx.memory_barrier()
 

@@ -4,8 +4,9 @@ Point, spot and directional lights (the fixed lights) get shadow maps in one atl
 light one orthographic view fitted to the bounding sphere, a spot light one perspective view over
 its cone (six when the cone is wider than a cube face), a point light six cube faces. Each cube
 face is widened by two texels so that filtering near a face's edge reads rendered texels. A view
-draws only the clusters of triangles (runs of the scene's order) whose boxes reach into it, by one
-indirect multi-draw (`view_clusters`): a cube face sees a sixth of the space around its light.
+draws only the clusters of triangles (runs of the scene's order) whose boxes reach into it
+(`view_clusters`): a cube face sees a sixth of the space around its light. Every view of a pass
+is drawn by one indirect multi-draw (shaders/shadow_maps.glsl).
 
 Light vertices are points that light the scene for one frame, each a point light whose intensity
 falls as the cosine to its surface's normal: the path strategy says which (the eye paths' emitter
@@ -154,13 +155,16 @@ def _face_normals(triangles: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
-def pack_tiles(sizes: list[int], max_side: int) -> tuple[list[tuple[int, int]], tuple[int, int]]:
+def pack_tiles(
+    sizes: list[int], max_side: int, new_row: int | None = None
+) -> tuple[list[tuple[int, int]], tuple[int, int]]:
     """Square tiles of the given sides (largest first) packed row by row into one atlas: the tiles'
-    corners and the atlas size."""
+    corners and the atlas size. ``new_row``: the index of a tile that starts a row, so that the
+    tiles from it on fill rows of their own (one clear covers them)."""
     side = max(max(sizes), 1 << math.ceil(math.log2(math.sqrt(sum(s * s for s in sizes)))))
     corners, x, y, row = [], 0, 0, 0
-    for s in sizes:
-        if x + s > side:
+    for i, s in enumerate(sizes):
+        if x + s > side or (i == new_row and x > 0):
             x, y, row = 0, y + row, 0
         corners.append((x, y))
         x, row = x + s, max(row, s)
@@ -173,24 +177,40 @@ def pack_tiles(sizes: list[int], max_side: int) -> tuple[list[tuple[int, int]], 
     return corners, size
 
 
-def cube_views(position: np.ndarray, far: float, size: int, axis: np.ndarray | None = None) -> list:
-    """The six views of a cube map at ``position`` (relative to the bundle centre), in the order of
-    `CUBE_FACES`, each widened by `GUARD_TEXELS`; ``axis``: the surface normal of a light vertex
-    (shaders/shadow_maps.glsl keeps only what lies in front of it), else none."""
-    near = max(far * 1e-5, 1e-30)
+class Views(NamedTuple):
+    """N shadow views (lights.glsl: ShadowView): their clip matrices (N, 4, 4; acting on column
+    vectors of positions relative to the bundle centre), texel size terms (N,), origins (N, 3),
+    whether each is perspective (N,), axes (N, 3) and farthest distances (N,)."""
+
+    to_clip: np.ndarray
+    texel: np.ndarray
+    origin: np.ndarray
+    perspective: np.ndarray
+    axis: np.ndarray
+    far: np.ndarray
+
+
+def cube_views(positions: np.ndarray, far: np.ndarray, size: int, axes: np.ndarray | None = None) -> Views:
+    """The six views of a cube map at each of ``positions`` (M, 3; relative to the bundle centre),
+    seeing as far as ``far`` (M,): 6 M views, each cube's in the order of `CUBE_FACES`, each
+    widened by `GUARD_TEXELS`. ``axes``: the surface normals of light vertices (M, 3;
+    shaders/shadow_maps.glsl keeps only what lies in front of them), else none."""
+    positions, far = np.atleast_2d(positions).astype(np.float64), np.atleast_1d(far).astype(np.float64)
+    m = len(positions)
     tan_half = 1.0 + 2.0 * GUARD_TEXELS / size
-    axis = np.zeros(3) if axis is None else axis
-    return [
-        (
-            perspective(tan_half, near, far) @ look_at_view(position, np.array(face, dtype=np.float64)),
-            2.0 * tan_half / size,
-            position,
-            True,
-            axis,
-            far,
-        )
-        for face in CUBE_FACES
-    ]
+    projection = np.stack([perspective(tan_half, max(f * 1e-5, 1e-30), f) for f in far])  # (M, 4, 4)
+    faces = np.stack([look_at_view(np.zeros(3), np.array(face, dtype=np.float64)) for face in CUBE_FACES])
+    views = np.broadcast_to(faces, (m, 6, 4, 4)).copy()
+    views[:, :, :3, 3] = -np.einsum("fij,mj->mfi", faces[:, :3, :3], positions)
+    axes = np.zeros((m, 3)) if axes is None else axes
+    return Views(
+        np.einsum("mij,mfjk->mfik", projection, views).reshape(6 * m, 4, 4),
+        np.full(6 * m, 2.0 * tan_half / size),
+        positions.repeat(6, axis=0),
+        np.ones(6 * m, dtype=bool),
+        axes.repeat(6, axis=0),
+        far.repeat(6),
+    )
 
 
 def view_clusters(
@@ -219,6 +239,13 @@ def view_clusters(
         # The most any point of the box gets from the plane: at the corner its normal points to.
         seen &= plane[:, :3] @ centre.T + np.abs(plane[:, :3]) @ half.T + plane[:, 3:] >= 0.0
     return seen
+
+
+def single_view(to_clip, texel, origin, perspective_view, axis, far) -> Views:
+    """One shadow view as `Views`."""
+    return Views(
+        to_clip[None], np.array([texel]), origin[None], np.array([perspective_view]), axis[None], np.array([far])
+    )
 
 
 def look_at_view(eye: np.ndarray, forward: np.ndarray) -> np.ndarray:
@@ -285,11 +312,11 @@ class ShadowLights:
         self.records_count = records_count = self.count + path_vertices
         records, views = [], []
         for light in lights:
-            first = len(views)
-            views += self._views(light)
-            records.append(self._record(light, first, len(views) - first))
+            first = sum(len(v.texel) for v in views)
+            views.append(self._views(light))
+            records.append(self._record(light, first, len(views[-1].texel)))
         # The light vertices' records and views (redrawn every frame) follow these.
-        self.fixed_lights, self.fixed_views = len(records), len(views)
+        self.fixed_lights, self.fixed_views = len(records), sum(len(v.texel) for v in views)
         self.buffers = {}
         self.atlas = self.framebuffer = self.triangles = None
         self.facing = ()
@@ -303,11 +330,16 @@ class ShadowLights:
                     f"limit of {gl.limit('GL_MAX_TEXTURE_SIZE')} a side; lower the light samples, the light paths "
                     "or their maps' size"
                 )
-            sizes = [self.map_size] * len(views) + [visibility.map_size] * (per_vertex * self.light_vertices)
-            self.tiles, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"))
+            sizes = [self.map_size] * self.fixed_views + [visibility.map_size] * (per_vertex * self.light_vertices)
+            corners, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"), new_row=self.fixed_views)
+            self.tiles = np.array(corners, dtype=np.float64).reshape(-1, 2)
+            # The light vertices' tiles fill the rows from here on (`clear_vertex_tiles`).
+            self.vertex_row = int(self.tiles[self.fixed_views, 1]) if self.light_vertices else atlas_size[1]
             self.view_records = np.zeros(len(sizes), dtype=SHADOW_VIEW)
-            for i, view in enumerate(views):
-                self.set_view(i, view, self.map_size)
+            first = 0
+            for view in views:
+                self.set_views(first, view, self.map_size)
+                first += len(view.texel)
             self.records = np.zeros(records_count, dtype=LIGHT)
             for i, record in enumerate(records):
                 self.records[i] = record
@@ -328,17 +360,20 @@ class ShadowLights:
                     gl.fill_texture(texture, NO_SURFACE_BITS)  # then kept so by the second-surface pass
                 self.second_surfaces = gl.program("shadow_second_surface")
             self.program = gl.program("shadow_maps", SECOND_SURFACES=int(self.second_surfaces is not None))
-            self.vao = gpu_scene.vertex_array(self.program)
+            # Each view's index, an instanced attribute that a draw command's base instance picks.
+            self.view_indices = gl.buffer(np.arange(len(sizes), dtype=np.uint32).tobytes())
+            self.vao = gpu_scene.vertex_array(self.program, (self.view_indices, "1u/i", "in_view"))
             self.commands = None  # `draw`'s indirect draw commands, grown as needed
 
-    def set_view(self, i: int, view: tuple, size: int) -> None:
-        """Shadow view ``i`` of the atlas: (to_clip, texel size term, origin, perspective?, axis,
-        farthest distance), in a tile ``size`` texels a side."""
-        to_clip, texel, origin, perspective_view, axis, far = view
-        self.view_records["to_clip"][i] = to_clip.T  # GLSL matrices are column-major
-        self.view_records["tile"][i] = (*self.tiles[i], size, texel)
-        self.view_records["origin"][i] = (*origin, 1.0 if perspective_view else 0.0)
-        self.view_records["axis"][i] = (*axis, 1.0 / far)
+    def set_views(self, first: int, views: Views, size: int) -> None:
+        """Shadow views ``first`` on of the atlas, in tiles ``size`` texels a side."""
+        rows = slice(first, first + len(views.texel))
+        records = self.view_records[rows]
+        records["to_clip"] = views.to_clip.transpose(0, 2, 1)  # GLSL matrices are column-major
+        records["tile"] = np.column_stack([self.tiles[rows], np.full(len(views.texel), size), views.texel])
+        records["origin"] = np.column_stack([views.origin, views.perspective])
+        records["axis"] = np.column_stack([views.axis, 1.0 / views.far])
+        self.view_records[rows] = records
 
     def set_light_path_densities(self, densities: np.ndarray) -> None:
         """Each fixed light's density of starting a light path (Light.paths.x, lights.glsl)."""
@@ -357,18 +392,17 @@ class ShadowLights:
         count = len(positions)
         depths = np.zeros(count) if vertices.depths is None else vertices.depths
         mis = np.zeros(count) if vertices.mis is None else vertices.mis
-        rows = zip(positions, vertices.normals, vertices.intensities, vertices.densities, depths, mis)
-        for m, (position, normal, intensity, density, depth, share) in enumerate(rows):
-            first = self.fixed_views + per_vertex * m
-            kind = LIGHT_KINDS["emitter_sample" if depth == 0 else "light_path_vertex"]
-            record = (
-                (*position, kind),
-                (*normal, 0.0),
-                (*intensity, 0.0),
-                (density, 0.0, first, per_vertex),
-                (share, depth, 0.0, 0.0),
-            )
-            self.records[self.fixed_lights + m] = record
+        kinds = np.where(depths == 0, LIGHT_KINDS["emitter_sample"], LIGHT_KINDS["light_path_vertex"])
+        records = np.zeros(count, dtype=LIGHT)
+        records["position"] = np.column_stack([positions, kinds])
+        records["direction"][:, :3] = vertices.normals
+        records["intensity"][:, :3] = vertices.intensities
+        first_views = self.fixed_views + per_vertex * np.arange(count)
+        records["shape"] = np.column_stack(
+            [vertices.densities, np.zeros(count), first_views, np.full(count, per_vertex)]
+        )
+        records["paths"][:, :2] = np.column_stack([mis, depths])
+        self.records[self.fixed_lights : self.fixed_lights + count] = records
         self.visibility.render(self, positions, vertices.normals, seed, frame)
 
     def upload(self) -> None:
@@ -378,15 +412,15 @@ class ShadowLights:
 
     # -- views ---------------------------------------------------------------------------
 
-    def _views(self, light: Light) -> list:
-        """(to_clip, texel size term, origin, perspective?, axis, farthest distance) per shadow view."""
+    def _views(self, light: Light) -> Views:
+        """The light's shadow views."""
         centre, r = self.gpu_scene.centre, self.gpu_scene.radius
         s = self.map_size
         if light.kind == "directional":
             d = np.asarray(light.direction, dtype=np.float64)
             eye = -r * d  # relative to the bundle centre: the plane distances start from
             to_clip = orthographic(r, 0.0, 2.0 * r) @ look_at_view(eye, d)
-            return [(to_clip, 2.0 * r / s, eye, False, d, 2.0 * r)]
+            return single_view(to_clip, 2.0 * r / s, eye, False, d, 2.0 * r)
         position = np.asarray(light.position, dtype=np.float64) - centre
         far = np.linalg.norm(position) + r
         near = max(far * 1e-5, 1e-30)
@@ -395,7 +429,7 @@ class ShadowLights:
             to_clip = perspective(tan_half, near, far) @ look_at_view(
                 position, np.asarray(light.direction, dtype=np.float64)
             )
-            return [(to_clip, 2.0 * tan_half / s, position, True, np.zeros(3), far)]
+            return single_view(to_clip, 2.0 * tan_half / s, position, True, np.zeros(3), far)
         return cube_views(position, far, s)
 
     def _record(self, light: Light, first_view: int, views: int) -> tuple:
@@ -421,63 +455,77 @@ class ShadowLights:
         """Draw the scene into the tile of every shadow view of the point, spot and directional lights."""
         if self.framebuffer is None:
             return
-        self.draw(range(self.fixed_views), clear=False)
+        # The whole atlas: a triangle texel is read only where a distance is.
+        self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0)
+        self.draw(range(self.fixed_views))
 
-    def draw(self, views, clear: bool) -> None:
-        """Draw the scene into the given views' tiles; ``clear``: clear only those tiles first,
-        else the whole atlas (the first draw)."""
-        if not views:
+    def clear_vertex_tiles(self) -> None:
+        """Clear the light vertices' tiles for their next draw: the atlas' rows from `vertex_row` on."""
+        width, height = self.atlas.size
+        viewport = (0, self.vertex_row, width, height - self.vertex_row)
+        self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0, viewport=viewport)
+
+    def draw(self, views) -> None:
+        """Draw the scene into the given views' tiles (cleared before) in one indirect multi-draw,
+        then find their texels' second surfaces."""
+        views = np.asarray(views, dtype=np.int64)
+        if not len(views):
             return
         self.gpu_scene.bind()
         self.buffers["SHADOW_VIEWS"].bind_to_storage_buffer(BINDINGS["SHADOW_VIEWS"])
-        tiles = [tuple(int(v) for v in self.view_records["tile"][i][:3]) for i in views]
-        commands, counts = self.draw_commands(views)
+        commands = self.draw_commands(views)
         if self.commands is None or self.commands.size < commands.nbytes:
             if self.commands is not None:
                 self.commands.release()
             self.commands = self.gl.buffer(reserve=max(commands.nbytes, 2 * DRAW_COMMAND.itemsize))
         self.commands.write(commands.tobytes())
-        firsts = np.cumsum(counts) - counts
         for texture, unit in zip(self.facing, FACING_IMAGE_UNITS):
             texture.bind_to_image(unit, read=True, write=True)
-        if not clear:  # a triangle texel is read only where a distance is
-            self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0)
-        for i, (x, y, size), count, first in zip(views, tiles, counts, firsts):
-            self.framebuffer.viewport = (x, y, size, size)
-            if clear:
-                self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0, viewport=self.framebuffer.viewport)
-            if count:
-                self.program["view_index"] = i
-                commands = (self.commands, count, first)
-                self.gl.draw(self.vao, moderngl.TRIANGLES, self.framebuffer, depth_test=True, commands=commands)
+        self.framebuffer.viewport = (0, 0, *self.atlas.size)
+        self.program["atlas_size"] = self.atlas.size
+        if len(commands):
+            draw = (self.commands, len(commands), 0)
+            self.gl.draw(
+                self.vao, moderngl.TRIANGLES, self.framebuffer, depth_test=True, commands=draw, clip_distances=4
+            )
         if self.second_surfaces is None:
             return
+        # One dispatch per run of tiles of one size from the first view to the last: the views
+        # between that were not drawn have nothing to find.
         self.atlas.bind_to_image(0, read=True, write=True)
-        for x, y, size in tiles:
-            set_uniforms(self.second_surfaces, {"corner": (x, y), "width": size})
-            self.gl.dispatch(self.second_surfaces, size * size)
+        lo, hi = int(views.min()), int(views.max()) + 1
+        sizes = self.view_records["tile"][lo:hi, 2].astype(np.int64)
+        starts = [lo, *(lo + 1 + np.nonzero(np.diff(sizes))[0]), hi]
+        for start, end in zip(starts[:-1], starts[1:]):
+            width = int(sizes[start - lo])
+            set_uniforms(self.second_surfaces, {"first_view": start, "width": width})
+            self.gl.dispatch(self.second_surfaces, (end - start) * width * width)
 
-    def draw_commands(self, views) -> tuple[np.ndarray, np.ndarray]:
+    def draw_commands(self, views) -> np.ndarray:
         """Indirect draw commands (`DRAW_COMMAND`) of the triangles each view can see, a command per
-        run of consecutive clusters whose boxes reach into the view (`view_clusters`), and how many
-        commands each view has."""
+        run of consecutive clusters whose boxes reach into the view (`view_clusters`), whose base
+        instance is the view (shaders/shadow_maps.glsl: in_view)."""
         lo, hi = self.gpu_scene.cluster_bounds()
         triangles = self.gpu_scene.triangle_count
-        records = self.view_records[list(views)]
-        commands, counts = [], []
-        for chunk in range(0, len(records), VIEWS_PER_CULL):
-            part = records[chunk : chunk + VIEWS_PER_CULL]
+        views = np.asarray(views, dtype=np.int64)
+        commands = []
+        for chunk in range(0, len(views), VIEWS_PER_CULL):
+            part = self.view_records[views[chunk : chunk + VIEWS_PER_CULL]]
             seen = view_clusters(part["to_clip"].transpose(0, 2, 1), part["origin"], part["axis"], lo, hi)
-            for row in seen:
-                edges = np.diff(np.concatenate([[0], row.astype(np.int8), [0]]))
-                starts, ends = np.nonzero(edges > 0)[0], np.nonzero(edges < 0)[0]
-                first = starts * CLUSTER_TRIANGLES
-                last = np.minimum(ends * CLUSTER_TRIANGLES, triangles)
-                command = np.zeros(len(starts), dtype=DRAW_COMMAND)
-                command["count"], command["instances"], command["first"] = 3 * (last - first), 1, 3 * first
-                commands.append(command)
-                counts.append(len(starts))
-        return np.concatenate(commands), np.asarray(counts, dtype=np.int64)
+            # The runs of seen clusters of all the chunk's views at once: rows padded with a cluster
+            # that no view sees, so that no run goes on from one view's row into the next.
+            padded = np.zeros((len(seen), seen.shape[1] + 1), dtype=np.int8)
+            padded[:, :-1] = seen
+            edges = np.diff(np.concatenate([[0], padded.ravel()]))
+            starts, ends = np.nonzero(edges > 0)[0], np.nonzero(edges < 0)[0]
+            row = starts // padded.shape[1]
+            first = (starts - row * padded.shape[1]) * CLUSTER_TRIANGLES
+            last = np.minimum((ends - row * padded.shape[1]) * CLUSTER_TRIANGLES, triangles)
+            command = np.zeros(len(starts), dtype=DRAW_COMMAND)
+            command["count"], command["instances"], command["first"] = 3 * (last - first), 1, 3 * first
+            command["base_instance"] = views[chunk + row]
+            commands.append(command)
+        return np.concatenate(commands)
 
     def defines(self) -> dict:
         return {
@@ -522,7 +570,8 @@ class ShadowLights:
         # RG32F + depth (+ R32UI triangles) (+ 2 R32UI facing surfaces)
         texel = 12 + 4 * (self.triangles is not None) + 4 * len(self.facing)
         atlas = 0 if self.atlas is None else self.atlas.size[0] * self.atlas.size[1] * texel
-        return sum(b.size for b in self.buffers.values()) + atlas + self.visibility.nbytes
+        views = 0 if self.atlas is None else self.view_indices.size
+        return sum(b.size for b in self.buffers.values()) + views + atlas + self.visibility.nbytes
 
     def release(self) -> None:
         for buffer in self.buffers.values():
@@ -531,6 +580,7 @@ class ShadowLights:
         self.visibility.release()
         if self.framebuffer is not None:
             self.vao.release()
+            self.view_indices.release()
             self.framebuffer.release()
             self.atlas.release()
             for texture in self.facing:

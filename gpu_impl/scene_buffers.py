@@ -179,12 +179,13 @@ class GpuScene:
             if name in BINDINGS:
                 buffer.bind_to_storage_buffer(BINDINGS[name])
 
-    def vertex_array(self, program):
+    def vertex_array(self, program, *extra):
         """A new vertex array of the indexed triangles for ``program``: positions, and on each
         triangle's provoking vertex its index (``in_triangle``, for a flat varying); the raster
-        passes read the rest from storage. The caller owns and releases it."""
+        passes read the rest from storage. ``extra``: more (buffer, format, name) content, such as
+        a per-instance attribute. The caller owns and releases it."""
         b = self.buffers
-        content = [(b["POSITIONS"], "3f", "in_position"), (b["RASTER_TRIANGLE"], "1u", "in_triangle")]
+        content = [(b["POSITIONS"], "3f", "in_position"), (b["RASTER_TRIANGLE"], "1u", "in_triangle"), *extra]
         return self.gl.vertex_array(
             program, content, index_buffer=b["RASTER_INDICES"], index_element_size=4, skip_errors=True
         )

@@ -32,11 +32,12 @@ from evalkit.metrics.light_visibility import (
 )
 from gpu_impl import lights as gpu_lights
 from gpu_impl.layout import LIGHT_PATH_VERTEX
-from gpu_impl.lights import LightVertices
+from gpu_impl.lights import NO_SURFACE, LightVertices
 from gpu_impl.registry import resolve
 from gpu_impl.renderer import Renderer
 from gpu_impl.scene_buffers import GpuScene, solid_triangles
 from gpu_impl.strategies.bidirectional import LightSources
+from gpu_impl.visibility.exact import faces_front
 from gpu_impl.visibility.imperfect import DEFAULT_ISM_POINTS
 from references.embree import ExactTracer
 
@@ -240,7 +241,7 @@ def test_shadow_maps_drawn_by_the_clusters_each_view_sees_are_those_of_every_tri
 
     def atlas_and_share():
         with vertex_maps(gl, scene, exact_settings(), vertices) as lights:
-            commands, _ = lights.draw_commands(range(len(lights.view_records)))
+            commands = lights.draw_commands(range(len(lights.view_records)))
             drawn = commands["count"].sum() / 3 / (len(lights.view_records) * len(a.faces))
             maps_read = np.frombuffer(lights.atlas.read(), dtype=np.float32)
             return np.concatenate([maps_read.view(np.uint32), np.frombuffer(lights.triangles.read(), np.uint32)]), drawn
@@ -250,6 +251,35 @@ def test_shadow_maps_drawn_by_the_clusters_each_view_sees_are_those_of_every_tri
     every, all_drawn = atlas_and_share()
     assert all_drawn == 1.0 and drawn < 0.5  # the views did leave out most clusters
     np.testing.assert_array_equal(culled, every)
+
+
+def test_every_shadow_view_of_a_draw_stays_in_its_own_tile(gl):
+    # A pass draws all its views in one draw over the whole atlas, each view's clip space put onto
+    # its tile (shaders/shadow_maps.glsl); clip distances cut each view's triangles at its sides,
+    # as the view's own viewport did. Without them, the floor and the walls, which cross every
+    # view's sides, spill into the tiles around. Each view is drawn alone here, so that a spill
+    # shows wherever it lands.
+    scene = stage_scene(walls=True)
+    a = scene.arrays()
+    chosen = [0, 2 + 300, len(a.faces) - 3]  # the floor, a ball, a wall
+    positions, normals = a.positions[a.faces[chosen]].mean(axis=1), a.tri_normal[chosen]
+    vertices = LightVertices(positions, normals, np.ones((len(chosen), 3)), np.ones(len(chosen)))
+    with vertex_maps(gl, scene, exact_settings(shadow_map_size=128), vertices) as lights:
+        views = [*range(lights.fixed_views), *(lights.fixed_views + np.flatnonzero(faces_front(normals)))]
+        drawn = 0
+        for view in views:
+            lights.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0)
+            lights.draw([view])
+            first = (
+                np.frombuffer(lights.atlas.read(), dtype=np.float32).reshape(*lights.atlas.size[::-1], 2)[..., 0].copy()
+            )
+            x, y, size, _ = lights.view_records["tile"][view].astype(int)
+            inside = first[y : y + size, x : x + size].copy()
+            first[y : y + size, x : x + size] = NO_SURFACE
+            spilled = int((first != NO_SURFACE).sum())
+            assert spilled == 0, f"view {view}: {spilled} texels outside its tile hold a surface"
+            drawn += int((inside != NO_SURFACE).sum())
+    assert drawn > 0.3 * len(views) * 64 * 64
 
 
 def test_a_light_vertex_s_maps_never_hold_its_own_surface(gl):

@@ -1,5 +1,10 @@
-// Shadow maps: the scene drawn once per shadow view into its tile of the atlas (the viewport),
-// storing the distance from the light to the nearest surface. The depth test keeps the nearest;
+// Shadow maps: the scene drawn into the tile of the atlas of each shadow view, storing the distance
+// from the light to the nearest surface. Every view of a pass is one indirect multi-draw: a command
+// per run of clusters a view sees, its base instance the view's index (in_view), so that a pass of
+// hundreds of views (a frame's light vertices' cube maps) costs the GL one call, not a viewport,
+// a clear and a draw per view. The vertex shader puts each view's clip space onto its tile of the
+// atlas-wide viewport, and clip distances cut its triangles at the view's sides, as the viewport's
+// clip volume did when each view had its own. The depth test keeps the nearest;
 // the stored distance is linear (radial or along the light), so the lookup in lights.glsl compares
 // distances in scene units and its bias is in scene units too. The depth test runs on the same
 // linear distance (gl_FragDepth), not on the projection's hyperbolic depth, which a point light's
@@ -24,7 +29,7 @@
 #define SCENE_MATERIALS_ONLY
 #include "scene.glsl"
 
-uniform int view_index;
+uniform vec2 atlas_size;  // in texels
 
 #if defined VERTEX_SHADER
 
@@ -32,24 +37,38 @@ layout(location = 0) in vec3 in_position;  // relative to the bundle centre
 // On the triangle's provoking vertex (scene_buffers.py): gl_PrimitiveID would count from each
 // cluster's draw (gpu_impl/lights.py draws the clusters a view sees).
 layout(location = 1) in uint in_triangle;
+layout(location = 2) in uint in_view;  // per instance: the draw command's base instance
 out vec3 v_position;
+flat out int v_view;
 flat out uint v_triangle;
 // How far the point lies in front of the plane across the view's axis (below), from the vertices:
 // interpolated, it keeps the sign of a triangle that lies wholly behind, as a point interpolated
 // a hair from the view's origin would not (gpu_impl/lights.py culls such triangles by that sign).
 out float v_front;
 
+out float gl_ClipDistance[4];
+
 void main() {
+    ShadowView view = shadow_views[in_view];
     v_position = in_position;
     v_triangle = in_triangle;
-    v_front = dot(in_position - shadow_views[view_index].origin.xyz, shadow_views[view_index].axis.xyz);
-    gl_Position = shadow_views[view_index].to_clip * vec4(in_position, 1.0);
+    v_view = int(in_view);
+    v_front = dot(in_position - view.origin.xyz, view.axis.xyz);
+    vec4 clip = view.to_clip * vec4(in_position, 1.0);
+    gl_ClipDistance[0] = clip.w + clip.x;
+    gl_ClipDistance[1] = clip.w - clip.x;
+    gl_ClipDistance[2] = clip.w + clip.y;
+    gl_ClipDistance[3] = clip.w - clip.y;
+    // The view's [-1, 1] in x and y onto its tile's texels of the atlas' [-1, 1].
+    vec2 scale = view.tile.z / atlas_size, offset = (2.0 * view.tile.xy + view.tile.z) / atlas_size - 1.0;
+    gl_Position = vec4(clip.xy * scale + clip.w * offset, clip.zw);
 }
 
 #elif defined FRAGMENT_SHADER
 
 in vec3 v_position;
 flat in uint v_triangle;
+flat in int v_view;
 in float v_front;
 layout(location = 0) out vec2 out_distance;  // the first surface; the second comes after
 // The triangle seen + 1, where the atlas has a second attachment for it: the fixed lights' maps read
@@ -62,7 +81,7 @@ layout(r32ui, binding = FACING_IMAGE_NEXT) uniform coherent uimage2D facing_next
 #endif
 
 void main() {
-    ShadowView view = shadow_views[view_index];
+    ShadowView view = shadow_views[v_view];
     // An emitter sample's views (axis: its emitter's normal) keep only what lies in front of the
     // emitter: its own surface, seen almost edge-on from just in front of it, would fill the texels
     // at its horizon with tiny distances and shadow the light that leaves it at grazing angles.

@@ -1,7 +1,8 @@
-// The second surface of each texel of a tile of the shadow atlas, after the raster pass
-// (shadow_maps.glsl) kept its two nearest surfaces that face the light: the nearer of them that lies
-// behind the texel's first surface, into the atlas' second channel (lights.glsl: lit_tap). The two
-// are cleared for the tile's next draw here, so that no pass of its own clears them.
+// The second surface of each texel of a run of views' tiles of the shadow atlas (tiles of one size:
+// one dispatch for all of them), after the raster pass (shadow_maps.glsl) kept its two nearest
+// surfaces that face the light: the nearer of them that lies behind the texel's first surface, into
+// the atlas' second channel (lights.glsl: lit_tap). The two are cleared for the tile's next draw
+// here, so that no pass of its own clears them.
 
 #define SHADOW_MAP_RASTER
 #define SHADOW_LIGHTS 1
@@ -15,9 +16,9 @@ layout(rg32f, binding = 0) uniform image2D atlas;
 layout(r32ui, binding = FACING_IMAGE_NEAREST) uniform uimage2D facing_nearest;
 layout(r32ui, binding = FACING_IMAGE_NEXT) uniform uimage2D facing_next;
 
-uniform uint invocations;  // the tile's texels
-uniform ivec2 corner;      // its first texel in the atlas
-uniform int width;         // its side in texels
+uniform uint invocations;  // the tiles' texels
+uniform int first_view;    // the run's first view
+uniform int width;         // its tiles' side in texels
 
 // Distances within this share of each other are one surface: the first surface itself where it
 // faces the light, or coplanar and doubled geometry, which must not shrink the bias to nothing.
@@ -26,7 +27,8 @@ uniform int width;         // its side in texels
 void main() {
     uint id = linear_id();
     if (id >= invocations) return;
-    ivec2 at = corner + ivec2(int(id) % width, int(id) / width);
+    int texels = width * width, texel = int(id) % texels;
+    ivec2 at = ivec2(shadow_views[first_view + int(id) / texels].tile.xy) + ivec2(texel % width, texel / width);
     vec2 drawn = imageLoad(atlas, at).rg;
     float first = drawn.x;
     float behind = first * (1.0 + SAME_SURFACE);

@@ -49,29 +49,27 @@ class ExactShadowMaps:
         """The cube views of the vertices at ``positions`` (relative to the bundle centre), with
         their surfaces' ``normals``, set in the lights' view table after the fixed lights' views,
         and drawn (the same for every ``seed`` and ``frame``)."""
-        far_base = lights.gpu_scene.radius
-        drawn = []
-        for m, (position, normal) in enumerate(zip(positions, normals)):
-            first = lights.fixed_views + self.tiles_per_vertex * m
-            far = float(np.linalg.norm(position)) + far_base
-            # The surface's normal as the views' axis: shaders/shadow_maps.glsl keeps only what is in front.
-            for f, view in enumerate(cube_views(position, far, self.map_size, axis=normal)):
-                lights.set_view(first + f, view, self.map_size)
-                if faces_front(CUBE_FACES[f], normal):
-                    drawn.append(first + f)
+        if not len(positions):
+            return
+        far = np.linalg.norm(positions, axis=1) + lights.gpu_scene.radius
+        # The surface's normal as the views' axis: shaders/shadow_maps.glsl keeps only what is in front.
+        lights.set_views(lights.fixed_views, cube_views(positions, far, self.map_size, axes=normals), self.map_size)
         lights.upload()
-        lights.draw(drawn, clear=True)
+        lights.clear_vertex_tiles()
+        lights.draw(lights.fixed_views + np.flatnonzero(faces_front(normals)))
 
     def release(self) -> None:
         """Nothing of its own: the lights own the atlas."""
 
 
-def faces_front(face: tuple, normal: np.ndarray) -> bool:
-    """Whether any direction of the cube face around axis ``face`` leaves the front of a surface with
-    this normal: the others are never looked up. A face spans tan 45 degrees widened by the guard
-    texels, at most 1 + 2 GUARD_TEXELS / 8 for the smallest map."""
-    a = np.asarray(face, dtype=np.float64)
-    return float(a @ normal) + float(np.abs(normal).sum() - abs(a @ normal)) * (1.0 + 2.0 * GUARD_TEXELS / 8) > 0.0
+def faces_front(normals: np.ndarray) -> np.ndarray:
+    """Per surface normal (M, 3) and cube face (in the order of `CUBE_FACES`), whether any direction
+    of the face leaves the front of the surface: the others are never looked up. (M, 6) booleans.
+    A face spans tan 45 degrees widened by the guard texels, at most 1 + 2 GUARD_TEXELS / 8 for the
+    smallest map."""
+    along = normals @ np.asarray(CUBE_FACES, dtype=np.float64).T  # (M, 6)
+    across = np.abs(normals).sum(axis=1, keepdims=True) - np.abs(along)
+    return along + across * (1.0 + 2.0 * GUARD_TEXELS / 8) > 0.0
 
 
 VISIBILITY = LightVisibility(

@@ -24,7 +24,7 @@ import numpy as np
 
 from evalkit.core.settings import setting
 from gpu_impl.layout import BINDINGS, LIGHT_VISIBILITY_IMPERFECT
-from gpu_impl.lights import NO_SURFACE
+from gpu_impl.lights import Views
 from gpu_impl.units import LightVisibility
 
 DEFAULT_ISM_SIZE = 64
@@ -101,18 +101,20 @@ class ImperfectShadowMaps:
         points (``seed``, ``frame``)."""
         if not len(positions):
             return
-        far_base = lights.gpu_scene.radius
-        tiles = []
-        for m, (position, normal) in enumerate(zip(positions, normals)):
-            i = lights.fixed_views + m
-            far = float(np.linalg.norm(position)) + far_base
-            lights.set_view(i, (np.eye(4), 2.0 / self.map_size, position, True, normal, far), self.map_size)
-            tiles.append(i)
+        m = len(positions)
+        far = np.linalg.norm(positions, axis=1) + lights.gpu_scene.radius
+        views = Views(
+            np.broadcast_to(np.eye(4), (m, 4, 4)),
+            np.full(m, 2.0 / self.map_size),
+            positions,
+            np.ones(m, dtype=bool),
+            normals,
+            far,
+        )
+        lights.set_views(lights.fixed_views, views, self.map_size)
         lights.upload()
+        lights.clear_vertex_tiles()
         fb = lights.framebuffer
-        for i in tiles:
-            x, y, size, _ = lights.view_records["tile"][i]
-            fb.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0, viewport=(int(x), int(y), int(size), int(size)))
         fb.viewport = (0, 0, *lights.atlas.size)
         lights.gpu_scene.bind()  # the area CDF and the triangles the points are drawn on
         for name in ("LIGHTS", "SHADOW_VIEWS"):  # not the atlas itself: it is being drawn into
