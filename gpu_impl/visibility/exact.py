@@ -49,12 +49,12 @@ class ExactShadowMaps:
         """The cube views of the vertices at ``positions`` (relative to the bundle centre), with
         their surfaces' ``normals``, set in the lights' view table after the fixed lights' views,
         and drawn (the same for every ``seed`` and ``frame``)."""
-        if not len(positions):
-            return
-        far = np.linalg.norm(positions, axis=1) + lights.gpu_scene.radius
-        # The surface's normal as the views' axis: shaders/shadow_maps.glsl keeps only what is in front.
-        lights.set_views(lights.fixed_views, cube_views(positions, far, self.map_size, axes=normals), self.map_size)
-        lights.upload()
+        if len(positions):
+            far = np.linalg.norm(positions, axis=1) + lights.gpu_scene.radius
+            # The surface's normal as the views' axis: shaders/shadow_maps.glsl keeps only what is in front.
+            views = cube_views(positions, far, self.map_size, axes=normals)
+            lights.set_views(lights.fixed_views, views, self.map_size)
+        lights.upload()  # the light records too, which every frame sets
         lights.clear_vertex_tiles()
         lights.draw(lights.fixed_views + np.flatnonzero(faces_front(normals)))
 
