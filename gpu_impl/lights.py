@@ -312,11 +312,12 @@ class ShadowLights:
         self.records_count = records_count = self.count + path_vertices
         records, views = [], []
         for light in lights:
-            first = sum(len(v.texel) for v in views)
-            views.append(self._views(light))
-            records.append(self._record(light, first, len(views[-1].texel)))
+            view = self._views(light)
+            records.append(self._record(light, sum(len(v.texel) for v in views), len(view.texel)))
+            views.append(view)
+        fixed = Views(*(np.concatenate(field) for field in zip(*views))) if views else None
         # The light vertices' records and views (redrawn every frame) follow these.
-        self.fixed_lights, self.fixed_views = len(records), sum(len(v.texel) for v in views)
+        self.fixed_lights, self.fixed_views = len(records), 0 if fixed is None else len(fixed.texel)
         self.buffers = {}
         self.atlas = self.framebuffer = self.triangles = None
         self.facing = ()
@@ -336,10 +337,8 @@ class ShadowLights:
             # The light vertices' tiles fill the rows from here on (`clear_vertex_tiles`).
             self.vertex_row = int(self.tiles[self.fixed_views, 1]) if self.light_vertices else atlas_size[1]
             self.view_records = np.zeros(len(sizes), dtype=SHADOW_VIEW)
-            first = 0
-            for view in views:
-                self.set_views(first, view, self.map_size)
-                first += len(view.texel)
+            if fixed is not None:
+                self.set_views(0, fixed, self.map_size)
             self.records = np.zeros(records_count, dtype=LIGHT)
             for i, record in enumerate(records):
                 self.records[i] = record
@@ -482,6 +481,7 @@ class ShadowLights:
         for texture, unit in zip(self.facing, FACING_IMAGE_UNITS):
             texture.bind_to_image(unit, read=True, write=True)
         self.framebuffer.viewport = (0, 0, *self.atlas.size)
+        # Per draw: the context caches one program per variant for every atlas it draws into.
         self.program["atlas_size"] = self.atlas.size
         if len(commands):
             draw = (self.commands, len(commands), 0)
