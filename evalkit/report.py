@@ -68,18 +68,32 @@ def setting_id(row: dict) -> str:
     return run_id({k: v for k, v in parameters(row).items() if k != "seed"})
 
 
+def setting_points(rows: list[dict], x: str, y: str) -> list[tuple[dict, float, float, int]]:
+    """Each setting's first row, median ``x`` and mean ``y`` over its seeds, and how many seeds."""
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        if is_number(r.get(x)) and is_number(r.get(y)) and r[x] > 0 and r[y] > 0:
+            groups.setdefault(setting_id(r), []).append(r)
+    return [
+        (g[0], float(np.median([r[x] for r in g])), float(np.mean([r[y] for r in g])), len(g)) for g in groups.values()
+    ]
+
+
+def loglog_at(points: list[tuple[float, float]], tx: float) -> float | None:
+    """y at ``tx`` on the line through ``points`` (x ascending), linear in log x and log y; None
+    outside their range of x (no extrapolation)."""
+    if not points or not points[0][0] <= tx <= points[-1][0]:
+        return None
+    lx, ly = np.log([p[0] for p in points]), np.log([p[1] for p in points])
+    return float(np.exp(np.interp(math.log(tx), lx, ly)))
+
+
 def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
     """Each bundle setting (the mean of ``y`` and median of ``x`` over its seeds) beside Mitsuba's
     ``y`` at the same ``x`` in the same scene: Mitsuba's seed means interpolated linearly in log x
     and log y. A setting outside Mitsuba's range of x is not compared (no extrapolation). ``ratio``
     below 1 means the bundles are the more accurate at matched time."""
-    groups: dict[str, list[dict]] = {}
-    for r in rows:
-        if is_number(r.get(x)) and is_number(r.get(y)) and r[x] > 0 and r[y] > 0:
-            groups.setdefault(setting_id(r), []).append(r)
-    points = [
-        (g[0], float(np.median([r[x] for r in g])), float(np.mean([r[y] for r in g])), len(g)) for g in groups.values()
-    ]
+    points = setting_points(rows, x, y)
     result = []
     for first, tx, ty, seeds in points:
         mitsuba = sorted(
@@ -89,15 +103,54 @@ def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
             continue
         row = {k: first[k] for k in ("scene", "method", "frames", "spp", "directions", "resolution")}
         row.update({"seeds": seeds, x: tx, y: ty})
-        if mitsuba[0][0] <= tx <= mitsuba[-1][0]:
-            lx, ly = np.log([p[0] for p in mitsuba]), np.log([p[1] for p in mitsuba])
-            row[f"mitsuba_{y}"] = float(np.exp(np.interp(math.log(tx), lx, ly)))
-            row["ratio"] = ty / row[f"mitsuba_{y}"]
+        at = loglog_at(mitsuba, tx)
+        if at is not None:
+            row[f"mitsuba_{y}"] = at
+            row["ratio"] = ty / at
             row["more_accurate"] = "bundles" if row["ratio"] < 1 else "mitsuba"
         else:
             row["more_accurate"] = f"not compared: {x} outside Mitsuba's {mitsuba[0][0]:.3g} to {mitsuba[-1][0]:.3g}"
         result.append(row)
     return sorted(result, key=lambda r: (r["scene"], r["method"], r[x]))
+
+
+def versus_rows(rows: list[dict], x: str, y: str, versus: str, shown: list[str]) -> list[dict]:
+    """Each value of the run parameter ``versus`` (the path strategy, say) given its best settings,
+    against each other value given theirs, per scene: every setting on a value's Pareto front (mean
+    ``y`` over seeds against median ``x``; every other setting of that value is slower or less
+    accurate) beside the other value's front at the same ``x``, interpolated in log-log between its
+    settings (not compared outside its range of x). ``ratio`` below 1: this value is the more
+    accurate at matched x. Fronts, not single settings, so that neither side is judged at a
+    setting that suits only the other (a number of paths per frame, say). ``shown``: the setting
+    columns to print."""
+    points = [p for p in setting_points(rows, x, y) if p[0]["method"] != "mitsuba" and p[0].get(versus) is not None]
+    result = []
+    for scene in dict.fromkeys(p[0]["scene"] for p in points):
+        fronts: dict = {}
+        for value in dict.fromkeys(p[0][versus] for p in points if p[0]["scene"] == scene):
+            mine = sorted((p for p in points if p[0]["scene"] == scene and p[0][versus] == value), key=lambda p: p[1:3])
+            front, best = [], math.inf
+            for p in mine:
+                if p[2] < best:
+                    front.append(p)
+                    best = p[2]
+            fronts[value] = front
+        for value, front in fronts.items():
+            for first, tx, ty, seeds in front:
+                for other, their in fronts.items():
+                    if other == value:
+                        continue
+                    row = {"scene": scene, versus: value, **{k: first.get(k) for k in shown}, "seeds": seeds}
+                    row.update({x: tx, y: ty, "against": other})
+                    at = loglog_at([(p[1], p[2]) for p in their], tx)
+                    if at is None:
+                        row["more_accurate"] = (
+                            f"not compared: {x} outside {other}'s front, {their[0][1]:.3g} to {their[-1][1]:.3g}"
+                        )
+                    else:
+                        row.update({f"against_{y}": at, "ratio": ty / at, "more_accurate": value if ty < at else other})
+                    result.append(row)
+    return result
 
 
 def plot(rows: list[dict], spec: dict, path: Path) -> str:
@@ -219,6 +272,20 @@ def findings(study: Study, ok: list[dict], rows: list[dict]) -> list[str]:
                 f"Mitsuba (ratios {format_value(min(ratios))} to {format_value(max(ratios))}; below 1: the bundles "
                 "are the more accurate)."
             )
+        versus = spec.get("versus")
+        compared = versus_rows(ok, x, y, versus, []) if versus else []
+        for scene, value, other in dict.fromkeys((r["scene"], r[versus], r["against"]) for r in compared):
+            ratios = [
+                r["ratio"]
+                for r in compared
+                if (r["scene"], r[versus], r["against"]) == (scene, value, other) and "ratio" in r
+            ]
+            if ratios:
+                lines.append(
+                    f"{scene}, at matched {x}: {versus} {value}'s best settings have less {y} than {other}'s at "
+                    f"{sum(r < 1 for r in ratios)} of {len(ratios)} of their times (ratios {format_value(min(ratios))} "
+                    f"to {format_value(max(ratios))}; below 1: {value} is the more accurate)."
+                )
     columns = [] if study.plots else [f"{i}_{m}" for i in study.measure["images"] for m in study.measure["metrics"]]
     for column in columns:
         usable = [r for r in ok if is_number(r.get(column))]
@@ -324,6 +391,18 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
                     f"its seeds beside Mitsuba's, interpolated in log-log between Mitsuba's settings of the same "
                     f"scene (ratio below 1: the bundles are the more accurate).</p>"
                     + table_html(matched, list(dict.fromkeys(k for r in matched for k in r)))
+                )
+            versus = spec.get("versus")
+            shown = [k for k in varying(study.runs) if k not in ("scene", "seed", versus)]
+            compared = versus_rows(ok, spec["x"], ys[0], versus, shown) if versus else []
+            if compared:
+                parts.append(
+                    f"<p>{html.escape(versus)} against {html.escape(versus)} at matched {html.escape(spec['x'])}: "
+                    f"each setting on one {html.escape(versus)}'s Pareto front (the mean {html.escape(ys[0])} over its "
+                    f"seeds against the median {html.escape(spec['x'])}) beside the other's front at the same "
+                    f"{html.escape(spec['x'])}, interpolated in log-log; each side is judged at its own best settings "
+                    "(ratio below 1: the first is the more accurate).</p>"
+                    + table_html(compared, list(dict.fromkeys(k for r in compared for k in r)))
                 )
 
     bv = bias_variance_rows(study, ok, out)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import shutil
 
@@ -13,7 +14,7 @@ from conftest import run_evalkit
 
 from evalkit.core.errors import InputError
 from evalkit.core.lock import LOCK_NAME, folder_lock
-from evalkit.report import findings, matched_time_rows
+from evalkit.report import findings, matched_time_rows, versus_rows
 from evalkit.study.executors import run_study
 from evalkit.study.spec import RUN_DEFAULTS, load_study, run_id, study_from_dict
 
@@ -297,3 +298,39 @@ def test_matched_time_compares_each_bundle_setting_with_mitsuba_at_the_same_time
     assert matched[0]["mitsuba_total_relmse"] == pytest.approx(0.5)
     assert matched[0]["ratio"] == pytest.approx(0.6) and matched[0]["more_accurate"] == "bundles"
     assert "ratio" not in matched[1] and matched[1]["more_accurate"].startswith("not compared: wall_s outside")
+
+
+def test_strategies_are_compared_at_matched_time_each_at_its_own_best_settings():
+    def row(strategy, spp, frames, wall_s, error, seed=0):
+        return {
+            **RUN_DEFAULTS,
+            "scene": "a",
+            "strategy": strategy,
+            "spp": spp,
+            "frames": frames,
+            "seed": seed,
+            "wall_s": wall_s,
+            "indirect_relmse": error,
+        }
+
+    # Eye paths: 4 paths a frame are off their front (8 frames of 16 paths are faster and better);
+    # 16 paths: 0.4 at 1 s and 0.1 at 4 s, so 0.2 at 2 s in log-log.
+    rows = [row("eye", 4, 8, 3.0, 0.5), row("eye", 16, 2, 1.0, 0.4), row("eye", 16, 8, 4.0, 0.1)]
+    # Bidirectional paths: 0.1 at 2 s (two seeds, 0.05 and 0.15), and 0.09 at 8 s, beyond eye's front.
+    rows += [row("bidirectional", 4, 2, 2.0, e, seed) for seed, e in ((0, 0.05), (1, 0.15))]
+    rows += [row("bidirectional", 4, 8, 8.0, 0.09)]
+    rows += [row(None, 1, 1, 2.0, 0.01) | {"method": "mitsuba"}]  # not a strategy: left out
+    compared = {
+        (r["strategy"], r["spp"], r["frames"]): r
+        for r in versus_rows(rows, "wall_s", "indirect_relmse", "strategy", ["spp", "frames"])
+    }
+    assert set(compared) == {("eye", 16, 2), ("eye", 16, 8), ("bidirectional", 4, 2), ("bidirectional", 4, 8)}
+    first = compared[("bidirectional", 4, 2)]
+    assert first["seeds"] == 2 and first["indirect_relmse"] == pytest.approx(0.1)
+    assert first["against"] == "eye" and first["against_indirect_relmse"] == pytest.approx(0.2)
+    assert first["ratio"] == pytest.approx(0.5) and first["more_accurate"] == "bidirectional"
+    assert compared[("bidirectional", 4, 8)]["more_accurate"].startswith("not compared: wall_s outside eye's front")
+    # Eye paths' 16-path setting at 4 s against bidirectional paths' front: 0.1 / (0.1 (2/4)^(log 0.9 / log 4)).
+    last = compared[("eye", 16, 8)]
+    assert last["ratio"] == pytest.approx(0.1 / (0.1 * 2.0 ** (math.log(0.9) / math.log(4.0))))
+    assert last["more_accurate"] == "bidirectional"

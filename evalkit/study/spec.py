@@ -26,6 +26,11 @@ A study file (TOML; studies/*.toml are examples)::
     y = ["hole_rate", "redundant_rate"]
     group = "points"
     log = "xy"
+    [[plot]]                # error against time
+    x = "wall_s"
+    y = "indirect_relmse"
+    pareto = true           # the Pareto front, and each setting against Mitsuba at matched x
+    versus = "strategy"     # each strategy's Pareto front against the others' at matched x
 
 Methods: the registered bundle methods (`gpu_impl.registry.METHODS`; rendered with
 `gpu_impl.renderer.Renderer` when images are measured) and ``mitsuba`` (Mitsuba 3 at ``spp``,
@@ -125,6 +130,8 @@ def study_from_dict(spec: dict, path: Path | None = None) -> Study:
     for p in plots:
         if "x" not in p or "y" not in p:
             raise InputError(where, f"a [[plot]] needs x and y, got {sorted(p)}")
+        if "versus" in p and p["versus"] not in PARAMETERS:
+            raise InputError(where, f"a [[plot]]'s versus names a run parameter, got {p['versus']!r}")
     name = spec.get("name") or (path.stem if path else "study")
     return Study(
         name,
