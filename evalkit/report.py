@@ -119,8 +119,8 @@ def versus_rows(rows: list[dict], x: str, y: str, versus: str, shown: list[str])
     against each other value given theirs, per scene: every setting on a value's Pareto front (mean
     ``y`` over seeds against median ``x``; every other setting of that value is slower or less
     accurate) beside the other value's front at the same ``x``, interpolated in log-log between its
-    settings (not compared outside its range of x). ``ratio`` below 1: this value is the more
-    accurate at matched x. Fronts, not single settings, so that neither side is judged at a
+    settings (outside its range of x, not compared: ``ratio`` None). ``ratio`` below 1: this value
+    is the more accurate at matched x. Fronts, not single settings, so that neither side is judged at a
     setting that suits only the other (a number of paths per frame, say). ``shown``: the setting
     columns to print."""
     points = [p for p in setting_points(rows, x, y) if p[0]["method"] != "mitsuba" and p[0].get(versus) is not None]
@@ -143,12 +143,13 @@ def versus_rows(rows: list[dict], x: str, y: str, versus: str, shown: list[str])
                     row = {"scene": scene, versus: value, **{k: first.get(k) for k in shown}, "seeds": seeds}
                     row.update({x: tx, y: ty, "against": other})
                     at = loglog_at([(p[1], p[2]) for p in their], tx)
+                    row.update({f"against_{y}": at, "ratio": None if at is None else ty / at})
                     if at is None:
                         row["more_accurate"] = (
                             f"not compared: {x} outside {other}'s front, {their[0][1]:.3g} to {their[-1][1]:.3g}"
                         )
                     else:
-                        row.update({f"against_{y}": at, "ratio": ty / at, "more_accurate": value if ty < at else other})
+                        row["more_accurate"] = value if ty < at else other
                     result.append(row)
     return result
 
@@ -278,12 +279,12 @@ def findings(study: Study, ok: list[dict], rows: list[dict]) -> list[str]:
             ratios = [
                 r["ratio"]
                 for r in compared
-                if (r["scene"], r[versus], r["against"]) == (scene, value, other) and "ratio" in r
+                if (r["scene"], r[versus], r["against"]) == (scene, value, other) and r["ratio"] is not None
             ]
             if ratios:
                 lines.append(
-                    f"{scene}, at matched {x}: {versus} {value}'s best settings have less {y} than {other}'s at "
-                    f"{sum(r < 1 for r in ratios)} of {len(ratios)} of their times (ratios {format_value(min(ratios))} "
+                    f"{scene}, at matched {x}: {sum(r < 1 for r in ratios)} of {len(ratios)} settings on {versus} "
+                    f"{value}'s Pareto front have less {y} than {other}'s front (ratios {format_value(min(ratios))} "
                     f"to {format_value(max(ratios))}; below 1: {value} is the more accurate)."
                 )
     columns = [] if study.plots else [f"{i}_{m}" for i in study.measure["images"] for m in study.measure["metrics"]]

@@ -8,6 +8,7 @@ import json
 import math
 import os
 import shutil
+from pathlib import Path
 
 import pytest
 from conftest import run_evalkit
@@ -45,6 +46,11 @@ TINY = {
 }
 
 
+def test_the_shipped_studies_load():
+    for path in sorted(Path(__file__).parents[1].glob("studies/*.toml")):
+        assert load_study(path).runs, path
+
+
 def test_grids_expand_to_the_union_of_their_products():
     study = study_from_dict(TINY)
     assert len(study.runs) == 6
@@ -68,6 +74,7 @@ def test_grids_expand_to_the_union_of_their_products():
         ({"measure": {"image": ["total"]}}, r"unknown key\(s\) image; known: bundles, render, images, metrics, "),
         ({"plots": []}, "unknown key"),
         ({"plot": [{"x": "wall_s"}]}, "needs x and y"),
+        ({"plot": [{"x": "wall_s", "y": "indirect_relmse", "versus": "stratgy"}]}, "versus names a run parameter"),
     ],
 )
 def test_bad_studies_are_refused_with_the_problem_named(spec, problem):
