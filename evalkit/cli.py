@@ -11,6 +11,7 @@ import json
 import math
 import os
 import re
+import signal
 import sys
 import traceback
 from pathlib import Path
@@ -957,6 +958,11 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"evalkit: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # The reader stopped early (`evalkit scene info X | head`): nothing is wrong. Python would
+        # flush stdout once more at exit and print that failure too, so stdout goes to devnull.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + int(signal.SIGPIPE)
     except OSError as e:  # the machine, not the input: a full disk, a read-only or vanished folder
         if args.verbose:
             traceback.print_exc()

@@ -7,6 +7,7 @@ import ast
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -207,3 +208,18 @@ def test_the_notebook_runs_and_its_results_show_themselves(tmp_path, monkeypatch
     ]
     assert len(shown) == 4 and "data:image/png;base64," in shown[0] and "RenderResult" in shown[0]
     assert "lines by nodes on them" in shown[1] and "hole_rate" in shown[2] and "class='ek-table" in shown[3]
+
+
+def test_a_reader_that_stops_early_ends_the_command_quietly():
+    # `evalkit scene info X | head`: the pipe's reader is gone before evalkit writes.
+    child = subprocess.Popen(
+        [sys.executable, "-m", "evalkit.cli", "scene", "info", "cornell-box"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
+    child.stdout.close()
+    stderr = child.stderr.read()
+    assert child.wait(timeout=120) == 128 + signal.SIGPIPE
+    assert stderr == ""
