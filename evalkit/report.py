@@ -123,33 +123,37 @@ def versus_rows(rows: list[dict], x: str, y: str, versus: str, shown: list[str])
     is the more accurate at matched x. Fronts, not single settings, so that neither side is judged at a
     setting that suits only the other (a number of paths per frame, say). ``shown``: the setting
     columns to print."""
-    points = [p for p in setting_points(rows, x, y) if p[0]["method"] != "mitsuba" and p[0].get(versus) is not None]
+    settings = [
+        {**first, x: tx, y: ty, "seeds": seeds}
+        for first, tx, ty, seeds in setting_points(rows, x, y)
+        if first["method"] != "mitsuba" and first.get(versus) is not None
+    ]
     result = []
-    for scene in dict.fromkeys(p[0]["scene"] for p in points):
-        fronts: dict = {}
-        for value in dict.fromkeys(p[0][versus] for p in points if p[0]["scene"] == scene):
-            mine = sorted((p for p in points if p[0]["scene"] == scene and p[0][versus] == value), key=lambda p: p[1:3])
-            front, best = [], math.inf
-            for p in mine:
-                if p[2] < best:
-                    front.append(p)
-                    best = p[2]
-            fronts[value] = front
+    for scene in dict.fromkeys(r["scene"] for r in settings):
+        here = [r for r in settings if r["scene"] == scene]
+        fronts = {
+            v: pareto_front([r for r in here if r[versus] == v], x, y) for v in dict.fromkeys(r[versus] for r in here)
+        }
         for value, front in fronts.items():
-            for first, tx, ty, seeds in front:
+            for setting in front:
                 for other, their in fronts.items():
                     if other == value:
                         continue
-                    row = {"scene": scene, versus: value, **{k: first.get(k) for k in shown}, "seeds": seeds}
-                    row.update({x: tx, y: ty, "against": other})
-                    at = loglog_at([(p[1], p[2]) for p in their], tx)
-                    row.update({f"against_{y}": at, "ratio": None if at is None else ty / at})
+                    row = {
+                        "scene": scene,
+                        versus: value,
+                        **{k: setting.get(k) for k in shown},
+                        "seeds": setting["seeds"],
+                    }
+                    row.update({x: setting[x], y: setting[y], "against": other})
+                    at = loglog_at([(r[x], r[y]) for r in their], setting[x])
+                    row.update({f"against_{y}": at, "ratio": None if at is None else setting[y] / at})
                     if at is None:
                         row["more_accurate"] = (
-                            f"not compared: {x} outside {other}'s front, {their[0][1]:.3g} to {their[-1][1]:.3g}"
+                            f"not compared: {x} outside {other}'s front, {their[0][x]:.3g} to {their[-1][x]:.3g}"
                         )
                     else:
-                        row["more_accurate"] = value if ty < at else other
+                        row["more_accurate"] = value if setting[y] < at else other
                     result.append(row)
     return result
 
@@ -394,7 +398,7 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
                     + table_html(matched, list(dict.fromkeys(k for r in matched for k in r)))
                 )
             versus = spec.get("versus")
-            shown = [k for k in varying(study.runs) if k not in ("scene", "seed", versus)]
+            shown = [k for k in varying(study.runs) if k not in ("scene", "seed", versus)] if versus else []
             compared = versus_rows(ok, spec["x"], ys[0], versus, shown) if versus else []
             if compared:
                 parts.append(

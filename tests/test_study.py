@@ -337,7 +337,8 @@ def test_strategies_are_compared_at_matched_time_each_at_its_own_best_settings()
     assert first["against"] == "eye" and first["against_indirect_relmse"] == pytest.approx(0.2)
     assert first["ratio"] == pytest.approx(0.5) and first["more_accurate"] == "bidirectional"
     assert compared[("bidirectional", 4, 8)]["more_accurate"].startswith("not compared: wall_s outside eye's front")
-    # Eye paths' 16-path setting at 4 s against bidirectional paths' front: 0.1 / (0.1 (2/4)^(log 0.9 / log 4)).
+    # Eye paths' 16-path setting at 4 s, halfway in log x from bidirectional paths' 2 s to their 8 s:
+    # their front there is 0.1 x 0.9^(1/2).
     last = compared[("eye", 16, 8)]
-    assert last["ratio"] == pytest.approx(0.1 / (0.1 * 2.0 ** (math.log(0.9) / math.log(4.0))))
+    assert last["ratio"] == pytest.approx(1.0 / math.sqrt(0.9))
     assert last["more_accurate"] == "bidirectional"
