@@ -400,6 +400,9 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
             versus = spec.get("versus")
             shown = [k for k in varying(study.runs) if k not in ("scene", "seed", versus)] if versus else []
             compared = versus_rows(ok, spec["x"], ys[0], versus, shown) if versus else []
+            # Only the settings that tell the fronts' rows apart: one with a single value wherever a
+            # row has it (a unit's own setting, say) is implied by the row's units.
+            same = [k for k in shown if len({json.dumps(r[k]) for r in compared if r[k] is not None}) < 2]
             if compared:
                 parts.append(
                     f"<p>{html.escape(versus)} against {html.escape(versus)} at matched {html.escape(spec['x'])}: "
@@ -407,7 +410,7 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
                     f"seeds against the median {html.escape(spec['x'])}) beside the other's front at the same "
                     f"{html.escape(spec['x'])}, interpolated in log-log; each side is judged at its own best settings "
                     "(ratio below 1: the first is the more accurate).</p>"
-                    + table_html(compared, list(dict.fromkeys(k for r in compared for k in r)))
+                    + table_html(compared, [k for k in dict.fromkeys(k for r in compared for k in r) if k not in same])
                 )
 
     bv = bias_variance_rows(study, ok, out)

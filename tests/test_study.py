@@ -42,7 +42,9 @@ TINY = {
         "reference_spp": 64,
         "eye_vertices": 256,
     },
-    "plot": [{"x": "wall_s", "y": "indirect_relmse", "group": "method", "log": "xy", "pareto": True}],
+    "plot": [
+        {"x": "wall_s", "y": "indirect_relmse", "group": "method", "log": "xy", "pareto": True, "versus": "method"}
+    ],
 }
 
 
@@ -158,6 +160,11 @@ def test_the_report_shows_tables_plots_images_and_the_bias_variance_split(tiny_s
     ):
         assert text in report, text
     assert (out / "plots" / "plot0.png").stat().st_size > 1000
+    # Each method's front against the other's, with only the settings that tell their rows apart:
+    # the imperfect rows' one number of points is implied by their method.
+    versus = report[report.index("method against method at matched wall_s") :]
+    versus = versus[: versus.index("</table>")]
+    assert "<th>against</th>" in versus and "<th>seed</th>" not in versus and "<th>points</th>" not in versus
     # The answer first, the full table after it, how it was made last.
     order = ["What the study found", "Pareto front", "Images", "<h2>Results", "How it was made"]
     assert [report.index(text) for text in order] == sorted(report.index(text) for text in order)
