@@ -139,22 +139,25 @@ def versus_rows(rows: list[dict], x: str, y: str, versus: str, shown: list[str])
                 for other, their in fronts.items():
                     if other == value:
                         continue
-                    row = {
-                        "scene": scene,
-                        versus: value,
-                        **{k: setting.get(k) for k in shown},
-                        "seeds": setting["seeds"],
-                    }
-                    row.update({x: setting[x], y: setting[y], "against": other})
                     at = loglog_at([(r[x], r[y]) for r in their], setting[x])
-                    row.update({f"against_{y}": at, "ratio": None if at is None else setting[y] / at})
                     if at is None:
-                        row["more_accurate"] = (
-                            f"not compared: {x} outside {other}'s front, {their[0][x]:.3g} to {their[-1][x]:.3g}"
-                        )
+                        verdict = f"not compared: {x} outside {other}'s front, {their[0][x]:.3g} to {their[-1][x]:.3g}"
                     else:
-                        row["more_accurate"] = value if setting[y] < at else other
-                    result.append(row)
+                        verdict = value if setting[y] < at else other
+                    result.append(
+                        {
+                            "scene": scene,
+                            versus: value,
+                            **{k: setting.get(k) for k in shown},
+                            "seeds": setting["seeds"],
+                            x: setting[x],
+                            y: setting[y],
+                            "against": other,
+                            f"against_{y}": at,
+                            "ratio": None if at is None else setting[y] / at,
+                            "more_accurate": verdict,
+                        }
+                    )
     return result
 
 
@@ -398,12 +401,12 @@ def write_report(study: Study, rows: list[dict], out: Path, meta: dict, failed: 
                     + table_html(matched, list(dict.fromkeys(k for r in matched for k in r)))
                 )
             versus = spec.get("versus")
-            shown = [k for k in varying(study.runs) if k not in ("scene", "seed", versus)] if versus else []
+            shown = [k for k in varying(study.runs) if k not in ("scene", "seed", versus)]
             compared = versus_rows(ok, spec["x"], ys[0], versus, shown) if versus else []
-            # Only the settings that tell the fronts' rows apart: one with a single value wherever a
-            # row has it (a unit's own setting, say) is implied by the row's units.
-            same = [k for k in shown if len({json.dumps(r[k]) for r in compared if r[k] is not None}) < 2]
             if compared:
+                # Only the settings that tell the fronts' rows apart: one with a single value wherever
+                # a row has it (a unit's own setting, say) is implied by the row's units.
+                same = [k for k in shown if len({json.dumps(r[k]) for r in compared if r[k] is not None}) < 2]
                 parts.append(
                     f"<p>{html.escape(versus)} against {html.escape(versus)} at matched {html.escape(spec['x'])}: "
                     f"each setting on one {html.escape(versus)}'s Pareto front (the mean {html.escape(ys[0])} over its "
