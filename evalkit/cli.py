@@ -861,7 +861,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=_positive_int, default=128)
     p.add_argument("--height", type=_positive_int, default=128)
     p.add_argument("--bounces", type=_positive_int, default=3)
-    p.add_argument("--spp", type=_positive_int, default=16, help="eye paths per pixel per frame (default 16)")
+    p.add_argument(
+        "--spp", type=_positive_int, help="eye paths per pixel per frame (default: tuned as well, from 1 to 128)"
+    )
     p.add_argument("--reference-spp", type=_positive_int, default=16384, help="the Mitsuba reference's (default 16384)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(

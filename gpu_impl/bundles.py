@@ -26,7 +26,7 @@ import moderngl
 import numpy as np
 
 from evalkit.core.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, bundle_params
-from evalkit.core.errors import InputError
+from evalkit.core.errors import InputError, LimitError
 from evalkit.core.settings import RenderSettings
 from gpu_impl.context import GLContext, set_uniforms
 from gpu_impl.layout import (
@@ -107,14 +107,15 @@ class BundleTracer:
             if value < 1:
                 raise ValueError(f"{name} must be at least 1, got {value}")
         if self.K > MAX_DIRECTIONS:
-            raise ValueError(
+            raise LimitError(
                 f"K={self.K} directions exceed the {MAX_DIRECTIONS} a frame holds (their frames are one uniform "
-                "block of 64 KiB, shaders/bundle.glsl); render more frames instead"
+                "block of 64 KiB, shaders/bundle.glsl); render more frames instead",
+                ("directions",),
             )
         self.node_budget = int(settings.node_budget)
         self.list_count = self.K * self.R * self.R
         if self.list_count >= 2**32 - 1:
-            raise ValueError(f"K={self.K}, R={self.R} exceed the 32-bit list indices")
+            raise LimitError(f"K={self.K}, R={self.R} exceed the 32-bit list indices", ("directions", "resolution"))
         # 0: the shader variant without texture fetches, for scenes without textures.
         self.textures = int(gpu_scene.features.textures if textures is None else textures)
         self.defines = {"NODE_REFERENCE": self.node_reference}
@@ -473,7 +474,7 @@ class LinkedListTracer(BundleTracer):
         max_dim = min(max_dim, max_atlas_size or max_dim)
         tiles = max_dim // self.R
         if tiles < 1:
-            raise ValueError(f"bundle resolution {self.R} exceeds the GL viewport limit {max_dim}")
+            raise LimitError(f"bundle resolution {self.R} exceeds the GL viewport limit {max_dim}", ("resolution",))
         self.tiles_per_row = min(math.ceil(math.sqrt(self.K)), tiles)
         rows = min(math.ceil(self.K / self.tiles_per_row), tiles)
         self.directions_per_draw = self.tiles_per_row * rows

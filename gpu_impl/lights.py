@@ -23,6 +23,7 @@ from typing import NamedTuple
 import moderngl
 import numpy as np
 
+from evalkit.core.errors import LimitError
 from evalkit.core.scene.model import Light
 from evalkit.core.settings import RenderSettings
 from gpu_impl.context import GLContext, set_uniforms
@@ -170,9 +171,10 @@ def pack_tiles(
         x, row = x + s, max(row, s)
     size = (side, y + row)
     if max(size) > max_side:
-        raise ValueError(
+        raise LimitError(
             f"{len(sizes)} shadow views ({sum(s * s for s in sizes):,} texels) exceed the GL texture "
-            f"limit {max_side}; lower the shadow map sizes, the light samples or the light paths"
+            f"limit {max_side}; lower the shadow map sizes, the light samples or the light paths",
+            ("light_paths",),
         )
     return corners, size
 
@@ -326,10 +328,11 @@ class ShadowLights:
             per_vertex = visibility.tiles_per_vertex
             texels = self.map_size**2 * len(views) + visibility.map_size**2 * per_vertex * self.light_vertices
             if texels > gl.limit("GL_MAX_TEXTURE_SIZE") ** 2:  # before a list of every tile is made
-                raise ValueError(
+                raise LimitError(
                     f"{self.light_vertices:,} light vertices' shadow maps ({texels:,} texels) exceed the GL texture "
                     f"limit of {gl.limit('GL_MAX_TEXTURE_SIZE')} a side; lower the light samples, the light paths "
-                    "or their maps' size"
+                    "or their maps' size",
+                    ("light_paths",),
                 )
             sizes = [self.map_size] * self.fixed_views + [visibility.map_size] * (per_vertex * self.light_vertices)
             corners, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"), new_row=self.fixed_views)

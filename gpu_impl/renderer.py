@@ -32,6 +32,7 @@ import numpy as np
 from evalkit.core.atomic import write_text
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.display import fields_html, image_html
+from evalkit.core.errors import LimitError
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene
 from evalkit.core.settings import IMAGES, RenderSettings
@@ -102,7 +103,7 @@ class Renderer:
         self.gbuffer_size = (self.width * s, self.height * s)
         self.paths = self.gbuffer_size[0] * self.gbuffer_size[1] * settings.spp
         if self.paths >= 2**32 // 2:
-            raise ValueError(f"{self.paths:,} eye paths per frame exceed the 32-bit path index")
+            raise LimitError(f"{self.paths:,} eye paths per frame exceed the 32-bit path index", ("spp",))
         # An animated scene is posed at time + f * time_step in frame f, inside one bundle frame
         # that holds every pose.
         self.times = [settings.time + f * settings.time_step for f in range(settings.frames)]

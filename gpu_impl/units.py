@@ -28,23 +28,21 @@ class TuneTerms:
     candidate is a bundle method, a path strategy and a light visibility, and its models have the
     terms of all three.
 
-    ``axes``: the unit's own settings the optimiser varies, with the values the recommendation is
-    rounded to; those in ``log_axes`` it varies in log space. ``time_terms`` / ``time``: names and
-    per-frame features of the time model's terms beyond the shared ones (a constant and the lists,
-    K R^2); ``error_terms`` / ``error``: the error model's beyond the shared bias and noise.
-    Features are functions of a dict of settings (directions, resolution, frames and the axes;
-    ``sampler`` too for the error) that work on numpy arrays and Dr.Jit floats alike (``xp`` gives
-    exp and log). ``calibration``: the unit's calibration runs, spread so that every term changes
-    between them (a candidate's runs are its bundle method's, each with the other units' settings
-    taken in turn from theirs).
+    ``axes``: the unit's own settings the optimiser varies, with the values it chooses from.
+    ``time_terms`` / ``time``: names and per-frame features of the time model's terms beyond the
+    shared ones (a constant, the lists K R^2 and the eye paths S); ``error_terms`` / ``error``: the
+    error model's beyond the shared bias and noise. Features are functions of a dict of settings
+    (directions, resolution, spp, frames and the axes; ``sampler`` too for the error) that work on
+    numpy arrays and scalars alike. ``calibration``: the unit's calibration runs, spread so that
+    every term changes between them (a candidate's runs are its bundle method's, each with the
+    other units' settings taken in turn from theirs).
     """
 
     axes: dict = field(default_factory=dict)
-    log_axes: tuple[str, ...] = ()
     time_terms: tuple[str, ...] = ()
     time: Callable = lambda x: []
     error_terms: tuple[str, ...] = ()
-    error: Callable = lambda x, xp: []
+    error: Callable = lambda x: []
     calibration: tuple[dict, ...] = ()
 
 

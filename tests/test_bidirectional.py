@@ -13,6 +13,7 @@ import pytest
 from conftest import cornell_reference, describe_interval, relmse, render_with, run_evalkit
 
 from evalkit.core.bundleset import DirectionSet
+from evalkit.core.errors import LimitError
 from evalkit.core.scene import Material, Mesh, Scene, assemble, load_scene
 from evalkit.core.scene.assemble import look_at
 from evalkit.core.scene.builtin import furnace_radiance
@@ -116,6 +117,24 @@ def test_bad_bidirectional_settings_are_one_line_errors(tmp_path, flags, message
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], result.stderr
+
+
+def test_light_vertices_past_the_texture_limit_are_refused_before_anything_is_made(gl):
+    """A shadow atlas that cannot fit the GL texture limit is a `LimitError` (what `evalkit tune`
+    takes as the renderer's refusal, tests/test_tune.py) from the renderer's constructor, with the
+    vertices, the texels and the limit named; half as many are made (the tiles are packed in rows,
+    so not every texel of the limit is used)."""
+    side, size = gl.limit("GL_MAX_TEXTURE_SIZE"), 1024
+    fits = side * side // (6 * size * size)  # cube maps of `size` texels a face
+    settings = dict(method="perfect", strategy="bidirectional", bounces=1, directions=4, resolution=16, frames=1)
+    settings.update(width=8, height=8, light_sample_map_size=size, shadow_map_size=16)
+    scene = load_scene("lit-room")  # one spot light: a single fixed view of 16 texels a side
+    with pytest.raises(
+        LimitError, match=rf"light vertices' shadow maps \([\d,]+ texels\) exceed the GL texture limit of {side}"
+    ):
+        Renderer(gl, scene, RenderSettings(**settings, light_paths=fits + 1))
+    with Renderer(gl, scene, RenderSettings(**settings, light_paths=fits // 2)) as renderer:
+        assert renderer.lights.light_vertices == fits // 2
 
 
 def test_imperfect_shadow_maps_agree_with_exact_maps_and_rays_on_most_connections(gl):

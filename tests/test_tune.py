@@ -13,14 +13,22 @@ from conftest import run_evalkit
 
 from evalkit.core.errors import InputError
 from evalkit.tune import Candidate, Model, axes, calibration_grid, compare_with_grid, fit_model, optimise
-from evalkit.tune.calibration import BUDGET_TOLERANCE
+from evalkit.tune.calibration import BUDGET_TOLERANCE, REFUSED, _rendered_optima
 
 PERFECT, IMPERFECT = Candidate("perfect"), Candidate("imperfect")
 BIDIRECTIONAL = Candidate("perfect", "bidirectional")
 TIME = {
-    PERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0},
-    IMPERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.2, "t_points": 0.02, "t_nodes": 0.1},
-    BIDIRECTIONAL: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_dirs": 2.0, "t_light": 0.5},
+    PERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_paths": 0.4, "t_dirs": 2.0},
+    IMPERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.2, "t_paths": 0.4, "t_points": 0.02, "t_nodes": 0.1},
+    BIDIRECTIONAL: {
+        "t_once": 0.2,
+        "t0": 0.05,
+        "t_lists": 0.3,
+        "t_paths": 0.4,
+        "t_dirs": 2.0,
+        "t_light": 0.5,
+        "t_connect": 0.3,
+    },  # fmt: skip
 }
 ERROR = {
     PERFECT: {"b": 0.004, "v": 0.05, "w": 0.5},
@@ -29,8 +37,8 @@ ERROR = {
 }
 
 
-def settings(K, R, N=16384, s=1.8, F=1, V=32) -> dict:
-    return {"directions": K, "resolution": R, "points": N, "splat_scale": s, "light_paths": V, "frames": F}
+def settings(K, R, N=16384, s=1.8, F=1, V=32, S=16) -> dict:
+    return {"directions": K, "resolution": R, "points": N, "splat_scale": s, "light_paths": V, "frames": F, "spp": S}
 
 
 def synthetic_rows(candidate: Candidate) -> list[dict]:
@@ -40,8 +48,9 @@ def synthetic_rows(candidate: Candidate) -> list[dict]:
     splats = [(4096, 1.4), (16384, 1.8), (8192, 2.4)] if candidate == IMPERFECT else [(16384, 1.8)]
     light_paths = [8, 64] if candidate == BIDIRECTIONAL else [32]
     rows = []
-    for K, R, F, (N, s), V in itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats, light_paths):
-        x = settings(K, R, N, s, F, V)
+    grid = itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats, light_paths, (1, 4, 64))
+    for K, R, F, (N, s), V, S in grid:
+        x = settings(K, R, N, s, F, V, S)
         rows.append(
             {
                 **candidate.settings(),
@@ -86,7 +95,9 @@ def test_a_weighted_row_pulls_the_fit_towards_it():
 
 
 def test_the_grid_comparison_takes_the_best_run_within_the_budget(tmp_path):
-    image = {"width": 32, "height": 32, "bounces": 3, "spp": 16}
+    """Of the runs of the tuner's scene, image, budget and pinned settings; with the eye paths per
+    pixel tuned, a grid run at any of them."""
+    image = {"width": 32, "height": 32, "bounces": 3}
     run = {
         "status": "ok",
         "scene": "cornell-box",
@@ -95,6 +106,7 @@ def test_the_grid_comparison_takes_the_best_run_within_the_budget(tmp_path):
         "resolution": 64,
         "frames_rendered": 9,
         **image,
+        "spp": 16,
     }
     rows = [
         {**run, "time_budget": 10.0, "wall_s": 9.5, "indirect_relmse": 0.02},
@@ -102,6 +114,7 @@ def test_the_grid_comparison_takes_the_best_run_within_the_budget(tmp_path):
         {**run, "time_budget": 10.0, "wall_s": 10.5, "indirect_relmse": 0.001},  # over the budget
         {**run, "time_budget": 60.0, "wall_s": 59.0, "indirect_relmse": 0.002},  # another budget
         {**run, "time_budget": 10.0, "wall_s": 9.0, "indirect_relmse": 0.003, "scene": "atrium"},
+        {**run, "time_budget": 10.0, "wall_s": 9.7, "indirect_relmse": 0.005, "spp": 64},
     ]
     (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     result = {
@@ -109,25 +122,39 @@ def test_the_grid_comparison_takes_the_best_run_within_the_budget(tmp_path):
         "budget_s": 10.0,
         "metric": "indirect_relmse",
         "image": image,
+        "pinned": {"spp": 16},
         "measured": {"time_s": 9.9, "error": 0.011},
     }
     grid = compare_with_grid(result, tmp_path)
     assert grid["runs"] == 2 and grid["best"]["directions"] == 16 and grid["best"]["error"] == 0.01
-    assert grid["ratio"] == pytest.approx(1.1)
+    assert grid["best"]["spp"] == 16 and grid["ratio"] == pytest.approx(1.1)
+    tuned = compare_with_grid({**result, "pinned": {}}, tmp_path)
+    assert tuned["runs"] == 3 and tuned["best"]["spp"] == 64 and tuned["ratio"] == pytest.approx(2.2)
     with pytest.raises(InputError, match="no run of cornell-box at 32x32, 3 bounces, 16 spp with time_budget = 30"):
         compare_with_grid({**result, "budget_s": 30.0}, tmp_path)
+    with pytest.raises(InputError, match="no run of cornell-box at 32x32, 3 bounces, any spp with time_budget = 30"):
+        compare_with_grid({**result, "budget_s": 30.0, "pinned": {}}, tmp_path)
     with pytest.raises(InputError, match="no results.jsonl rows: run the grid study first"):
         compare_with_grid(result, tmp_path / "missing")
 
 
 @pytest.mark.parametrize(
-    "candidate, budget", [(PERFECT, 10.0), (PERFECT, 60.0), (IMPERFECT, 10.0), (BIDIRECTIONAL, 10.0)]
+    "candidate, budget, pinned",
+    [
+        (PERFECT, 10.0, {}),
+        (PERFECT, 60.0, {}),
+        (PERFECT, 10.0, {"spp": 4}),
+        (IMPERFECT, 10.0, {}),
+        (BIDIRECTIONAL, 10.0, {}),
+        (BIDIRECTIONAL, 10.0, {"spp": 64}),
+    ],
 )
-def test_optimisation_finds_the_best_grid_setting_within_the_budget(candidate, budget):
+def test_optimisation_finds_the_best_grid_setting_within_the_budget(candidate, budget, pinned):
     time_model = Model(candidate, "time", TIME[candidate], [])
     error_model = Model(candidate, "error", ERROR[candidate], [])
-    found = optimise(time_model, error_model, budget)
-    grid = axes(candidate)
+    found = optimise(time_model, error_model, budget, pinned)
+    grid = axes(candidate, pinned)
+    assert all(found.settings[a] == v for a, v in pinned.items())
     best = np.inf
     for values in itertools.product(*grid.values()):
         x = dict(zip(grid, values))
@@ -139,14 +166,59 @@ def test_optimisation_finds_the_best_grid_setting_within_the_budget(candidate, b
     assert found.predicted_error <= 1.001 * best
 
 
+def test_settings_the_renderer_refused_are_passed_over_with_all_that_hold_more():
+    """The values of the settings a refusal names rule out every setting at or above them (more of
+    any setting never makes a render hold less); the optimum is the best of the rest. The tuner's
+    loop renders each candidate's next best until the renderer takes one, and keeps what it
+    refused and why."""
+    time_model = Model(BIDIRECTIONAL, "time", TIME[BIDIRECTIONAL], [])
+    error_model = Model(BIDIRECTIONAL, "error", ERROR[BIDIRECTIONAL], [])
+    free = optimise(time_model, error_model, 60.0)
+    V = free.settings["light_paths"]
+    assert V > 8
+    found = optimise(time_model, error_model, 60.0, refused=({"light_paths": V},))
+    grid = axes(BIDIRECTIONAL)
+    best = np.inf
+    for values in itertools.product(*grid.values()):
+        x = dict(zip(grid, values))
+        frames = int((60.0 - 0.2) // (float(time_model.predict({**x, "frames": 1})) - 0.2))
+        if frames >= 1 and x["light_paths"] < V:
+            best = min(best, float(error_model.predict({**x, "frames": frames})))
+    assert found.settings["light_paths"] < V and found.predicted_error == pytest.approx(best)
+
+    class Studies:  # a renderer that refuses the free optimum's V and more, as a texture limit would
+        runs = []
+
+        def run(self, name, grid, refusals=False):
+            assert refusals
+            self.runs += grid
+            return [
+                {**run, "status": f"{REFUSED}V={run['light_paths']}: too many", "limit_settings": ["light_paths"]}
+                if run["light_paths"] >= V
+                else {**run, "status": "ok"}
+                for run in grid
+            ]
+
+    refused = {BIDIRECTIONAL: []}
+
+    def optimum(c: Candidate):
+        return optimise(time_model, error_model, 60.0, refused=tuple(s for s, _ in refused[c]))
+
+    studies = Studies()
+    optima, rows = _rendered_optima(studies, "check", [free], lambda o: o.settings, optimum, refused)
+    assert [r["status"] for r in rows] == ["ok"] and optima[0].settings == found.settings
+    assert [run["light_paths"] for run in studies.runs] == [V, found.settings["light_paths"]]
+    assert refused[BIDIRECTIONAL] == [({"light_paths": V}, f"V={V}: too many")]
+
+
 def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
     time_model, error_model = Model(PERFECT, "time", TIME[PERFECT], []), Model(PERFECT, "error", ERROR[PERFECT], [])
-    # The cheapest: K=8, R=32, one frame: 0.2 + 0.05 + 0.3 * 8 * 32^2 * 1e-6 + 2.0 * 8 * 1e-3 = 0.2685 s
-    # (shown to 3 digits).
+    # The cheapest: K=8, R=32, 1 spp, one frame:
+    # 0.2 + 0.05 + 0.3 * 8 * 32^2 * 1e-6 + 0.4 * 1 / 16 + 2.0 * 8 * 1e-3 = 0.2935 s (shown to 3 digits).
     with pytest.raises(
         InputError,
-        match=r"a budget of 0.1 s is below the cheapest perfect setting \(K=8, R=32, 1 frame: "
-        r"0.268 s predicted\); give at least 0.268 s",
+        match=r"a budget of 0.1 s is below the cheapest perfect setting \(K=8, R=32, spp=1, 1 frame: "
+        r"0.293 s predicted\); give at least 0.293 s",
     ):
         optimise(time_model, error_model, 0.1)
 
@@ -187,6 +259,7 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     result = json.loads(r.stdout.strip().splitlines()[-1])
     rec = result["recommended"]
     assert {"method", "directions", "resolution", "frames", "width", "height", "bounces", "spp"} <= rec.keys()
+    assert result["pinned"] == {"spp": 1} and rec["spp"] == 1
     assert rec["method"] == "perfect" or {"points", "splat_scale"} <= rec.keys()
     for side in ("predicted", "measured"):
         assert result[side]["time_s"] > 0 and result[side]["error"] > 0
@@ -202,7 +275,7 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
             assert len(result["models"][method][kind]["residuals"]) == len(Candidate(method).calibration()) + 1
     assert json.loads((tmp_path / "tune.json").read_text())["recommended"] == rec
     report = (tmp_path / "report.html").read_text()
-    assert "<h1>evalkit tune: cornell-box, 1 s</h1>" in report
+    assert "<h1>evalkit tune: cornell-box, 1 s</h1>" in report and "1 paths per pixel per frame (given)" in report
     # Each checked render in the image viewer, its data in the check study's folder.
     assert report.count("class='ek-viewer'") == 2 and "check/viewer/" in report
     sources = re.findall(r"&quot;src&quot;: &quot;([^&]+)&quot;", report)
@@ -216,22 +289,26 @@ def test_a_candidates_calibration_is_its_methods_runs_with_the_other_units_setti
     assert len(eye) == len(light) == len(eye + light) // 2 and len(eye) >= len(TIME[BIDIRECTIONAL])
     assert [(r["directions"], r["resolution"]) for r in light] == [(r["directions"], r["resolution"]) for r in eye]
     assert [r["light_paths"] for r in light][:4] == [8, 64, 24, 8] and all("light_paths" not in r for r in eye)
+    # The eye paths per pixel in a cycle of their own (the last two runs, the long ones, at 4 and 32),
+    # or the one value given.
+    assert [r["spp"] for r in eye][:5] == [4, 32, 1, 16, 4] and [r["spp"] for r in eye][-2:] == [4, 32]
+    assert {r["spp"] for r in calibration_grid([PERFECT, BIDIRECTIONAL], 10.0, (8,))} == {8}
     assert sum(r["time_budget"] for r in runs) == pytest.approx(10.0, abs=0.01)
     assert PERFECT.name == "perfect" and BIDIRECTIONAL.name == "perfect strategy=bidirectional"
     assert Candidate.of({"method": "imperfect", "light_visibility": "imperfect"}).name == (
         "imperfect light_visibility=imperfect"
     )
-    assert axes(BIDIRECTIONAL).keys() == {"directions", "resolution", "light_paths"}
+    assert axes(BIDIRECTIONAL).keys() == {"directions", "resolution", "spp", "light_paths"}
+    assert axes(PERFECT, {"spp": 4})["spp"] == [4]
 
 
 def test_tune_chooses_between_strategies_on_a_room_lit_only_after_a_bounce(tmp_path):
-    """`--strategy both` calibrates, refines and checks eye and bidirectional paths alike; in the lit
-    room, where eye paths find the light only by chance, the bidirectional optimum measures less
-    error and is recommended with its light paths."""
+    """`--strategy both` calibrates, refines and checks eye and bidirectional paths alike, with the
+    eye paths per pixel tuned too; in the lit room, where eye paths find the light only by chance,
+    the bidirectional optimum measures less error and is recommended with its light paths."""
     r = run_evalkit(
         "tune", "lit-room", "--budget", "2", "--method", "perfect", "--strategy", "both", "--width", "32",
-        "--height", "32", "--spp", "4", "--reference-spp", "4096", "--calibration-share", "1", "--json",
-        "--out", str(tmp_path),
+        "--height", "32", "--reference-spp", "4096", "--calibration-share", "1", "--json", "--out", str(tmp_path),
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout.strip().splitlines()[-1])
@@ -243,4 +320,8 @@ def test_tune_chooses_between_strategies_on_a_room_lit_only_after_a_bounce(tmp_p
     assert candidates[BIDIRECTIONAL]["measured"]["error"] < candidates[PERFECT]["measured"]["error"]
     rec = result["recommended"]
     assert rec["strategy"] == "bidirectional" and rec["light_paths"] == candidates[BIDIRECTIONAL]["light_paths"]
-    assert "perfect strategy=bidirectional" in (tmp_path / "report.html").read_text()
+    assert result["pinned"] == {} and rec["spp"] == candidates[BIDIRECTIONAL]["spp"] in axes(PERFECT)["spp"]
+    calibrated = [json.loads(line) for line in (tmp_path / "calibration" / "results.jsonl").read_text().splitlines()]
+    assert {r["spp"] for r in calibrated} == {1, 4, 16, 32}
+    report = (tmp_path / "report.html").read_text()
+    assert "perfect strategy=bidirectional" in report and f"{rec['spp']} paths per pixel per frame (tuned)" in report

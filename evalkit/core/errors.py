@@ -18,6 +18,17 @@ class InputError(Exception):
         super().__init__(f"{self.source}: {self.problem}")
 
 
+class LimitError(ValueError):
+    """Settings past what the renderer's index types or the GL context hold (a shadow atlas past
+    the texture limit, more eye paths than a 32-bit index counts, ...): refused before anything is
+    rendered. ``settings`` names the render settings whose values went past it, so that a caller
+    that chooses settings (`evalkit tune`) can leave out those values and any larger ones."""
+
+    def __init__(self, problem: str, settings: tuple[str, ...]):
+        super().__init__(problem)
+        self.settings = settings
+
+
 def check_output(path: str | os.PathLike, folder: bool) -> None:
     """Raise `InputError` now if ``path`` cannot become an output folder (``folder``) or file:
     checked before any work, so that a render is not lost to a path that was never writable."""

@@ -116,7 +116,7 @@ class RenderSettings:
     width: int | None = setting(None, "image width (default: the scene camera's)", minimum=1)
     height: int | None = setting(None, "image height (default: the scene camera's)", minimum=1)
     supersampling: int = setting(1, "S x S G-buffer samples per pixel", minimum=1)
-    spp: int = setting(1, "eye paths per G-buffer sample per frame", minimum=1)
+    spp: int = setting(1, "eye paths per G-buffer sample per frame", minimum=1, symbol="spp")
     frames: int = setting(1, "frames to accumulate, each with new directions", minimum=1, symbol="F")
     time_budget: float = setting(
         0.0,

@@ -18,6 +18,7 @@ import numpy as np
 
 from evalkit.core.atomic import atomic_path, write_text
 from evalkit.core.bundleset import DirectionSet
+from evalkit.core.errors import LimitError
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene, load_scene
 from evalkit.metrics.bundles import compare_bundles, eye_vertices, next_hit_errors
@@ -69,6 +70,8 @@ def execute_run(run: dict, measure: dict, out: str) -> dict:
     except Exception as e:  # noqa: BLE001 -- a study reports a failed run and goes on
         write_text(folder / "error.txt", traceback.format_exc())
         row["status"] = f"error: {type(e).__name__}: {e}".splitlines()[0]
+        if isinstance(e, LimitError):  # the settings at fault, for a caller that chooses them
+            row["limit_settings"] = list(e.settings)
     row["run_s"] = round(time.perf_counter() - start, 3)
     return row
 

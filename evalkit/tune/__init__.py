@@ -1,39 +1,44 @@
 """`evalkit tune`: the bundle settings with the least predicted error for a time budget, from
 models of time and error fitted to a short calibration sweep of the scene, checked by a render.
 
-For a scene, an image (width x height, B bounces, S eye paths per pixel per frame) and a budget of
-T seconds of render time, the settings are the candidate (a bundle method, a path strategy and a
-light visibility: `Candidate`), K directions, R lines per side, for imperfect bundles N points and
-splat scale s, for bidirectional paths V light paths, and F frames. Each model is fitted per scene
-and candidate, to the rows of a calibration study (`evalkit.study`, so its runs are cached in the
-output folder and a second call with the same budget runs nothing new):
+For a scene, an image (width x height, B bounces) and a budget of T seconds of render time, the
+settings are the candidate (a bundle method, a path strategy and a light visibility: `Candidate`), K
+directions, R lines per side, S eye paths per pixel per frame (unless the caller pins them), for
+imperfect bundles N points and splat scale s, for bidirectional paths V light paths, and F frames.
+Each model is fitted per scene and candidate, to the rows of a calibration study (`evalkit.study`,
+so its runs are cached in the output folder and a second call with the same budget runs nothing
+new):
 
 **Time** of F frames (seconds; `wall_s` of a row), every constant positive (each unit adds its own
 terms, declared with it: `gpu_impl.units.TuneTerms`; today's are):
 
-    perfect        t = t_once + F (t0 + t_lists K R^2 + t_dirs K)
-    imperfect      t = t_once + F (t0 + t_lists K R^2 + t_points K N + t_nodes K R^2 s^2)
-    bidirectional  the method's + F t_light V
+    perfect        t = t_once + F (t0 + t_lists K R^2 + t_paths S + t_dirs K)
+    imperfect      t = t_once + F (t0 + t_lists K R^2 + t_paths S + t_points K N + t_nodes K R^2 s^2)
+    bidirectional  the method's + F (t_light V + t_connect V S)
 
 t_once is what a render does once (a static scene's shadow maps, reading the images back); t0 what
 a frame does that does not depend on the bundles (G-buffer, emitter samples, the bounce passes at
-this image size); K R^2 are the lists, K the per-direction draw (perfect), K N the splat points and
-K R^2 s^2 the splat nodes (a splat covers about s^2 A / (4 r^2) R^2 / N lines); V the light paths'
-B V vertices, each a shadow map (exact or imperfect: the light visibility's cost is in t_light,
-fitted per candidate) and a connection from every eye vertex.
+this image size); K R^2 are the lists, S the eye paths, K the per-direction draw (perfect), K N the
+splat points and K R^2 s^2 the splat nodes (a splat covers about s^2 A / (4 r^2) R^2 / N lines); V
+the light paths' B V vertices, each a shadow map (exact or imperfect: the light visibility's cost
+is in t_light, fitted per candidate), and V S a connection from every eye vertex to each.
 
 **Error** (the chosen metric, e.g. relMSE of the indirect image against the Mitsuba reference):
 
-    perfect        E = b (64 / R)^2 + (v + w / K) / F
+    perfect        E = b (64 / R)^2 + (v 16 / S + w / K) / F
     imperfect      E = the same + h exp(-c s^q) + g s^2 (16384 / N)
     bidirectional  the method's + u / (F V)
 
-b (64 / R)^2 is the squared O(1/R) bias of the line a path takes (docs/MEASURED_FACTS.md); v / F
-the paths' variance; w / (F K) what a frame's K shared directions add (the directions study); h
+b (64 / R)^2 is the squared O(1/R) bias of the line a path takes (docs/MEASURED_FACTS.md); v 16 /
+(F S) the paths' variance; w / (F K) what a frame's K shared directions add (the directions study),
+which more paths in the same frame do not take away; h
 the holes of the splat points, with the hole model's shape for their sampler (c, q:
 studies/hole_vs_splat.toml); g s^2 / N the splats' overhang, which grows with their radius squared;
-u / (F V) what the connections add, shared by a frame's pixels. Each candidate fits its own v: the
-eye paths' variance is what the light paths take away.
+u / (F V) what the connections add, shared by a frame's pixels, and so, like w, not falling with S.
+Each candidate fits its own v: the eye paths' variance is what the light paths take away. The
+shared terms are why S is tuned: on atrium eye paths beat bidirectional paths from S = 16 on and
+lose at S = 4 (docs/BIDIRECTIONAL.md); the calibration runs take S in a cycle of their own
+(`CALIBRATION_SPP`).
 
 Both fits minimise the squared log residuals by gradient descent with Dr.Jit's automatic
 differentiation (`evalkit.metrics.fitting`). The calibration costs about ``calibration_share`` times
@@ -41,14 +46,13 @@ the budget: each of its runs renders frames until its share of that time is spen
 ``time_budget``), at least one, so a larger budget calibrates with more frames, where the bias
 terms it must then predict show through the noise. Half of that time goes to runs spread over the
 settings; the other half renders each candidate's first optimum, which then anchors the refit
-(`SPREAD`). The optimisation takes, per candidate, the frames that fill the budget,
-F = (T - t_once) / (time per frame), and minimises log E over log K, log R, log N, s and log V (each
-mapped from an unbounded variable onto its range), by gradient descent on the same Dr.Jit models;
-the optimum is rounded to the settings grid below and its neighbours on the grid are checked (the
-rounded setting with the least predicted error within the budget wins). The check renders each
-candidate's optimum and measures its time and error; the recommendation is the one with the least
-measured error of those that kept the budget (within `BUDGET_TOLERANCE`, a run's timing noise; of
-all, with a warning, where none did; without the check: the least predicted error). Between
+(`SPREAD`). The optimisation evaluates, per candidate, every setting of its grid (`models.GRID` and
+the units' axes), each with the whole frames that fill the budget, F = floor((T - t_once) / (time
+per frame)), and takes the least predicted error: a continuous optimum rounded to the grid (the
+first version) missed where whole frames matter. The check renders each candidate's optimum and
+measures its time and error; the recommendation is the one with the least measured error of those
+that kept the budget (within `BUDGET_TOLERANCE`, a run's timing noise; of all, with a warning,
+where none did; without the check: the least predicted error). Between
 candidates the choice is left to the measurement because the models' residuals are as large as the
 predicted differences: at atrium's 10 s the perfect optimum was predicted 6 % better than the
 imperfect one and measured 26 % worse.

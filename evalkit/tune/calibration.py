@@ -13,14 +13,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from evalkit.core.atomic import write_text
-from evalkit.core.errors import InputError
+from evalkit.core.errors import InputError, LimitError
 from evalkit.pages import is_number
 from evalkit.study.executors import read_rows, run_study
 from evalkit.study.run import versions
 from evalkit.study.spec import study_from_dict
-from evalkit.tune.models import TUNE_METRICS, Candidate, axes, fit_model
-from evalkit.tune.optimise import optimise
-from evalkit.tune.report import write_tune_report
+from evalkit.tune.models import CALIBRATION_SPP, TUNE_METRICS, Candidate, axes, fit_model
+from evalkit.tune.optimise import Recommendation, optimise
+from evalkit.tune.report import settings_text, write_tune_report
 from gpu_impl.registry import KINDS
 
 # The last two calibration runs of each candidate have LONG shares of the calibration time: runs where
@@ -39,18 +39,26 @@ MAX_FRAMES = 100_000  # a calibration run's frame limit: its time budget ends it
 # noise loses to one that kept it, whatever its error (cornell-box's 10 s: bidirectional paths
 # predicted at 9.96 s measured 12.9 s, 0.87x the error of eye paths that kept the budget).
 BUDGET_TOLERANCE = 0.1
+# The status of a run whose settings the renderer refused before rendering (`LimitError`).
+REFUSED = f"error: {LimitError.__name__}: "
 
 
-def calibration_grid(candidates: list[Candidate], seconds: float) -> list[dict]:
-    """The calibration sweep's runs (each candidate's `Candidate.calibration`), each with its share
-    of ``seconds`` as its time budget."""
+def calibration_grid(candidates: list[Candidate], seconds: float, spp: tuple[int, ...] = CALIBRATION_SPP) -> list[dict]:
+    """The calibration sweep's runs (each candidate's `Candidate.calibration`, with the eye paths per
+    pixel ``spp`` in turn), each with its share of ``seconds`` as its time budget."""
     runs = {c: c.calibration() for c in candidates}
     shares = {c: [1] * (len(runs[c]) - 2) + [LONG] * 2 for c in candidates}
     unit = seconds / sum(sum(v) for v in shares.values())
+    # Counted from the first long run, so that the long runs take the first values of ``spp``.
     return [
-        {**settings, "time_budget": round(share * unit, 3), "frames": MAX_FRAMES}
+        {
+            **settings,
+            "spp": spp[(i + 2 - len(runs[c])) % len(spp)],
+            "time_budget": round(share * unit, 3),
+            "frames": MAX_FRAMES,
+        }
         for c in candidates
-        for settings, share in zip(runs[c], shares[c])
+        for i, (settings, share) in enumerate(zip(runs[c], shares[c]))
     ]
 
 
@@ -60,14 +68,15 @@ class TunerStudies:
     its own folder under ``out``, all measured against one reference (rendered once into
     ``out``/references unless the committed store has it)."""
 
-    defaults: dict  # scene, seed and the image
+    defaults: dict  # scene, seed, the image and the pinned settings
     metric: str  # IMAGE_METRIC
     reference_spp: int
     out: Path
     progress: object = print
 
-    def run(self, name: str, grid: list[dict]) -> list[dict]:
-        """The rows of the runs ``grid`` (in ``out``/``name``); a failed run is an error naming the folder."""
+    def run(self, name: str, grid: list[dict], refusals: bool = False) -> list[dict]:
+        """The rows of the runs ``grid`` (in ``out``/``name``); a failed run is an error naming the
+        folder, except, with ``refusals``, one whose settings the renderer refused (`REFUSED`)."""
         image, metric = self.metric.split("_", 1)
         study = study_from_dict(
             {
@@ -84,7 +93,7 @@ class TunerStudies:
             }
         )
         rows = run_study(study, self.out / name, progress=self.progress, command=" ".join(sys.argv))
-        failed = [r for r in rows if r["status"] != "ok"]
+        failed = [r for r in rows if r["status"] != "ok" and not (refusals and r["status"].startswith(REFUSED))]
         if failed:
             raise InputError(
                 str(self.out / name), f"{len(failed)} of the tuner's runs failed, first: {failed[0]['status']}"
@@ -103,7 +112,7 @@ def tune(
     width: int = 128,
     height: int = 128,
     bounces: int = 3,
-    spp: int = 16,
+    spp: int | None = None,
     reference_spp: int = 16384,
     seed: int = 0,
     calibration_share: float = CALIBRATION_SHARE,
@@ -115,7 +124,7 @@ def tune(
     fitted to a calibration sweep of about ``calibration_share`` x ``budget`` seconds of render time,
     among the candidates of ``method``, ``strategy`` and ``light_visibility`` (each a registered
     unit's name, or "both" for every registered one; the strategy and light visibility default to
-    the default units),
+    the default units), with ``spp`` eye paths per pixel per frame (None: tuned as well),
     and (``check``) measure the recommendation; ``grid``: a study's folder to compare it with
     (`compare_with_grid`). Returns everything `evalkit tune --json` prints; writes ``tune.json``
     and ``report.html`` to ``out``."""
@@ -137,27 +146,40 @@ def tune(
     names = {f: KINDS[f].names if n == "both" else (n or KINDS[f].default.name,) for f, n in choices.items()}
     candidates = [Candidate(**dict(zip(names, units))) for units in itertools.product(*names.values())]
     out = Path(out or f"out/tune/{Path(scene).stem}")
-    image = {"width": width, "height": height, "bounces": bounces, "spp": spp}
+    image = {"width": width, "height": height, "bounces": bounces}
+    pinned = {} if spp is None else {"spp": spp}
     start = time.perf_counter()
     studies = TunerStudies({"scene": scene, "seed": seed, **image}, metric, reference_spp, out, progress)
     seconds = calibration_share * budget
-    rows = studies.run("calibration", calibration_grid(candidates, SPREAD * seconds))
+    rows = studies.run(
+        "calibration", calibration_grid(candidates, SPREAD * seconds, (spp,) if spp else CALIBRATION_SPP)
+    )
     models = {c: _fit(c, rows, metric) for c in candidates}
-    first = [optimise(models[c]["time"], models[c]["error"], budget) for c in candidates]
+    refused = {c: [] for c in candidates}  # (setting, the renderer's reason)
+
+    def optimum(c: Candidate) -> Recommendation:
+        return optimise(models[c]["time"], models[c]["error"], budget, pinned, tuple(s for s, _ in refused[c]))
+
     share = round((1 - SPREAD) * seconds / len(candidates), 3)
-    anchors = studies.run(
+    first, anchors = _rendered_optima(
+        studies,
         "refinement",
-        [{**o.candidate.settings(), **o.settings, "frames": MAX_FRAMES, "time_budget": share} for o in first],
+        [optimum(c) for c in candidates],
+        lambda o: {**o.candidate.settings(), **o.settings, "frames": MAX_FRAMES, "time_budget": share},
+        optimum,
+        refused,
     )
     rows += [{**r, "weight": len(Candidate.of(r).calibration()) / 2} for r in anchors]
     models = {c: _fit(c, rows, metric) for c in candidates}
-    optima = [optimise(models[c]["time"], models[c]["error"], budget) for c in candidates]
+    optima = [optimum(c) for c in candidates]
     measured, overran = {}, []
     if check:
         # Every candidate's optimum is rendered and the least measured error within the budget wins:
         # between candidates the models' residuals (0.1-0.3 in log) are as large as the predicted
         # differences.
-        checked = studies.run("check", [{**o.candidate.settings(), **o.settings} for o in optima])
+        optima, checked = _rendered_optima(
+            studies, "check", optima, lambda o: {**o.candidate.settings(), **o.settings}, optimum, refused
+        )
         measured = {
             Candidate.of(r): {"time_s": float(r["wall_s"]), "error": float(r[metric]), "run_id": r["run_id"]}
             for r in checked
@@ -178,6 +200,7 @@ def tune(
         "metric": metric,
         **{field: name for field, name in choices.items() if name is not None},
         "image": image,
+        "pinned": pinned,
         "seed": seed,
         "reference_spp": reference_spp,
         "recommended": {**best.candidate.settings(), **best.settings, **image},
@@ -197,7 +220,16 @@ def tune(
             for c in candidates
         },
         "first_optimum": [o.as_dict() for o in first],
-        "warnings": [model.warning for c in candidates for model in models[c].values() if model.warning] + overran,
+        "refused": [
+            {"candidate": c.name, **setting, "reason": reason} for c in candidates for setting, reason in refused[c]
+        ],
+        "warnings": [model.warning for c in candidates for model in models[c].values() if model.warning]
+        + [
+            f"the renderer refused {settings_text({**c.settings(), **setting})} ({reason}): the next best was taken"
+            for c in candidates
+            for setting, reason in refused[c]
+        ]
+        + overran,
         "calibration": {
             "runs": len(rows),
             "share": calibration_share,
@@ -215,6 +247,25 @@ def tune(
     write_text(out / "tune.json", json.dumps(result, indent=2) + "\n")
     write_tune_report(result, rows, models, out / "report.html")
     return result
+
+
+def _rendered_optima(studies: TunerStudies, name: str, optima: list, run, optimum, refused: dict) -> tuple[list, list]:
+    """The candidates' ``optima`` rendered (each as ``run(optimum)``) in the tuner's study ``name``.
+    Where the renderer refuses one (a `LimitError`: a shadow atlas past the GL texture limit, say),
+    the values of the settings at fault join ``refused`` and the candidate's next best,
+    ``optimum(candidate)``, is rendered instead. Returns the optima rendered and their rows."""
+    while True:
+        rows = studies.run(name, [run(o) for o in optima], refusals=True)  # in the order of the runs
+        faults = [(o, r) for o, r in zip(optima, rows) if r["status"].startswith(REFUSED)]
+        if not faults:
+            return optima, rows
+        for o, row in faults:
+            reason = row["status"].removeprefix(REFUSED)
+            setting = {a: o.settings[a] for a in row["limit_settings"] if a in o.settings}
+            if not setting:  # past a limit that no setting the tuner varies moves
+                raise InputError(studies.out / name, f"{o.candidate.name}: {reason}")
+            refused[o.candidate].append((setting, reason))
+        optima = [optimum(o.candidate) if r["status"].startswith(REFUSED) else o for o, r in zip(optima, rows)]
 
 
 def _fit(candidate: Candidate, rows: list[dict], metric: str) -> dict:
@@ -236,16 +287,17 @@ def compare_with_grid(result: dict, folder: Path) -> dict:
         if r["status"] == "ok"
         and Path(r["scene"]).stem == Path(result["scene"]).stem
         and r.get("time_budget") == budget
-        and all(r.get(k) == v for k, v in result["image"].items())
+        and all(r.get(k) == v for k, v in {**result["image"], **result["pinned"]}.items())
         and is_number(r.get(metric))
         and r["wall_s"] <= budget
     ]
     if not same:
         image = result["image"]
+        paths = f"{result['pinned']['spp']} spp" if "spp" in result["pinned"] else "any spp"
         raise InputError(
             str(folder),
             f"no run of {result['scene']} at {image['width']}x{image['height']}, {image['bounces']} bounces, "
-            f"{image['spp']} spp with time_budget = {budget:g} measured {metric} within it",
+            f"{paths} with time_budget = {budget:g} measured {metric} within it",
         )
     best = min(same, key=lambda r: r[metric])
     candidate = Candidate.of(best)

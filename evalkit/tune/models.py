@@ -18,7 +18,7 @@ from evalkit.pages import is_number
 from gpu_impl.registry import KINDS
 
 TUNE_METRICS = tuple(f"{image}_{metric}" for image in IMAGES for metric in METRICS)
-# The settings every candidate's recommendation is rounded to (and their ranges for the optimisation);
+# The settings every candidate's recommendation is chosen from (every combination is evaluated);
 # each unit adds its own axes (`axes`). No fewer than 8 directions: a path never takes the bundle
 # it arrived along, and at K = 4 that is a bias no term of the error model has (an open stage's
 # indirect light -13 %, docs/MEASURED_FACTS.md); atrium's 10 s recommendation at K = 4 measured
@@ -26,12 +26,18 @@ TUNE_METRICS = tuple(f"{image}_{metric}" for image in IMAGES for metric in METRI
 GRID = {
     "directions": [8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256],
     "resolution": [32, 48, 64, 96, 128, 192, 256],
+    "spp": [1, 2, 4, 8, 16, 32, 64, 128],
 }
-LOG_AXES = ("directions", "resolution")
+# The eye paths per pixel per frame of the calibration runs, taken in turn (a cycle of 4 against the
+# bundle methods' 10 or 13 runs and the light paths' 3, so that no two settings move together); the
+# last two runs, the long ones, take the first two. Atrium's eye paths win or lose against
+# bidirectional paths by this setting alone (docs/BIDIRECTIONAL.md), so it is tuned unless given.
+CALIBRATION_SPP = (4, 32, 1, 16)
 # The terms every candidate's models have: a render's once-only cost, a frame's cost outside the
-# bundles and the lists K R^2 (time); the O(1/R) bias, the paths' variance and what a frame's K
-# shared directions add (error).
-TIME_TERMS = ("t_once", "t0", "t_lists")
+# bundles and the paths, the lists K R^2 and the eye paths S (time); the O(1/R) bias, the paths'
+# variance and what a frame's K shared directions add, which more paths in the same frame do not
+# take away (error).
+TIME_TERMS = ("t_once", "t0", "t_lists", "t_paths")
 ERROR_TERMS = ("b", "v", "w")
 
 
@@ -71,13 +77,11 @@ class Candidate:
         return [{**self.settings(), **{k: v for c in own for k, v in c[i % len(c)].items()}} for i in range(count)]
 
 
-def axes(candidate: Candidate) -> dict:
-    """The settings the optimiser varies for ``candidate``, with their grids."""
-    return {**GRID, **{a: v for t in candidate.tunes for a, v in t.axes.items()}}
-
-
-def log_axes(candidate: Candidate) -> tuple[str, ...]:
-    return (*LOG_AXES, *(a for t in candidate.tunes for a in t.log_axes))
+def axes(candidate: Candidate, pinned: dict | None = None) -> dict:
+    """The settings the optimiser varies for ``candidate``, with their grids; a ``pinned`` setting
+    (the caller's --spp) has its one value."""
+    grid = {**GRID, **{a: v for t in candidate.tunes for a, v in t.axes.items()}}
+    return {**grid, **{a: [v] for a, v in (pinned or {}).items()}}
 
 
 def term_names(candidate: Candidate, kind: str) -> tuple[str, ...]:
@@ -88,16 +92,21 @@ def term_names(candidate: Candidate, kind: str) -> tuple[str, ...]:
 
 def time_features(candidate: Candidate, x: dict) -> list:
     """The time model's terms without their constants, for settings ``x`` (directions, resolution,
-    frames and the candidate's axes; numpy arrays or Dr.Jit floats)."""
-    K, R, F = x["directions"], x["resolution"], x["frames"]
+    eye paths per pixel, frames and the candidate's axes; numpy arrays or scalars)."""
+    K, R, S, F = x["directions"], x["resolution"], x["spp"], x["frames"]
     lists = K * R * R * 1e-6
-    return [F * 0.0 + 1.0, F, F * lists, *(f for t in candidate.tunes for f in t.time(x))]
+    return [F * 0.0 + 1.0, F, F * lists, F * S / 16.0, *(f for t in candidate.tunes for f in t.time(x))]
 
 
-def error_features(candidate: Candidate, x: dict, xp=np) -> list:
-    """The error model's terms without their constants; ``xp`` (numpy or drjit) gives exp and log."""
-    K, R, F = x["directions"], x["resolution"], x["frames"]
-    return [(64.0 / R) * (64.0 / R), 1.0 / F, 1.0 / (F * K), *(f for t in candidate.tunes for f in t.error(x, xp))]
+def error_features(candidate: Candidate, x: dict) -> list:
+    """The error model's terms without their constants."""
+    K, R, S, F = x["directions"], x["resolution"], x["spp"], x["frames"]
+    return [
+        (64.0 / R) * (64.0 / R),
+        16.0 / (F * S),
+        1.0 / (F * K),
+        *(f for t in candidate.tunes for f in t.error(x)),
+    ]
 
 
 @dataclass
@@ -111,15 +120,16 @@ class Model:
     sampler: str = "stratified"
     warning: str = ""  # what the fit could not tell from its rows
 
-    def terms(self, x: dict, xp=np) -> list:
+    def terms(self, x: dict) -> list:
         if self.kind == "time":
             return time_features(self.candidate, x)
-        return error_features(self.candidate, {"sampler": self.sampler, **x}, xp)
+        return error_features(self.candidate, {"sampler": self.sampler, **x})
 
-    def predict(self, x: dict, xp=np):
+    def predict(self, x: dict):
         """Seconds for ``x["frames"]`` frames (time) or the metric after them (error), at settings
-        ``x`` (the candidate's axes); numpy or Dr.Jit (``xp``) arrays."""
-        return sum(c * t for c, t in zip(self.constants.values(), self.terms({"frames": 1.0, **x}, xp)))
+        ``x`` (the candidate's axes; numpy arrays or scalars)."""
+        terms = self.terms({"frames": 1.0, **x})
+        return sum(self.constants[n] * t for n, t in zip(term_names(self.candidate, self.kind), terms))
 
     def rms_residual(self) -> float:
         return float(np.sqrt(np.mean(np.square(self.residuals)))) if self.residuals else float("nan")
@@ -172,7 +182,7 @@ def fit_model(
         predicted = sum(dr.exp(c) * Float(f) for c, f in zip(log_constants, features))
         return dr.sum(Float(weight) * dr.square(dr.log(predicted) - Float(log_target))) / float(weight.sum())
 
-    log_constants = dict(zip(fitted, gradient_descent(loss, start, steps=1500, rate=0.05)))
+    log_constants = dict(zip(fitted, gradient_descent(loss, start, steps=3000, rate=0.05)))
     constants = {name: math.exp(log_constants[name]) if name in log_constants else 0.0 for name in names}
     model = Model(candidate, kind, constants, [], sampler, warning)
     model.residuals = [float(v) for v in np.log(model.predict(x) / target)]

@@ -286,11 +286,14 @@ def mean_radiance(environment) -> float:
 
 
 def _time(x: dict) -> list:
-    # t_light: a frame's V B light vertices, each a shadow map and a connection from every eye vertex.
-    return [x["frames"] * x["light_paths"] * 1e-2]
+    # t_light: a frame's V B light vertices, each a shadow map; t_connect: a connection from each
+    # of them to every eye vertex (atrium in studies/bidirectional.toml at spp 4, 16, 64: 0.64,
+    # 0.79, 1.8 s a frame more than eye paths).
+    F, V = x["frames"], x["light_paths"]
+    return [F * V * 1e-2, F * V * x["spp"] / 16.0 * 1e-2]
 
 
-def _error(x: dict, xp) -> list:
+def _error(x: dict) -> list:
     # u: what the connections add, falling with the light paths a frame shares among its pixels.
     return [1.0 / (x["frames"] * x["light_paths"])]
 
@@ -303,8 +306,7 @@ STRATEGY = PathStrategy(
     paths=BidirectionalPaths,
     tune=TuneTerms(
         axes={"light_paths": [8, 16, 32, 64, 128, 256]},
-        log_axes=("light_paths",),
-        time_terms=("t_light",),
+        time_terms=("t_light", "t_connect"),
         time=_time,
         error_terms=("u",),
         error=_error,
