@@ -12,8 +12,17 @@ import pytest
 from conftest import run_evalkit
 
 from evalkit.core.errors import InputError
-from evalkit.tune import Candidate, Model, axes, calibration_grid, compare_with_grid, fit_model, optimise
-from evalkit.tune.calibration import BUDGET_TOLERANCE, REFUSED, _rendered_optima
+from evalkit.tune import (
+    Candidate,
+    Model,
+    Recommendation,
+    axes,
+    calibration_grid,
+    compare_with_grid,
+    fit_model,
+    optimise,
+)
+from evalkit.tune.calibration import BUDGET_TOLERANCE, REFUSED, _rendered_optima, _rerendered_within_budget
 
 PERFECT, IMPERFECT = Candidate("perfect"), Candidate("imperfect")
 BIDIRECTIONAL = Candidate("perfect", "bidirectional")
@@ -211,6 +220,33 @@ def test_settings_the_renderer_refused_are_passed_over_with_all_that_hold_more()
     assert refused[BIDIRECTIONAL] == [({"light_paths": V}, f"V={V}: too many")]
 
 
+def test_an_optimum_that_overran_the_budget_is_rendered_again_with_the_frames_it_fits():
+    """Eye paths measured at 1.5 s a frame overrun 10 s with 10 frames and are rendered again with
+    6; bidirectional paths at 0.9 s a frame kept the budget and are not rendered again."""
+    models = {c: {k: Model(c, k, (TIME if k == "time" else ERROR)[c], []) for k in ("time", "error")} for c in TIME}
+    optima = [Recommendation(c, {**settings(16, 128), "frames": 10}, 10.0, 0.01) for c in (PERFECT, BIDIRECTIONAL)]
+    seconds = {PERFECT: 1.5, BIDIRECTIONAL: 0.9}  # a frame's
+
+    class Studies:
+        runs = []
+
+        def run(self, name, grid):
+            self.runs.append(grid)
+            return [{**run, "wall_s": seconds[Candidate.of(run)] * run["frames"]} for run in grid]
+
+    def run(o):
+        return {**o.candidate.settings(), **o.settings}
+
+    studies = Studies()
+    checked = studies.run("check", [run(o) for o in optima])
+    again, rows, notes = _rerendered_within_budget(studies, optima, checked, run, models, 10.0)
+    assert [o.settings["frames"] for o in again] == [6, 10] and [r["wall_s"] for r in rows] == [9.0, 9.0]
+    assert again[0].predicted_time_s == pytest.approx(float(models[PERFECT]["time"].predict(again[0].settings)))
+    assert notes == ["perfect measured 15 s with 10 frames, over the budget of 10 s: rendered again with 6"]
+    assert len(studies.runs) == 2
+    assert _rerendered_within_budget(studies, again, rows, run, models, 10.0) == (again, rows, [])
+
+
 def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
     time_model, error_model = Model(PERFECT, "time", TIME[PERFECT], []), Model(PERFECT, "error", ERROR[PERFECT], [])
     # The cheapest: K=8, R=32, 1 spp, one frame:
@@ -269,7 +305,9 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     kept = [c for c in result["candidates"] if c["measured"]["time_s"] <= 1.0 * (1 + BUDGET_TOLERANCE)]
     assert result["measured"]["error"] == min(c["measured"]["error"] for c in kept or result["candidates"])
     overran = len(result["candidates"]) - len(kept)
-    assert sum("over the budget" in w for w in result["warnings"]) == overran
+    # A line for each that overran at the end, and one for each rendered again with fewer frames first.
+    final = [w for w in result["warnings"] if "over the budget" in w and "rendered again" not in w]
+    assert len(final) == overran
     for method in ("perfect", "imperfect"):  # a residual per calibration run and one for the refinement run
         for kind in ("time", "error"):
             assert len(result["models"][method][kind]["residuals"]) == len(Candidate(method).calibration()) + 1

@@ -50,7 +50,8 @@ settings; the other half renders each candidate's first optimum, which then anch
 the units' axes), each with the whole frames that fill the budget, F = floor((T - t_once) / (time
 per frame)), and takes the least predicted error: a continuous optimum rounded to the grid (the
 first version) missed where whole frames matter. The check renders each candidate's optimum and
-measures its time and error; the recommendation is the one with the least measured error of those
+measures its time and error (an optimum that overran the budget is rendered again with the frames
+its measured time fits); the recommendation is the one with the least measured error of those
 that kept the budget (within `BUDGET_TOLERANCE`, a run's timing noise; of all, with a warning,
 where none did; without the check: the least predicted error). Between
 candidates the choice is left to the measurement because the models' residuals are as large as the
