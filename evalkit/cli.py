@@ -666,6 +666,16 @@ _positive_int, _non_negative_int, _positive_float = (
 )
 
 
+def _spp_or_tune(value: str) -> int | None:
+    """evalkit tune's --spp: eye paths per pixel per frame, or "tune" (None: the tuner chooses)."""
+    if value == "tune":
+        return None
+    try:
+        return _positive_int(value)
+    except argparse.ArgumentTypeError as e:
+        raise argparse.ArgumentTypeError(f"{e}, or tune") from None
+
+
 def _vec(v) -> str:
     return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
 
@@ -862,7 +872,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=_positive_int, default=128)
     p.add_argument("--bounces", type=_positive_int, default=3)
     p.add_argument(
-        "--spp", type=_positive_int, help="eye paths per pixel per frame (default: tuned as well, from 1 to 128)"
+        "--spp",
+        type=_spp_or_tune,
+        default=16,
+        metavar="S|tune",
+        help="eye paths per pixel per frame (default 16; tune: tuned as well, from 1 to 128)",
     )
     p.add_argument("--reference-spp", type=_positive_int, default=16384, help="the Mitsuba reference's (default 16384)")
     p.add_argument("--seed", type=int, default=0)

@@ -267,6 +267,7 @@ def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
         (["--budget", "10", "--method", "mitsuba"], "method must be perfect, imperfect or both, got 'mitsuba'"),
         (["--budget", "10", "--strategy", "light"], "strategy must be eye, bidirectional or both, got 'light'"),
         (["--budget", "10", "--shadow-maps", "rays"], "light_visibility must be exact, imperfect or both, got 'rays'"),
+        (["--budget", "10", "--spp", "fast"], "argument --spp: 'fast' is not an integer, or tune"),
     ],
 )
 def test_bad_tune_input_is_one_line(tmp_path, args, said):
@@ -342,11 +343,12 @@ def test_a_candidates_calibration_is_its_methods_runs_with_the_other_units_setti
 
 def test_tune_chooses_between_strategies_on_a_room_lit_only_after_a_bounce(tmp_path):
     """`--strategy both` calibrates, refines and checks eye and bidirectional paths alike, with the
-    eye paths per pixel tuned too; in the lit room, where eye paths find the light only by chance,
+    eye paths per pixel tuned too (`--spp tune`); in the lit room, where eye paths find the light only by chance,
     the bidirectional optimum measures less error and is recommended with its light paths."""
     r = run_evalkit(
         "tune", "lit-room", "--budget", "2", "--method", "perfect", "--strategy", "both", "--width", "32",
-        "--height", "32", "--reference-spp", "4096", "--calibration-share", "1", "--json", "--out", str(tmp_path),
+        "--height", "32", "--spp", "tune", "--reference-spp", "4096", "--calibration-share", "1", "--json",
+        "--out", str(tmp_path),
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout.strip().splitlines()[-1])

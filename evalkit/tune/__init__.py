@@ -3,7 +3,7 @@ models of time and error fitted to a short calibration sweep of the scene, check
 
 For a scene, an image (width x height, B bounces) and a budget of T seconds of render time, the
 settings are the candidate (a bundle method, a path strategy and a light visibility: `Candidate`), K
-directions, R lines per side, S eye paths per pixel per frame (unless the caller pins them), for
+directions, R lines per side, S eye paths per pixel per frame (only with ``--spp tune``), for
 imperfect bundles N points and splat scale s, for bidirectional paths V light paths, and F frames.
 Each model is fitted per scene and candidate, to the rows of a calibration study (`evalkit.study`,
 so its runs are cached in the output folder and a second call with the same budget runs nothing
@@ -36,9 +36,11 @@ the holes of the splat points, with the hole model's shape for their sampler (c,
 studies/hole_vs_splat.toml); g s^2 / N the splats' overhang, which grows with their radius squared;
 u / (F V) what the connections add, shared by a frame's pixels, and so, like w, not falling with S.
 Each candidate fits its own v: the eye paths' variance is what the light paths take away. The
-shared terms are why S is tuned: on atrium eye paths beat bidirectional paths from S = 16 on and
-lose at S = 4 (docs/BIDIRECTIONAL.md); the calibration runs take S in a cycle of their own
-(`CALIBRATION_SPP`).
+shared terms are why S can matter to the choice of strategy: on atrium eye paths beat
+bidirectional paths from S = 16 on and lose at S = 4 (docs/BIDIRECTIONAL.md). With ``--spp tune``
+the calibration runs take S in a cycle of their own (`CALIBRATION_SPP`); the default keeps S = 16,
+whose recommendations measured as good or better (README: the same calibration time spread over
+one more setting fits it less well).
 
 Both fits minimise the squared log residuals by gradient descent with Dr.Jit's automatic
 differentiation (`evalkit.metrics.fitting`). The calibration costs about ``calibration_share`` times

@@ -112,7 +112,7 @@ def tune(
     width: int = 128,
     height: int = 128,
     bounces: int = 3,
-    spp: int | None = None,
+    spp: int | None = 16,
     reference_spp: int = 16384,
     seed: int = 0,
     calibration_share: float = CALIBRATION_SHARE,
@@ -124,7 +124,8 @@ def tune(
     fitted to a calibration sweep of about ``calibration_share`` x ``budget`` seconds of render time,
     among the candidates of ``method``, ``strategy`` and ``light_visibility`` (each a registered
     unit's name, or "both" for every registered one; the strategy and light visibility default to
-    the default units), with ``spp`` eye paths per pixel per frame (None: tuned as well),
+    the default units), with ``spp`` eye paths per pixel per frame (None: tuned as well:
+    on atrium and cornell-box no better than 16, and worse at short budgets, README),
     and (``check``) measure the recommendation; ``grid``: a study's folder to compare it with
     (`compare_with_grid`). Returns everything `evalkit tune --json` prints; writes ``tune.json``
     and ``report.html`` to ``out``."""

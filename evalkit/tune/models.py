@@ -31,7 +31,8 @@ GRID = {
 # The eye paths per pixel per frame of the calibration runs, taken in turn (a cycle of 4 against the
 # bundle methods' 10 or 13 runs and the light paths' 3, so that no two settings move together); the
 # last two runs, the long ones, take the first two. Atrium's eye paths win or lose against
-# bidirectional paths by this setting alone (docs/BIDIRECTIONAL.md), so it is tuned unless given.
+# bidirectional paths by this setting alone (docs/BIDIRECTIONAL.md); `evalkit tune --spp tune`
+# tunes it.
 CALIBRATION_SPP = (4, 32, 1, 16)
 # The terms every candidate's models have: a render's once-only cost, a frame's cost outside the
 # bundles and the paths, the lists K R^2 and the eye paths S (time); the O(1/R) bias, the paths'
@@ -79,7 +80,7 @@ class Candidate:
 
 def axes(candidate: Candidate, pinned: dict | None = None) -> dict:
     """The settings the optimiser varies for ``candidate``, with their grids; a ``pinned`` setting
-    (the caller's --spp) has its one value."""
+    (the eye paths per pixel, unless ``--spp tune``) has its one value."""
     grid = {**GRID, **{a: v for t in candidate.tunes for a, v in t.axes.items()}}
     return {**grid, **{a: [v] for a, v in (pinned or {}).items()}}
 
