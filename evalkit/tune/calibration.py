@@ -153,7 +153,7 @@ def tune(
     studies = TunerStudies({"scene": scene, "seed": seed, **image}, metric, reference_spp, out, progress)
     seconds = calibration_share * budget
     rows = studies.run(
-        "calibration", calibration_grid(candidates, SPREAD * seconds, (spp,) if spp else CALIBRATION_SPP)
+        "calibration", calibration_grid(candidates, SPREAD * seconds, CALIBRATION_SPP if spp is None else (spp,))
     )
     models = {c: _fit(c, rows, metric) for c in candidates}
     refused = {c: [] for c in candidates}  # (setting, the renderer's reason)
