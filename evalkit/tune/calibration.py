@@ -39,7 +39,8 @@ MAX_FRAMES = 100_000  # a calibration run's frame limit: its time budget ends it
 # noise loses to one that kept it, whatever its error (cornell-box's 10 s: bidirectional paths
 # predicted at 9.96 s measured 12.9 s, 0.87x the error of eye paths that kept the budget).
 BUDGET_TOLERANCE = 0.1
-# The status of a run whose settings the renderer refused before rendering (`LimitError`).
+# The status prefix of a run whose settings the renderer refused before rendering (`LimitError`);
+# its row names the settings at fault in ``limit_settings`` (evalkit/study/run.py).
 REFUSED = f"error: {LimitError.__name__}: "
 
 
@@ -76,7 +77,7 @@ class TunerStudies:
 
     def run(self, name: str, grid: list[dict], refusals: bool = False) -> list[dict]:
         """The rows of the runs ``grid`` (in ``out``/``name``); a failed run is an error naming the
-        folder, except, with ``refusals``, one whose settings the renderer refused (`REFUSED`)."""
+        folder, except, with ``refusals``, one whose settings the renderer refused (a row with ``limit_settings``)."""
         image, metric = self.metric.split("_", 1)
         study = study_from_dict(
             {
@@ -93,7 +94,7 @@ class TunerStudies:
             }
         )
         rows = run_study(study, self.out / name, progress=self.progress, command=" ".join(sys.argv))
-        failed = [r for r in rows if r["status"] != "ok" and not (refusals and r["status"].startswith(REFUSED))]
+        failed = [r for r in rows if r["status"] != "ok" and not (refusals and "limit_settings" in r)]
         if failed:
             raise InputError(
                 str(self.out / name), f"{len(failed)} of the tuner's runs failed, first: {failed[0]['status']}"
@@ -259,7 +260,7 @@ def _rendered_optima(studies: TunerStudies, name: str, optima: list, run, optimu
     ``optimum(candidate)``, is rendered instead. Returns the optima rendered and their rows."""
     while True:
         rows = studies.run(name, [run(o) for o in optima], refusals=True)  # in the order of the runs
-        faults = [(o, r) for o, r in zip(optima, rows) if r["status"].startswith(REFUSED)]
+        faults = [(o, r) for o, r in zip(optima, rows) if "limit_settings" in r]
         if not faults:
             return optima, rows
         for o, row in faults:
@@ -268,7 +269,7 @@ def _rendered_optima(studies: TunerStudies, name: str, optima: list, run, optimu
             if not setting:  # past a limit that no setting the tuner varies moves
                 raise InputError(studies.out / name, f"{o.candidate.name}: {reason}")
             refused[o.candidate].append((setting, reason))
-        optima = [optimum(o.candidate) if r["status"].startswith(REFUSED) else o for o, r in zip(optima, rows)]
+        optima = [optimum(o.candidate) if "limit_settings" in r else o for o, r in zip(optima, rows)]
 
 
 def _rerendered_within_budget(
