@@ -36,7 +36,7 @@ from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_E
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
-from evalkit.tune import CALIBRATION_SHARE, Candidate, settings_text, tune
+from evalkit.tune import CALIBRATION_SHARE, Candidate, bias_text, settings_text, tune
 from gpu_impl.api import render, trace_bundles
 from gpu_impl.bundles import format_bytes
 from gpu_impl.registry import KINDS, METHODS, all_units, owners, resolve
@@ -492,6 +492,12 @@ def _tune(args) -> int:
             + f", {grid['best']['time_s']:.3g} s, {result['metric']} {grid['best']['error']:.4g}"
             + (f" (the recommendation's measured error is {grid['ratio']:.2f}x it)" if "ratio" in grid else "")
         )
+    for name, terms in result["measured_bias"].items():
+        for term, table in terms.items():
+            print(f"bias        {name}: {term} measured at {table['setting']} {bias_text(table)}")
+    for name, idle in result["idle"].items():
+        settings = ", ".join(f"{k}={v}" for k, v in idle.items())
+        print(f"idle        {name}: {settings} left at the default (its renders draw no light vertex's map)")
     calibration = result["calibration"]
     print(
         f"calibration {calibration['runs']} runs, {calibration['render_s']:.1f} s of render time "

@@ -332,7 +332,7 @@ class ShadowLights:
                     f"{self.light_vertices:,} light vertices' shadow maps ({texels:,} texels) exceed the GL texture "
                     f"limit of {gl.limit('GL_MAX_TEXTURE_SIZE')} a side; lower the light samples, the light paths "
                     "or their maps' size",
-                    ("light_paths",),
+                    ("light_paths", visibility.map_size_setting),
                 )
             sizes = [self.map_size] * self.fixed_views + [visibility.map_size] * (per_vertex * self.light_vertices)
             corners, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"), new_row=self.fixed_views)

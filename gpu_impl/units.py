@@ -35,7 +35,12 @@ class TuneTerms:
     (directions, resolution, spp, frames and the axes; ``sampler`` too for the error) that work on
     numpy arrays and scalars alike. ``calibration``: the unit's calibration runs, spread so that
     every term changes between them (a candidate's runs are its bundle method's, each with the
-    other units' settings taken in turn from theirs).
+    other units' settings taken in turn from theirs). ``measured``: error terms of a bias, each with
+    the setting it falls with, measured instead of fitted where the metric adds a bias as its
+    square: renders that differ only in that setting (each value of its axis, the same seed: the
+    same paths) give the bias at each value against the largest (`evalkit.tune.calibration`). A
+    calibration run's noise hides a bias that a close-up of a contact shows (+9 % at the smallest
+    exact maps), and no one power of the setting follows it.
     """
 
     axes: dict = field(default_factory=dict)
@@ -44,6 +49,7 @@ class TuneTerms:
     error_terms: tuple[str, ...] = ()
     error: Callable = lambda x: []
     calibration: tuple[dict, ...] = ()
+    measured: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -90,7 +96,8 @@ class BundleMethod(Unit):
 class LightVisibility(Unit):
     """How light vertices (emitter samples, light-path vertices) see the scene: shadow maps of one
     kind. ``maps(gl, gpu_scene, its_settings)`` makes the object that draws them each frame
-    (`gpu_impl.visibility`): its ``tiles_per_vertex`` and ``map_size`` in the shadow atlas, the
+    (`gpu_impl.visibility`): its ``tiles_per_vertex`` and ``map_size`` in the shadow atlas (and the
+    setting that gives it, ``map_size_setting``), the
     ``nbytes`` it holds beside the atlas, ``defines()``, ``check(V)``, ``render(...)`` and
     ``release()``."""
 
@@ -101,10 +108,13 @@ class LightVisibility(Unit):
 @dataclass(frozen=True)
 class PathStrategy(Unit):
     """How a frame's paths are made and weighted. ``paths(renderer, its_settings)`` makes the object
-    that runs them each frame (`gpu_impl.strategies`)."""
+    that runs them each frame (`gpu_impl.strategies`); ``light_vertices``: whether they start at the
+    lights, so that every scene's frames have light vertices and their maps (otherwise only the
+    emitter samples of emissive triangles have them)."""
 
     kind: ClassVar[str] = "path strategy"
     paths: Callable = None
+    light_vertices: bool = False
 
 
 class Registry:

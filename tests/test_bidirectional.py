@@ -122,8 +122,8 @@ def test_bad_bidirectional_settings_are_one_line_errors(tmp_path, flags, message
 def test_light_vertices_past_the_texture_limit_are_refused_before_anything_is_made(gl):
     """A shadow atlas that cannot fit the GL texture limit is a `LimitError` (what `evalkit tune`
     takes as the renderer's refusal, tests/test_tune.py) from the renderer's constructor, with the
-    vertices, the texels and the limit named; half as many are made (the tiles are packed in rows,
-    so not every texel of the limit is used)."""
+    vertices, the texels, the limit and the settings at fault named; half as many are made (the
+    tiles are packed in rows, so not every texel of the limit is used)."""
     side, size = gl.limit("GL_MAX_TEXTURE_SIZE"), 1024
     fits = side * side // (6 * size * size)  # cube maps of `size` texels a face
     settings = dict(method="perfect", strategy="bidirectional", bounces=1, directions=4, resolution=16, frames=1)
@@ -131,8 +131,10 @@ def test_light_vertices_past_the_texture_limit_are_refused_before_anything_is_ma
     scene = load_scene("lit-room")  # one spot light: a single fixed view of 16 texels a side
     with pytest.raises(
         LimitError, match=rf"light vertices' shadow maps \([\d,]+ texels\) exceed the GL texture limit of {side}"
-    ):
+    ) as refused:
         Renderer(gl, scene, RenderSettings(**settings, light_paths=fits + 1))
+    # The tuner passes over these light paths and maps of this size, and more of either.
+    assert refused.value.settings == ("light_paths", "light_sample_map_size")
     with Renderer(gl, scene, RenderSettings(**settings, light_paths=fits // 2)) as renderer:
         assert renderer.lights.light_vertices == fits // 2
 

@@ -22,32 +22,59 @@ from evalkit.tune import (
     fit_model,
     optimise,
 )
-from evalkit.tune.calibration import BUDGET_TOLERANCE, REFUSED, _rendered_optima, _rerendered_within_budget
+from evalkit.tune.calibration import (
+    BIAS_FRAMES,
+    BUDGET_TOLERANCE,
+    REFUSED,
+    _rendered_optima,
+    _rerendered_within_budget,
+    bias_runs,
+    measure_bias,
+)
+from evalkit.tune.models import idle_axes
 
 PERFECT, IMPERFECT = Candidate("perfect"), Candidate("imperfect")
 BIDIRECTIONAL = Candidate("perfect", "bidirectional")
 TIME = {
-    PERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_paths": 0.4, "t_dirs": 2.0},
-    IMPERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.2, "t_paths": 0.4, "t_points": 0.02, "t_nodes": 0.1},
+    PERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_paths": 0.4, "t_texels": 0.5, "t_dirs": 2.0},
+    IMPERFECT: {
+        "t_once": 0.2,
+        "t0": 0.05,
+        "t_lists": 0.2,
+        "t_paths": 0.4,
+        "t_texels": 0.5,
+        "t_points": 0.02,
+        "t_nodes": 0.1,
+    },
     BIDIRECTIONAL: {
         "t_once": 0.2,
         "t0": 0.05,
         "t_lists": 0.3,
         "t_paths": 0.4,
+        "t_texels": 0.5,
         "t_dirs": 2.0,
         "t_light": 0.5,
         "t_connect": 0.3,
     },  # fmt: skip
 }
 ERROR = {
-    PERFECT: {"b": 0.004, "v": 0.05, "w": 0.5},
-    IMPERFECT: {"b": 0.004, "v": 0.05, "w": 0.5, "h": 0.3, "g": 0.002},
-    BIDIRECTIONAL: {"b": 0.004, "v": 0.01, "w": 0.5, "u": 0.8},
+    PERFECT: {"b": 0.004, "v": 0.05, "w": 0.5, "m": 0.001},
+    IMPERFECT: {"b": 0.004, "v": 0.05, "w": 0.5, "m": 0.001, "h": 0.3, "g": 0.002},
+    BIDIRECTIONAL: {"b": 0.004, "v": 0.01, "w": 0.5, "m": 0.001, "u": 0.8},
 }
 
 
-def settings(K, R, N=16384, s=1.8, F=1, V=32, S=16) -> dict:
-    return {"directions": K, "resolution": R, "points": N, "splat_scale": s, "light_paths": V, "frames": F, "spp": S}
+def settings(K, R, N=16384, s=1.8, F=1, V=32, S=16, M=64) -> dict:
+    return {
+        "directions": K,
+        "resolution": R,
+        "points": N,
+        "splat_scale": s,
+        "light_paths": V,
+        "frames": F,
+        "spp": S,
+        "light_sample_map_size": M,
+    }
 
 
 def synthetic_rows(candidate: Candidate) -> list[dict]:
@@ -57,9 +84,9 @@ def synthetic_rows(candidate: Candidate) -> list[dict]:
     splats = [(4096, 1.4), (16384, 1.8), (8192, 2.4)] if candidate == IMPERFECT else [(16384, 1.8)]
     light_paths = [8, 64] if candidate == BIDIRECTIONAL else [32]
     rows = []
-    grid = itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats, light_paths, (1, 4, 64))
-    for K, R, F, (N, s), V, S in grid:
-        x = settings(K, R, N, s, F, V, S)
+    grid = itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats, light_paths, (1, 4, 64), (32, 256))
+    for K, R, F, (N, s), V, S, M in grid:
+        x = settings(K, R, N, s, F, V, S, M)
         rows.append(
             {
                 **candidate.settings(),
@@ -82,6 +109,46 @@ def test_fits_recover_known_time_and_error_constants(candidate):
         for name, value in true.items():
             assert fitted[name] == pytest.approx(value, rel=0.01), name
     assert time_model.rms_residual() < 1e-3 and error_model.rms_residual() < 1e-3
+
+
+def test_a_measured_bias_term_is_kept_and_the_others_are_fitted_around_it():
+    """A bias term measured at each value of its setting replaces its feature (interpolated in
+    log-log, constant 1); the fit recovers the other constants around it, and a wrong table shows
+    in the residuals."""
+    rows = synthetic_rows(PERFECT)
+    values = axes(PERFECT)["light_sample_map_size"]
+    table = {"setting": "light_sample_map_size", "values": values, "bias": [0.001 * (64 / M) ** 2 for M in values]}
+    model = fit_model(PERFECT, "error", rows, "indirect_relmse", measured={"m": table})
+    assert model.constants["m"] == 1.0 and model.rms_residual() < 1e-3
+    for name, value in ERROR[PERFECT].items():
+        if name != "m":
+            assert model.constants[name] == pytest.approx(value, rel=0.01), name
+    truth = Model(PERFECT, "error", ERROR[PERFECT], [])
+    for M in (32, 45.25, 256):  # on the table and between its values, where the truth is a power of M
+        x = settings(16, 96, F=4, M=M)
+        assert float(model.predict(x)) == pytest.approx(float(truth.predict(x)), rel=0.01)
+    wrong = fit_model(PERFECT, "error", rows, "indirect_relmse", measured={"m": {**table, "bias": [0.1, 0, 0, 0]}})
+    assert wrong.rms_residual() > 0.01
+
+
+def test_a_bias_term_is_measured_by_renders_that_differ_only_in_its_setting():
+    """The exact maps' m: renders with the same paths (the same noise) and maps of 32 to 256
+    texels differ by their biases alone. With a bias of beta g(M) in each pixel, whatever g, each
+    one's squared difference from the render at 256 texels is the term at its M."""
+    [(term, setting, runs)] = bias_runs(PERFECT, {}, 16)
+    assert term == "m" and setting == "light_sample_map_size" and [r[setting] for r in runs] == [32, 64, 128, 256]
+    assert all(r["frames"] == BIAS_FRAMES and r["time_budget"] == 0 and r["spp"] == 16 for r in runs)
+    assert all({**r, setting: 256} == runs[-1] for r in runs)  # the same seed and settings otherwise
+    assert bias_runs(PERFECT, idle_axes(PERFECT, emitters=False), 16) == []  # no map drawn: nothing to measure
+    rng = np.random.default_rng(0)
+    noise = rng.random((16, 16, 3))
+    beta = rng.normal(0.0, 0.01, (16, 16, 3))
+    g = {32: 9.0, 64: 1.4, 128: 0.5, 256: 0.3}  # no power of M
+    rows = [{**run, "run_id": f"run{i}"} for i, run in enumerate(runs)]
+    table = measure_bias(setting, rows, [noise + beta * g[r[setting]] for r in runs], "indirect_mse")
+    assert table["values"] == [32, 64, 128, 256] and table["runs"] == ["run0", "run1", "run2", "run3"]
+    expected = [float(np.mean(beta**2)) * (g[M] - g[256]) ** 2 for M in table["values"]]
+    assert table["bias"] == pytest.approx(expected, rel=1e-9) and table["bias"][-1] == 0.0
 
 
 def test_rows_of_one_frame_each_count_the_once_per_render_cost_per_frame():
@@ -116,6 +183,7 @@ def test_the_grid_comparison_takes_the_best_run_within_the_budget(tmp_path):
         "frames_rendered": 9,
         **image,
         "spp": 16,
+        "light_sample_map_size": 256,
     }
     rows = [
         {**run, "time_budget": 10.0, "wall_s": 9.5, "indirect_relmse": 0.02},
@@ -247,14 +315,24 @@ def test_an_optimum_that_overran_the_budget_is_rendered_again_with_the_frames_it
     assert _rerendered_within_budget(studies, again, rows, run, models, 10.0) == (again, rows, [])
 
 
+def test_the_maps_size_is_left_at_its_default_where_no_light_vertex_is_drawn():
+    """Eye paths in a scene without emissive triangles draw no light vertex's map, so its size is
+    pinned at the default; with emitter samples or light paths it is tuned."""
+    assert idle_axes(PERFECT, emitters=False) == {"light_sample_map_size": 256}
+    assert idle_axes(PERFECT, emitters=True) == idle_axes(BIDIRECTIONAL, emitters=False) == {}
+    time_model, error_model = Model(PERFECT, "time", TIME[PERFECT], []), Model(PERFECT, "error", ERROR[PERFECT], [])
+    assert optimise(time_model, error_model, 10.0, idle_axes(PERFECT, False)).settings["light_sample_map_size"] == 256
+    assert optimise(time_model, error_model, 10.0).settings["light_sample_map_size"] != 256  # m is small here
+
+
 def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
     time_model, error_model = Model(PERFECT, "time", TIME[PERFECT], []), Model(PERFECT, "error", ERROR[PERFECT], [])
-    # The cheapest: K=8, R=32, 1 spp, one frame:
-    # 0.2 + 0.05 + 0.3 * 8 * 32^2 * 1e-6 + 0.4 * 1 / 16 + 2.0 * 8 * 1e-3 = 0.2935 s (shown to 3 digits).
+    # The cheapest: K=8, R=32, 1 spp, maps of 32 texels, one frame: 0.2 + 0.05 + 0.3 * 8 * 32^2 * 1e-6
+    # + 0.4 * 1 / 16 + 0.5 * (32 / 256)^2 + 2.0 * 8 * 1e-3 = 0.3013 s (shown to 3 digits).
     with pytest.raises(
         InputError,
-        match=r"a budget of 0.1 s is below the cheapest perfect setting \(K=8, R=32, spp=1, 1 frame: "
-        r"0.293 s predicted\); give at least 0.293 s",
+        match=r"a budget of 0.1 s is below the cheapest perfect setting \(K=8, R=32, spp=1, M=32, 1 frame: "
+        r"0.301 s predicted\); give at least 0.301 s",
     ):
         optimise(time_model, error_model, 0.1)
 
@@ -297,6 +375,12 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     rec = result["recommended"]
     assert {"method", "directions", "resolution", "frames", "width", "height", "bounces", "spp"} <= rec.keys()
     assert result["pinned"] == {"spp": 1} and rec["spp"] == 1
+    assert result["idle"] == {}  # cornell-box's emitter samples draw maps: their size is tuned
+    for method in ("perfect", "imperfect"):  # with the maps' bias measured by renders at each size
+        table = result["measured_bias"][method]["m"]
+        assert table["values"] == [32, 64, 128, 256] and table["bias"][-1] == 0 and min(table["bias"]) >= 0
+        assert result["models"][method]["error"]["constants"]["m"] == 1.0
+        assert all((tmp_path / "bias" / "runs" / run).is_dir() for run in table["runs"])
     assert rec["method"] == "perfect" or {"points", "splat_scale"} <= rec.keys()
     for side in ("predicted", "measured"):
         assert result[side]["time_s"] > 0 and result[side]["error"] > 0
@@ -309,9 +393,9 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     # A line for each that overran at the end, and one for each rendered again with fewer frames first.
     final = [w for w in result["warnings"] if "over the budget" in w and "rendered again" not in w]
     assert len(final) == overran
-    for method in ("perfect", "imperfect"):  # a residual per calibration run and one for the refinement run
+    for method in ("perfect", "imperfect"):  # a residual per calibration run, bias run and the refinement run
         for kind in ("time", "error"):
-            assert len(result["models"][method][kind]["residuals"]) == len(Candidate(method).calibration()) + 1
+            assert len(result["models"][method][kind]["residuals"]) == len(Candidate(method).calibration()) + 5
     assert json.loads((tmp_path / "tune.json").read_text())["recommended"] == rec
     report = (tmp_path / "report.html").read_text()
     assert "<h1>evalkit tune: cornell-box, 1 s</h1>" in report and "1 paths per pixel per frame (given)" in report
@@ -332,12 +416,15 @@ def test_a_candidates_calibration_is_its_methods_runs_with_the_other_units_setti
     # or the one value given.
     assert [r["spp"] for r in eye][:5] == [4, 32, 1, 16, 4] and [r["spp"] for r in eye][-2:] == [4, 32]
     assert {r["spp"] for r in calibration_grid([PERFECT, BIDIRECTIONAL], 10.0, (8,))} == {8}
+    # The exact maps' size in a cycle of 5, apart from the eye paths' 4 and the light paths' 3.
+    assert [r["light_sample_map_size"] for r in light][:6] == [32, 256, 64, 128, 256, 32]
+    assert len({(r["spp"], r["light_paths"], r["light_sample_map_size"]) for r in light}) == len(light)
     assert sum(r["time_budget"] for r in runs) == pytest.approx(10.0, abs=0.01)
     assert PERFECT.name == "perfect" and BIDIRECTIONAL.name == "perfect strategy=bidirectional"
     assert Candidate.of({"method": "imperfect", "light_visibility": "imperfect"}).name == (
         "imperfect light_visibility=imperfect"
     )
-    assert axes(BIDIRECTIONAL).keys() == {"directions", "resolution", "spp", "light_paths"}
+    assert axes(BIDIRECTIONAL).keys() == {"directions", "resolution", "spp", "light_paths", "light_sample_map_size"}
     assert axes(PERFECT, {"spp": 4})["spp"] == [4]
 
 
@@ -365,3 +452,11 @@ def test_tune_chooses_between_strategies_on_a_room_lit_only_after_a_bounce(tmp_p
     assert {r["spp"] for r in calibrated} == {1, 4, 16, 32}
     report = (tmp_path / "report.html").read_text()
     assert "perfect strategy=bidirectional" in report and f"{rec['spp']} paths per pixel per frame (tuned)" in report
+    # The room has a spot light and no emissive triangles: eye paths draw no light vertex's map.
+    assert result["idle"] == {"perfect": {"light_sample_map_size": 256}}
+    assert (
+        candidates[PERFECT]["light_sample_map_size"] == 256
+        and "light_sample_map_size=256 left at the default" in report
+    )
+    assert candidates[BIDIRECTIONAL]["light_sample_map_size"] in axes(BIDIRECTIONAL)["light_sample_map_size"]
+    assert result["measured_bias"].keys() == {BIDIRECTIONAL.name}  # the eye paths draw no map to measure

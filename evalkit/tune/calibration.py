@@ -12,16 +12,22 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from evalkit.core.atomic import write_text
 from evalkit.core.errors import InputError, LimitError
+from evalkit.core.exr import read_exr
+from evalkit.core.scene import load_scene
+from evalkit.metrics.images import RELMSE_EPSILON
 from evalkit.pages import is_number
 from evalkit.study.executors import read_rows, run_study
 from evalkit.study.run import versions
 from evalkit.study.spec import study_from_dict
-from evalkit.tune.models import CALIBRATION_SPP, TUNE_METRICS, Candidate, axes, fit_model
+from evalkit.tune.models import CALIBRATION_SPP, TUNE_METRICS, Candidate, axes, fit_model, idle_axes
 from evalkit.tune.optimise import Recommendation, optimise
 from evalkit.tune.report import settings_text, write_tune_report
 from gpu_impl.registry import KINDS
+from references.mitsuba import load_reference
 
 # The last two calibration runs of each candidate have LONG shares of the calibration time: runs where
 # the noise has fallen far enough for the bias terms to show (fitted to short runs alone, the
@@ -39,6 +45,12 @@ MAX_FRAMES = 100_000  # a calibration run's frame limit: its time budget ends it
 # noise loses to one that kept it, whatever its error (cornell-box's 10 s: bidirectional paths
 # predicted at 9.96 s measured 12.9 s, 0.87x the error of eye paths that kept the budget).
 BUDGET_TOLERANCE = 0.1
+# The frames of each render that measures a bias term (`TuneTerms.measured`): a fixed count, so that
+# the renders take the same paths and differ only in the setting.
+BIAS_FRAMES = 2
+# The metrics that are a mean of squared per-pixel errors, to which a bias adds its square, so that
+# renders can measure it; under the others (SMAPE, FLIP, Delta E) the bias terms are fitted.
+SQUARED_METRICS = ("mse", "relmse")
 # The status prefix of a run whose settings the renderer refused before rendering (`LimitError`);
 # its row names the settings at fault in ``limit_settings`` (evalkit/study/run.py).
 REFUSED = f"error: {LimitError.__name__}: "
@@ -61,6 +73,41 @@ def calibration_grid(candidates: list[Candidate], seconds: float, spp: tuple[int
         for c in candidates
         for i, (settings, share) in enumerate(zip(runs[c], shares[c]))
     ]
+
+
+def bias_runs(candidate: Candidate, idle: dict, spp: int) -> list[tuple[str, str, list[dict]]]:
+    """Per error term of ``candidate`` that renders measure (`TuneTerms.measured`; not those of its
+    ``idle`` settings): the term, its setting and a run at each value of the setting's axis, the
+    candidate's first calibration run otherwise (the same seed: the same paths), ``BIAS_FRAMES``
+    frames each with ``spp`` paths."""
+    sweeps = []
+    for tune_terms in candidate.tunes:
+        for term, setting in tune_terms.measured.items():
+            if setting in idle:
+                continue
+            base = {**candidate.calibration()[0], "spp": spp, "frames": BIAS_FRAMES, "time_budget": 0.0}
+            sweeps.append((term, setting, [{**base, setting: v} for v in axes(candidate)[setting]]))
+    return sweeps
+
+
+def measure_bias(setting: str, rows: list[dict], images: list[np.ndarray], metric: str) -> dict:
+    """A bias term from renders that differ only in ``setting`` (``rows`` in the order of its values,
+    their ``images`` of the metric's kind). Their paths are the same, so each one's difference
+    from the render at the largest value is the difference of their biases: the metric of one
+    against the other (normalised as against the reference). The largest value's own bias is left
+    out, and the noise left in a difference (light vertices' maps differ where they disagree) is
+    counted in, so at the smaller values it is an upper bound: the tuner errs towards larger ones."""
+    image, name = metric.split("_", 1)
+    last = images[-1].astype(np.float64)
+    norm = 1.0
+    if name == "relmse":
+        norm = np.square(load_reference(rows[0]["reference"]).images[image].astype(np.float64)) + RELMSE_EPSILON
+    return {
+        "setting": setting,
+        "values": [r[setting] for r in rows],
+        "bias": [float(np.mean(np.square(im - last) / norm)) for im in images],
+        "runs": [r["run_id"] for r in rows],
+    }
 
 
 @dataclass
@@ -150,17 +197,35 @@ def tune(
     out = Path(out or f"out/tune/{Path(scene).stem}")
     image = {"width": width, "height": height, "bounces": bounces}
     pinned = {} if spp is None else {"spp": spp}
+    emitters = load_scene(scene).features().emitters
+    idle = {c: idle_axes(c, emitters) for c in candidates}
     start = time.perf_counter()
     studies = TunerStudies({"scene": scene, "seed": seed, **image}, metric, reference_spp, out, progress)
     seconds = calibration_share * budget
     rows = studies.run(
         "calibration", calibration_grid(candidates, SPREAD * seconds, CALIBRATION_SPP if spp is None else (spp,))
     )
-    models = {c: _fit(c, rows, metric) for c in candidates}
+    # The bias terms that renders measure, where the metric adds a bias as its square.
+    biases = {c: {} for c in candidates}
+    bias_spp = CALIBRATION_SPP[0] if spp is None else spp
+    sweeps = [(c, *sweep) for c in candidates for sweep in bias_runs(c, idle[c], bias_spp)]
+    if metric.split("_", 1)[1] not in SQUARED_METRICS:
+        sweeps = []
+    if sweeps:
+        bias_rows = iter(studies.run("bias", [run for *_, runs in sweeps for run in runs]))  # in the order given
+        name = metric.split("_", 1)[0]  # the image the metric is of
+        for c, term, setting, runs in sweeps:
+            rows_of = [next(bias_rows) for _ in runs]
+            images = [read_exr(out / "bias" / "runs" / r["run_id"] / f"{name}.exr")[0] for r in rows_of]
+            biases[c][term] = measure_bias(setting, rows_of, images, metric)
+            rows += rows_of  # ordinary calibration rows as well
+    models = {c: _fit(c, rows, metric, biases[c]) for c in candidates}
     refused = {c: [] for c in candidates}  # (setting, the renderer's reason)
 
     def optimum(c: Candidate) -> Recommendation:
-        return optimise(models[c]["time"], models[c]["error"], budget, pinned, tuple(s for s, _ in refused[c]))
+        return optimise(
+            models[c]["time"], models[c]["error"], budget, {**pinned, **idle[c]}, tuple(s for s, _ in refused[c])
+        )
 
     share = round((1 - SPREAD) * seconds / len(candidates), 3)
     first, anchors = _rendered_optima(
@@ -172,7 +237,7 @@ def tune(
         refused,
     )
     rows += [{**r, "weight": len(Candidate.of(r).calibration()) / 2} for r in anchors]
-    models = {c: _fit(c, rows, metric) for c in candidates}
+    models = {c: _fit(c, rows, metric, biases[c]) for c in candidates}
     optima = [optimum(c) for c in candidates]
     measured, overran = {}, []
     if check:
@@ -205,6 +270,10 @@ def tune(
         **{field: name for field, name in choices.items() if name is not None},
         "image": image,
         "pinned": pinned,
+        # Settings left at their defaults because nothing in the candidate's renders uses them.
+        "idle": {c.name: idle[c] for c in candidates if idle[c]},
+        # Bias terms measured by renders instead of fitted (`TuneTerms.measured`).
+        "measured_bias": {c.name: biases[c] for c in candidates if biases[c]},
         "seed": seed,
         "reference_spp": reference_spp,
         "recommended": {**best.candidate.settings(), **best.settings, **image},
@@ -239,7 +308,7 @@ def tune(
             "share": calibration_share,
             "render_s": sum(float(r["wall_s"]) for r in rows),
             "run_s": sum(float(r["run_s"]) for r in rows),
-            "folders": [str(out / "calibration"), str(out / "refinement")],
+            "folders": [str(out / n) for n in ("calibration", *(("bias",) if sweeps else ()), "refinement")],
         },
         "versions": versions(),
     }
@@ -301,8 +370,11 @@ def _rerendered_within_budget(
     return optima, studies.run("check", [run(o) for o in optima]), notes
 
 
-def _fit(candidate: Candidate, rows: list[dict], metric: str) -> dict:
-    return {"time": fit_model(candidate, "time", rows), "error": fit_model(candidate, "error", rows, metric)}
+def _fit(candidate: Candidate, rows: list[dict], metric: str, biases: dict) -> dict:
+    return {
+        "time": fit_model(candidate, "time", rows),
+        "error": fit_model(candidate, "error", rows, metric, measured=biases),
+    }
 
 
 def compare_with_grid(result: dict, folder: Path) -> dict:

@@ -6,7 +6,7 @@ bundle method, a path strategy, a light visibility); each unit adds its own term
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -85,6 +85,18 @@ def axes(candidate: Candidate, pinned: dict | None = None) -> dict:
     return {**grid, **{a: [v] for a, v in (pinned or {}).items()}}
 
 
+def idle_axes(candidate: Candidate, emitters: bool) -> dict:
+    """The light visibility's axes at their defaults where ``candidate`` renders no light vertex:
+    eye paths in a scene without emissive triangles (``emitters``), whose images nothing of the
+    maps changes. Tuned there, they would follow the fit's noise (atrium's eye paths were
+    recommended maps of 256 texels that they never draw)."""
+    if emitters or KINDS["strategy"][candidate.strategy].light_vertices:
+        return {}
+    unit = KINDS["light_visibility"][candidate.light_visibility]
+    defaults = {f.name: f.default for f in fields(unit.settings)}
+    return {a: defaults[a] for a in unit.tune.axes}
+
+
 def term_names(candidate: Candidate, kind: str) -> tuple[str, ...]:
     if kind == "time":
         return (*TIME_TERMS, *(n for t in candidate.tunes for n in t.time_terms))
@@ -110,6 +122,14 @@ def error_features(candidate: Candidate, x: dict) -> list:
     ]
 
 
+def measured_bias(table: dict, value):
+    """A measured bias term (`Model.measured`) at ``value`` of its setting (numpy arrays or scalars):
+    interpolated in log-log between the values measured, the largest value's (0: the bias is
+    measured against it) taken as 1e-30."""
+    log_bias = np.log(np.maximum(np.asarray(table["bias"], dtype=np.float64), 1e-30))
+    return np.exp(np.interp(np.log(value), np.log(np.asarray(table["values"], dtype=np.float64)), log_bias))
+
+
 @dataclass
 class Model:
     """Positive constants of a sum of terms, fitted to rows; `predict` evaluates it."""
@@ -120,11 +140,22 @@ class Model:
     residuals: list  # log(predicted / measured) per calibration row
     sampler: str = "stratified"
     warning: str = ""  # what the fit could not tell from its rows
+    # Error terms measured, not fitted (`TuneTerms.measured`): term -> {"setting", "values", "bias"},
+    # the bias at each value of the setting; between them it is interpolated in log-log, and the
+    # term's constant is 1.
+    measured: dict = field(default_factory=dict)
 
     def terms(self, x: dict) -> list:
+        # Only the candidate's own settings: a row of eye paths still records the light paths' setting,
+        # and the exact maps' texels count the light paths' vertices where there are any.
+        x = {k: v for k, v in x.items() if k in axes(self.candidate) or k == "frames"}
         if self.kind == "time":
             return time_features(self.candidate, x)
-        return error_features(self.candidate, {"sampler": self.sampler, **x})
+        features = error_features(self.candidate, {"sampler": self.sampler, **x})
+        names = term_names(self.candidate, "error")
+        for term, table in self.measured.items():
+            features[names.index(term)] = measured_bias(table, x[table["setting"]])
+        return features
 
     def predict(self, x: dict):
         """Seconds for ``x["frames"]`` frames (time) or the metric after them (error), at settings
@@ -137,11 +168,18 @@ class Model:
 
 
 def fit_model(
-    candidate: Candidate, kind: str, rows: list[dict], metric: str | None = None, sampler: str = "stratified"
+    candidate: Candidate,
+    kind: str,
+    rows: list[dict],
+    metric: str | None = None,
+    sampler: str = "stratified",
+    measured: dict | None = None,
 ) -> Model:
     """Fit the time model (to ``wall_s``) or the error model (to ``metric``) of ``candidate`` to its
     rows of calibration runs (their frames: ``frames_rendered``), by Dr.Jit AD on the squared log
-    residuals."""
+    residuals; the error terms ``measured`` (`Model.measured`) are kept as measured."""
+    measured = measured or {}
+    fixed = dict.fromkeys(measured, 1.0)
     names = term_names(candidate, kind)
     target_key = "wall_s" if kind == "time" else metric
     rows = [r for r in rows if Candidate.of(r) == candidate and is_number(r.get(target_key))]
@@ -159,7 +197,7 @@ def fit_model(
         raise InputError(
             "tune", f"a {candidate.name} calibration row has {target_key} <= 0; the {kind} model needs positive values"
         )
-    skeleton = Model(candidate, kind, dict.fromkeys(names, 1.0), [], sampler)
+    skeleton = Model(candidate, kind, dict.fromkeys(names, 1.0), [], sampler, measured=measured)
     features = [np.broadcast_to(np.asarray(t, dtype=np.float64), target.shape) for t in skeleton.terms(x)]
     # A render's once-only cost cannot be told from a frame's when every row rendered as many
     # frames (a budget so short that each calibration run rendered one): it is then counted per
@@ -173,6 +211,8 @@ def fit_model(
             "once-per-render cost per frame and over-predicts longer renders; a larger --calibration-share or budget "
             "separates them"
         )
+    known = sum((fixed[name] * f for name, f in zip(names, features) if name in fixed), np.zeros_like(target))
+    fitted = [name for name in fitted if name not in fixed]
     features = [f for name, f in zip(names, features) if name in fitted]
     log_target = np.log(target)
     # A start where every term carries an equal share of the mean target.
@@ -180,11 +220,13 @@ def fit_model(
     _, Float = drjit()
 
     def loss(dr, *log_constants):
-        predicted = sum(dr.exp(c) * Float(f) for c, f in zip(log_constants, features))
+        predicted = sum(dr.exp(c) * Float(f) for c, f in zip(log_constants, features)) + Float(known)
         return dr.sum(Float(weight) * dr.square(dr.log(predicted) - Float(log_target))) / float(weight.sum())
 
     log_constants = dict(zip(fitted, gradient_descent(loss, start, steps=3000, rate=0.05)))
-    constants = {name: math.exp(log_constants[name]) if name in log_constants else 0.0 for name in names}
-    model = Model(candidate, kind, constants, [], sampler, warning)
+    constants = {
+        name: math.exp(log_constants[name]) if name in log_constants else fixed.get(name, 0.0) for name in names
+    }
+    model = Model(candidate, kind, constants, [], sampler, warning, measured)
     model.residuals = [float(v) for v in np.log(model.predict(x) / target)]
     return model

@@ -88,6 +88,19 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
         f"render time ({render_s / budget:.2f}x the budget; asked for {calibration['share']:g}x), "
         f"{calibration['run_s']:.1f} s with loading and measuring, "
         f"cached in {html.escape(' and '.join(calibration['folders']))}.</p>",
+        *[
+            f"<p>{html.escape(name)}: the bias term {term} measured by renders with the same paths that differ only "
+            f"in {html.escape(table['setting'])} (runs {html.escape(', '.join(table['runs']))}): "
+            + html.escape(bias_text(table))
+            + ".</p>"
+            for name, terms in result.get("measured_bias", {}).items()
+            for term, table in terms.items()
+        ],
+        *[
+            f"<p>{html.escape(name)}: {html.escape(', '.join(f'{k}={v}' for k, v in idle.items()))} left at the "
+            "default, as its renders draw no light vertex's map (no emissive triangles, no light paths).</p>"
+            for name, idle in result.get("idle", {}).items()
+        ],
         "<h2>Recommendation</h2><table><tr><th>setting</th><th>value</th></tr>",
         *[f"<tr><td>{html.escape(k)}</td><td>{v}</td></tr>" for k, v in rec.items()],
         f"</table><p>Each candidate's optimum, chosen between by {html.escape(result['chosen_by'])}:</p>",
@@ -142,6 +155,11 @@ def _check_viewers(result: dict, folder: Path) -> list[str]:
         row = rows[candidate["measured"]["run_id"]]
         parts += run_viewers(check, row, [image], settings_text(candidate), page_folder=folder)
     return parts
+
+
+def bias_text(table: dict) -> str:
+    """'32: 0.0123, 64: 0.00102, ...': a measured bias term (`Model.measured`) at each value."""
+    return ", ".join(f"{v}: {b:.3g}" for v, b in zip(table["values"], table["bias"]))
 
 
 def settings_text(settings: dict) -> str:

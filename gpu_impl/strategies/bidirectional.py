@@ -304,6 +304,7 @@ STRATEGY = PathStrategy(
     "every strategy weighted by multiple importance sampling",
     settings=BidirectionalSettings,
     paths=BidirectionalPaths,
+    light_vertices=True,
     tune=TuneTerms(
         axes={"light_paths": [8, 16, 32, 64, 128, 256]},
         time_terms=("t_light", "t_connect"),

@@ -14,7 +14,7 @@ import numpy as np
 from evalkit.core.settings import setting
 from gpu_impl.layout import LIGHT_VISIBILITY_EXACT
 from gpu_impl.lights import CUBE_FACES, GUARD_TEXELS, cube_views
-from gpu_impl.units import LightVisibility
+from gpu_impl.units import LightVisibility, TuneTerms
 
 # Measured on cornell-box (B=3, K=32, R=128, 128x128, 32 frames x 16 paths): maps of 128 and 256
 # texels gave the same errors there; 256 keeps contact shadows of larger scenes.
@@ -24,7 +24,11 @@ DEFAULT_MAP_SIZE = 256
 @dataclass(frozen=True)
 class ExactSettings:
     light_sample_map_size: int = setting(
-        DEFAULT_MAP_SIZE, "texels per side of each light vertex's shadow cube faces", minimum=8, unit="texels"
+        DEFAULT_MAP_SIZE,
+        "texels per side of each light vertex's shadow cube faces",
+        minimum=8,
+        unit="texels",
+        symbol="M",
     )
 
 
@@ -34,6 +38,7 @@ class ExactShadowMaps:
     sees: `gpu_impl.lights.view_clusters`)."""
 
     tiles_per_vertex = 6
+    map_size_setting = "light_sample_map_size"  # what a limit error names beside the light paths
     nbytes = 0  # the maps live in the shadow atlas
 
     def __init__(self, gl, gpu_scene, settings: ExactSettings):
@@ -72,9 +77,40 @@ def faces_front(normals: np.ndarray) -> np.ndarray:
     return along + across * (1.0 + 2.0 * GUARD_TEXELS / 8) > 0.0
 
 
+def _time(x: dict) -> list:
+    # t_texels: clearing, drawing and filtering the maps' texels, M^2 a face, for the frame's light
+    # vertices (V light paths; the 8 emitter samples of eye paths). Their triangles' cost is the
+    # strategy's t_light. Atrium, bidirectional, K=8 R=256 S=16 V=64: a frame took 4.0 s with 256
+    # texels and 2.4 s with 32 (docs/BIDIRECTIONAL.md).
+    M = x["light_sample_map_size"]
+    return [x["frames"] * (M / 256.0) ** 2 * x.get("light_paths", 8) / 8.0]
+
+
+def _error(x: dict) -> list:
+    # m: the squared bias of a map's texel, as b is of a bundle pixel: the light leaked or hidden
+    # beside contacts and edges is a band a texel or so wide. The direct light of a close-up of a
+    # ball and a box on a floor under an area light, over Mitsuba's: 1.092 and 0.971 with maps of
+    # 32 texels, 1.014 and 0.985 with 64, 1.003 and 1.000 with 256 (docs/BIDIRECTIONAL.md): no
+    # one power of M. Where the metric allows, renders at each M measure it (`TuneTerms.measured`);
+    # this form is what the fit falls back on.
+    M = x["light_sample_map_size"]
+    return [(64.0 / M) * (64.0 / M)]
+
+
 VISIBILITY = LightVisibility(
     name="exact",
     summary="a cube of shadow maps per light vertex, rasterized from the triangles",
     settings=ExactSettings,
     maps=ExactShadowMaps,
+    tune=TuneTerms(
+        axes={"light_sample_map_size": [32, 64, 128, 256]},
+        time_terms=("t_texels",),
+        time=_time,
+        error_terms=("m",),
+        error=_error,
+        # A cycle of 5 against the bundle methods' 10 or 13 runs, the light paths' 3 and the eye
+        # paths' 4, so that the map size moves apart from every other setting.
+        calibration=tuple({"light_sample_map_size": m} for m in (32, 256, 64, 128, 256)),
+        measured={"m": "light_sample_map_size"},
+    ),
 )

@@ -62,6 +62,7 @@ class ImperfectShadowMaps:
     `gpu_impl.lights.ShadowLights`, splatted from its own points every frame."""
 
     tiles_per_vertex = 1
+    map_size_setting = "ism_size"  # what a limit error names beside the light paths
 
     def __init__(self, gl, gpu_scene, settings: ImperfectSettings):
         self.gl, self.gpu_scene = gl, gpu_scene
