@@ -124,8 +124,8 @@ def error_features(candidate: Candidate, x: dict) -> list:
 
 def measured_bias(table: dict, value):
     """A measured bias term (`Model.measured`) at ``value`` of its setting (numpy arrays or scalars):
-    interpolated in log-log between the values measured, the largest value's (0: the bias is
-    measured against it) taken as 1e-30."""
+    interpolated in log-log between the values measured. The largest value's bias, against which
+    the others are measured, is 0, taken as 1e-30 so that its logarithm exists."""
     log_bias = np.log(np.maximum(np.asarray(table["bias"], dtype=np.float64), 1e-30))
     return np.exp(np.interp(np.log(value), np.log(np.asarray(table["values"], dtype=np.float64)), log_bias))
 
