@@ -37,10 +37,11 @@ class TuneTerms:
     every term changes between them (a candidate's runs are its bundle method's, each with the
     other units' settings taken in turn from theirs). ``measured``: error terms of a bias, each with
     the setting it falls with, measured instead of fitted where the metric adds a bias as its
-    square: renders that differ only in that setting (each value of its axis, the same seed: the
-    same paths) give the bias at each value against the largest (`evalkit.tune.calibration`). A
-    calibration run's noise hides a bias that a close-up of a contact shows (+9 % at the smallest
-    exact maps), and no one power of the setting follows it.
+    square: renders that differ only in that setting (each value of its axis; at one seed the same
+    paths, at two seeds independent noise) give what each value adds to the metric over the
+    largest (`evalkit.tune.calibration.measure_bias`). A calibration run's noise hides a bias that
+    a close-up of a contact shows (+9 % at the smallest exact maps), and no one power of the
+    setting follows it.
     """
 
     axes: dict = field(default_factory=dict)

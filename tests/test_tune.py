@@ -23,7 +23,6 @@ from evalkit.tune import (
     optimise,
 )
 from evalkit.tune.calibration import (
-    BIAS_FRAMES,
     BUDGET_TOLERANCE,
     REFUSED,
     _rendered_optima,
@@ -112,9 +111,9 @@ def test_fits_recover_known_time_and_error_constants(candidate):
 
 
 def test_a_measured_bias_term_is_kept_and_the_others_are_fitted_around_it():
-    """A bias term measured at each value of its setting replaces its feature (interpolated in
-    log-log, constant 1); the fit recovers the other constants around it, and a wrong table shows
-    in the residuals."""
+    """A bias term measured at each value of its setting replaces its feature (interpolated between
+    them, constant 1); the fit recovers the other constants around it, and a wrong table shows in
+    the residuals."""
     rows = synthetic_rows(PERFECT)
     values = axes(PERFECT)["light_sample_map_size"]
     table = {"setting": "light_sample_map_size", "values": values, "bias": [0.001 * (64 / M) ** 2 for M in values]}
@@ -124,31 +123,50 @@ def test_a_measured_bias_term_is_kept_and_the_others_are_fitted_around_it():
         if name != "m":
             assert model.constants[name] == pytest.approx(value, rel=0.01), name
     truth = Model(PERFECT, "error", ERROR[PERFECT], [])
-    for M in (32, 45.25, 256):  # on the table and between its values, where the truth is a power of M
+    for M in (32, 64, 256):
         x = settings(16, 96, F=4, M=M)
         assert float(model.predict(x)) == pytest.approx(float(truth.predict(x)), rel=0.01)
+    between = [float(model.predict(settings(16, 96, F=4, M=M))) for M in (32, 45.25, 64)]
+    assert between[0] > between[1] > between[2]
     wrong = fit_model(PERFECT, "error", rows, "indirect_relmse", measured={"m": {**table, "bias": [0.1, 0, 0, 0]}})
     assert wrong.rms_residual() > 0.01
 
 
 def test_a_bias_term_is_measured_by_renders_that_differ_only_in_its_setting():
-    """The exact maps' m: renders with the same paths (the same noise) and maps of 32 to 256
-    texels differ by their biases alone. With a bias of beta g(M) in each pixel, whatever g, each
-    one's squared difference from the render at 256 texels is the term at its M."""
-    [(term, setting, runs)] = bias_runs(PERFECT, {}, 16)
-    assert term == "m" and setting == "light_sample_map_size" and [r[setting] for r in runs] == [32, 64, 128, 256]
-    assert all(r["frames"] == BIAS_FRAMES and r["time_budget"] == 0 and r["spp"] == 16 for r in runs)
-    assert all({**r, setting: 256} == runs[-1] for r in runs)  # the same seed and settings otherwise
-    assert bias_runs(PERFECT, idle_axes(PERFECT, emitters=False), 16) == []  # no map drawn: nothing to measure
+    """The exact maps' m: renders at maps of 32 to 256 texels, at two seeds. At one seed they take
+    the same paths; with a bias of c + beta g(M) in each pixel (c: the bias of everything else,
+    g: no power of M) and independent noise at the two seeds, the estimate is what each M adds to
+    the error once the noise has gone, (c + beta g(M))^2 - (c + beta g(256))^2, and 0 where the
+    maps' bias cancels c."""
+    [(term, setting, runs)] = bias_runs(PERFECT, {}, 16, seed=5)
+    assert term == "m" and setting == "light_sample_map_size"
+    assert [(r["seed"], r[setting], r["frames"]) for r in runs] == [
+        (seed, M, seed - 4) for seed in (5, 6) for M in (32, 64, 128, 256)
+    ]  # one frame at the first seed, two at the next: the time model tells the once-per-render cost
+    assert all(r["time_budget"] == 0 and r["spp"] == 16 for r in runs)
+    assert all({**r, setting: 256} == runs[3 if r["seed"] == 5 else 7] for r in runs)  # the rest the same
+    assert bias_runs(PERFECT, idle_axes(PERFECT, emitters=False), 16, seed=5) == []  # no map drawn: nothing to measure
     rng = np.random.default_rng(0)
-    noise = rng.random((16, 16, 3))
-    beta = rng.normal(0.0, 0.01, (16, 16, 3))
-    g = {32: 9.0, 64: 1.4, 128: 0.5, 256: 0.3}  # no power of M
-    rows = [{**run, "run_id": f"run{i}"} for i, run in enumerate(runs)]
-    table = measure_bias(setting, rows, [noise + beta * g[r[setting]] for r in runs], "indirect_mse")
-    assert table["values"] == [32, 64, 128, 256] and table["runs"] == ["run0", "run1", "run2", "run3"]
-    expected = [float(np.mean(beta**2)) * (g[M] - g[256]) ** 2 for M in table["values"]]
-    assert table["bias"] == pytest.approx(expected, rel=1e-9) and table["bias"][-1] == 0.0
+    shape = (256, 256, 3)
+    reference = rng.random(shape) + 0.5
+    c, beta = rng.normal(0.0, 0.02, shape), rng.normal(0.0, 0.01, shape)
+    g = {32: 9.0, 64: 1.4, 128: 0.5, 256: 0.3}
+    values = [32, 64, 128, 256]
+    images = []
+    for _ in range(2):  # each seed's own path noise, shared by its renders, and the maps' own noise
+        paths = rng.normal(0.0, 0.05, shape)
+        images.append([reference + c + beta * g[M] + paths + rng.normal(0.0, 0.01, shape) * (M < 256) for M in values])
+    grows = measure_bias(images, reference, "indirect_mse")
+    expected = [float(np.mean((c + beta * g[M]) ** 2 - (c + beta * g[256]) ** 2)) for M in values]
+    # within 5 %, or for the smallest, within the estimate's own noise over these pixels (about 1e-6)
+    assert grows[-1] == 0.0 and grows[:3] == pytest.approx(expected[:3], rel=0.05, abs=3e-6)
+    # relMSE normalises as the metric does; a maps' bias that cancels the rest gets no credit
+    relative = measure_bias(images, reference, "indirect_relmse")
+    assert relative[0] == pytest.approx(
+        float(np.mean(((c + beta * 9.0) ** 2 - (c + beta * 0.3) ** 2) / (reference**2 + 0.01))), rel=0.05
+    )
+    cancelling = [[reference - 0.05 + 0.04 * (M < 256) for M in values] for _ in range(2)]
+    assert measure_bias(cancelling, reference, "indirect_mse") == [0.0] * 4
 
 
 def test_rows_of_one_frame_each_count_the_once_per_render_cost_per_frame():
@@ -378,7 +396,8 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     assert result["idle"] == {}  # cornell-box's emitter samples draw maps: their size is tuned
     for method in ("perfect", "imperfect"):  # with the maps' bias measured by renders at each size
         table = result["measured_bias"][method]["m"]
-        assert table["values"] == [32, 64, 128, 256] and table["bias"][-1] == 0 and min(table["bias"]) >= 0
+        assert table["values"] == [32, 64, 128, 256] and len(table["runs"]) == 8
+        assert table["bias"][-1] == 0 and min(table["bias"]) >= 0
         assert result["models"][method]["error"]["constants"]["m"] == 1.0
         assert all((tmp_path / "bias" / "runs" / run).is_dir() for run in table["runs"])
     assert rec["method"] == "perfect" or {"points", "splat_scale"} <= rec.keys()
@@ -395,7 +414,7 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     assert len(final) == overran
     for method in ("perfect", "imperfect"):  # a residual per calibration run, bias run and the refinement run
         for kind in ("time", "error"):
-            assert len(result["models"][method][kind]["residuals"]) == len(Candidate(method).calibration()) + 5
+            assert len(result["models"][method][kind]["residuals"]) == len(Candidate(method).calibration()) + 9
     assert json.loads((tmp_path / "tune.json").read_text())["recommended"] == rec
     report = (tmp_path / "report.html").read_text()
     assert "<h1>evalkit tune: cornell-box, 1 s</h1>" in report and "1 paths per pixel per frame (given)" in report

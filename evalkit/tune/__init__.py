@@ -42,11 +42,12 @@ u / (F V) what the connections add, shared by a frame's pixels, and so, like w, 
 m(M) the squared bias of a shadow map's texel (light leaked or hidden beside contacts, a band a
 texel or so wide), and t_texels the maps' texels, which on atrium are 40 % of a bidirectional
 frame at M = 256 and next to nothing at 32 (gpu_impl/visibility/exact.py). Under mse and relmse,
-m(M) is measured, not fitted: renders at each M with the same seed (the same paths, `BIAS_FRAMES`
-frames) differ by their maps' bias alone, so each one's squared difference from the render at the
-largest M is m there, an upper bound (the noise left in the difference counts in). A calibration
-run's noise hides that bias where a close-up of a contact shows it (+9 % at M = 32), and it
-follows no one power of M. Eye paths in a scene without emissive triangles draw no map: M stays
+m(M) is measured, not fitted: renders at each M with the same seed (the same paths) differ by
+their maps' bias and noise, and at two seeds (`BIAS_SEEDS`) the differences from the render at the
+largest M give an unbiased estimate of what each M adds to the metric in the limit, the cross term
+with every other bias included (`calibration.measure_bias`; at least 0). A calibration run's noise
+hides that bias where a close-up of a contact shows it (+9 % at M = 32), and it follows no one
+power of M. Eye paths in a scene without emissive triangles draw no map: M stays
 at its default for them (`models.idle_axes`).
 Each candidate fits its own v: the eye paths' variance is what the light paths take away. The
 shared terms are why S can matter to the choice of strategy: on atrium eye paths beat

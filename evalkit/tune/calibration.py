@@ -45,9 +45,9 @@ MAX_FRAMES = 100_000  # a calibration run's frame limit: its time budget ends it
 # noise loses to one that kept it, whatever its error (cornell-box's 10 s: bidirectional paths
 # predicted at 9.96 s measured 12.9 s, 0.87x the error of eye paths that kept the budget).
 BUDGET_TOLERANCE = 0.1
-# The frames of each render that measures a bias term (`TuneTerms.measured`): a fixed count, so that
-# the renders take the same paths and differ only in the setting.
-BIAS_FRAMES = 2
+# The seeds of the renders that measure a bias term (`TuneTerms.measured`): two, so that their noise
+# is independent and the estimate unbiased (`measure_bias`).
+BIAS_SEEDS = 2
 # The metrics that are a mean of squared per-pixel errors, to which a bias adds its square, so that
 # renders can measure it; under the others (SMAPE, FLIP, Delta E) the bias terms are fitted.
 SQUARED_METRICS = ("mse", "relmse")
@@ -75,39 +75,44 @@ def calibration_grid(candidates: list[Candidate], seconds: float, spp: tuple[int
     ]
 
 
-def bias_runs(candidate: Candidate, idle: dict, spp: int) -> list[tuple[str, str, list[dict]]]:
+def bias_runs(candidate: Candidate, idle: dict, spp: int, seed: int) -> list[tuple[str, str, list[dict]]]:
     """Per error term of ``candidate`` that renders measure (`TuneTerms.measured`; not those of its
-    ``idle`` settings): the term, its setting and a run at each value of the setting's axis, the
-    candidate's first calibration run otherwise (the same seed: the same paths), ``BIAS_FRAMES``
-    frames each with ``spp`` paths."""
+    ``idle`` settings): the term, its setting and its runs, the candidate's first calibration run at
+    each value of the setting's axis with ``spp`` paths, for each of `BIAS_SEEDS` seeds from
+    ``seed`` (in that order: every value at the first seed, then at the next). The first seed's
+    render one frame, the next two: beside calibration runs that render one frame each (a short
+    budget), that lets the time model tell the once-per-render cost from a frame's."""
     sweeps = []
     for tune_terms in candidate.tunes:
         for term, setting in tune_terms.measured.items():
             if setting in idle:
                 continue
-            base = {**candidate.calibration()[0], "spp": spp, "frames": BIAS_FRAMES, "time_budget": 0.0}
-            sweeps.append((term, setting, [{**base, setting: v} for v in axes(candidate)[setting]]))
+            base = {**candidate.calibration()[0], "spp": spp, "time_budget": 0.0}
+            values = axes(candidate)[setting]
+            runs = [{**base, "seed": seed + i, "frames": i + 1, setting: v} for i in range(BIAS_SEEDS) for v in values]
+            sweeps.append((term, setting, runs))
     return sweeps
 
 
-def measure_bias(setting: str, rows: list[dict], images: list[np.ndarray], metric: str) -> dict:
-    """A bias term from renders that differ only in ``setting`` (``rows`` in the order of its values,
-    their ``images`` of the metric's kind). Their paths are the same, so each one's difference
-    from the render at the largest value is the difference of their biases: the metric of one
-    against the other (normalised as against the reference). The largest value's own bias is left
-    out, and the noise left in a difference (light vertices' maps differ where they disagree) is
-    counted in, so at the smaller values it is an upper bound: the tuner errs towards larger ones."""
-    image, name = metric.split("_", 1)
-    last = images[-1].astype(np.float64)
-    norm = 1.0
-    if name == "relmse":
-        norm = np.square(load_reference(rows[0]["reference"]).images[image].astype(np.float64)) + RELMSE_EPSILON
-    return {
-        "setting": setting,
-        "values": [r[setting] for r in rows],
-        "bias": [float(np.mean(np.square(im - last) / norm)) for im in images],
-        "runs": [r["run_id"] for r in rows],
-    }
+def measure_bias(images: list[list[np.ndarray]], reference: np.ndarray, metric: str) -> list[float]:
+    """What each value of a setting adds to the metric, over its largest value, once the noise has
+    gone: from renders at every value (``images[i][j]``: seed i, value j, the largest last; the
+    metric's image) at two seeds. At one seed the renders take the same paths, so their difference
+    D from the largest value's render is the difference of their biases plus what noise the
+    setting itself adds; E = that render - ``reference`` is the largest value's bias plus noise.
+    The metric then grows by D^2 + 2 D E in the limit, and D1 D2 + D1 E2 + D2 E1, with seeds 1 and 2
+    independent, is an unbiased estimate of it (normalised as the metric is). A value whose bias
+    cancels another (a leak brightening an image that is too dark) is given no credit: at least 0."""
+    name = metric.split("_", 1)[1]
+    ref = reference.astype(np.float64)
+    norm = np.square(ref) + RELMSE_EPSILON if name == "relmse" else 1.0
+    (a1, a2) = ([im.astype(np.float64) for im in seed] for seed in images)
+    e1, e2 = a1[-1] - ref, a2[-1] - ref
+    grows = []
+    for m1, m2 in zip(a1, a2):
+        d1, d2 = m1 - a1[-1], m2 - a2[-1]
+        grows.append(max(0.0, float(np.mean((d1 * d2 + d1 * e2 + d2 * e1) / norm))))
+    return grows
 
 
 @dataclass
@@ -208,7 +213,7 @@ def tune(
     # The bias terms that renders measure, where the metric adds a bias as its square.
     biases = {c: {} for c in candidates}
     bias_spp = CALIBRATION_SPP[0] if spp is None else spp
-    sweeps = [(c, *sweep) for c in candidates for sweep in bias_runs(c, idle[c], bias_spp)]
+    sweeps = [(c, *sweep) for c in candidates for sweep in bias_runs(c, idle[c], bias_spp, seed)]
     if metric.split("_", 1)[1] not in SQUARED_METRICS:
         sweeps = []
     if sweeps:
@@ -217,7 +222,15 @@ def tune(
         for c, term, setting, runs in sweeps:
             rows_of = [next(bias_rows) for _ in runs]
             images = [read_exr(out / "bias" / "runs" / r["run_id"] / f"{name}.exr")[0] for r in rows_of]
-            biases[c][term] = measure_bias(setting, rows_of, images, metric)
+            values = axes(c)[setting]
+            per_seed = [images[i * len(values) : (i + 1) * len(values)] for i in range(BIAS_SEEDS)]
+            reference = load_reference(rows_of[0]["reference"]).images[name]
+            biases[c][term] = {
+                "setting": setting,
+                "values": values,
+                "bias": measure_bias(per_seed, reference, metric),
+                "runs": [r["run_id"] for r in rows_of],
+            }
             rows += rows_of  # ordinary calibration rows as well
     models = {c: _fit(c, rows, metric, biases[c]) for c in candidates}
     refused = {c: [] for c in candidates}  # (setting, the renderer's reason)

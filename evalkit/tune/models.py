@@ -124,10 +124,8 @@ def error_features(candidate: Candidate, x: dict) -> list:
 
 def measured_bias(table: dict, value):
     """A measured bias term (`Model.measured`) at ``value`` of its setting (numpy arrays or scalars):
-    interpolated in log-log between the values measured. The largest value's bias, against which
-    the others are measured, is 0, taken as 1e-30 so that its logarithm exists."""
-    log_bias = np.log(np.maximum(np.asarray(table["bias"], dtype=np.float64), 1e-30))
-    return np.exp(np.interp(np.log(value), np.log(np.asarray(table["values"], dtype=np.float64)), log_bias))
+    interpolated linearly in the logarithm of the setting between the values measured."""
+    return np.interp(np.log(value), np.log(np.asarray(table["values"], dtype=np.float64)), table["bias"])
 
 
 @dataclass
@@ -141,8 +139,7 @@ class Model:
     sampler: str = "stratified"
     warning: str = ""  # what the fit could not tell from its rows
     # Error terms measured, not fitted (`TuneTerms.measured`): term -> {"setting", "values", "bias"},
-    # the bias at each value of the setting; between them it is interpolated in log-log, and the
-    # term's constant is 1.
+    # what each value of the setting adds to the metric; the term's constant is 1.
     measured: dict = field(default_factory=dict)
 
     def terms(self, x: dict) -> list:
