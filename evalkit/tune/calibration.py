@@ -80,8 +80,8 @@ def bias_runs(candidate: Candidate, idle: dict, spp: int, seed: int) -> list[tup
     ``idle`` settings): the term, its setting and its runs, the candidate's first calibration run at
     each value of the setting's axis with ``spp`` paths, for each of `BIAS_SEEDS` seeds from
     ``seed`` (in that order: every value at the first seed, then at the next). The first seed's
-    render one frame, the next two: beside calibration runs that render one frame each (a short
-    budget), that lets the time model tell the once-per-render cost from a frame's."""
+    runs render one frame, the next seed's two: beside calibration runs that render one frame each
+    (a short budget), that lets the time model tell the once-per-render cost from a frame's."""
     sweeps = []
     for tune_terms in candidate.tunes:
         for term, setting in tune_terms.measured.items():
