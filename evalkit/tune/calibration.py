@@ -213,18 +213,19 @@ def tune(
     # The bias terms that renders measure, where the metric adds a bias as its square.
     biases = {c: {} for c in candidates}
     bias_spp = CALIBRATION_SPP[0] if spp is None else spp
-    sweeps = [(c, *sweep) for c in candidates for sweep in bias_runs(c, idle[c], bias_spp, seed)]
-    if metric.split("_", 1)[1] not in SQUARED_METRICS:
-        sweeps = []
+    image_name, metric_kind = metric.split("_", 1)
+    sweeps = []
+    if metric_kind in SQUARED_METRICS:
+        sweeps = [(c, *sweep) for c in candidates for sweep in bias_runs(c, idle[c], bias_spp, seed)]
     if sweeps:
-        bias_rows = iter(studies.run("bias", [run for *_, runs in sweeps for run in runs]))  # in the order given
-        name = metric.split("_", 1)[0]  # the image the metric is of
+        bias_rows = studies.run("bias", [run for *_, runs in sweeps for run in runs])  # in the order given
+        reference = load_reference(bias_rows[0]["reference"]).images[image_name]  # every run's, one scene and image
+        remaining = iter(bias_rows)
         for c, term, setting, runs in sweeps:
-            rows_of = [next(bias_rows) for _ in runs]
-            images = [read_exr(out / "bias" / "runs" / r["run_id"] / f"{name}.exr")[0] for r in rows_of]
+            rows_of = [next(remaining) for _ in runs]
+            images = [read_exr(out / "bias" / "runs" / r["run_id"] / f"{image_name}.exr")[0] for r in rows_of]
             values = axes(c)[setting]
             per_seed = [images[i * len(values) : (i + 1) * len(values)] for i in range(BIAS_SEEDS)]
-            reference = load_reference(rows_of[0]["reference"]).images[name]
             biases[c][term] = {
                 "setting": setting,
                 "values": values,
