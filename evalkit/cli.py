@@ -494,7 +494,7 @@ def _tune(args) -> int:
         )
     for name, terms in result["measured_bias"].items():
         for term, table in terms.items():
-            print(f"bias        {name}: {term} measured at {table['setting']} {bias_text(table)}")
+            print(f"bias        {name}: {term} measured at {bias_text(table)}")
     for name, idle in result["idle"].items():
         settings = ", ".join(f"{k}={v}" for k, v in idle.items())
         print(f"idle        {name}: {settings} left at the default (its renders draw no light vertex's map)")

@@ -36,12 +36,14 @@ class TuneTerms:
     numpy arrays and scalars alike. ``calibration``: the unit's calibration runs, spread so that
     every term changes between them (a candidate's runs are its bundle method's, each with the
     other units' settings taken in turn from theirs). ``measured``: error terms of a bias, each with
-    the setting it falls with, measured instead of fitted where the metric adds a bias as its
-    square: renders that differ only in that setting (each value of its axis; at one seed the same
-    paths, at two seeds independent noise) give what each value adds to the metric over the
-    largest (`evalkit.tune.calibration.measure_bias`). A calibration run's noise hides a bias that
-    a close-up of a contact shows (+9 % at the smallest exact maps), and no one power of the
-    setting follows it.
+    the settings it changes with, measured by renders instead of fitted: renders that differ only
+    in those settings (every combination of their axes' values; at one seed the same paths, at two
+    seeds independent noise) give what each combination adds to the metric over the render with
+    the settings ``unbiased`` (`evalkit.tune.calibration.measure_bias`; by default each setting's
+    largest value). A calibration run's noise hides a bias that a close-up of a contact shows (+9 %
+    at the smallest exact maps), and no one power of the setting follows it; fitted, such a term
+    followed the noise. Only metrics to which a bias adds its square can be measured so
+    (`evalkit.tune.models.SQUARED_METRICS`); under the others these settings stay at their defaults.
     """
 
     axes: dict = field(default_factory=dict)
@@ -50,7 +52,8 @@ class TuneTerms:
     error_terms: tuple[str, ...] = ()
     error: Callable = lambda x: []
     calibration: tuple[dict, ...] = ()
-    measured: dict = field(default_factory=dict)
+    measured: dict = field(default_factory=dict)  # term -> (setting, ...)
+    unbiased: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

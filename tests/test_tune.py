@@ -30,10 +30,11 @@ from evalkit.tune.calibration import (
     bias_runs,
     measure_bias,
 )
-from evalkit.tune.models import idle_axes
+from evalkit.tune.models import idle_axes, measured_bias, term_names, unmeasured_axes
 
 PERFECT, IMPERFECT = Candidate("perfect"), Candidate("imperfect")
 BIDIRECTIONAL = Candidate("perfect", "bidirectional")
+ISM = Candidate("perfect", "bidirectional", "imperfect")  # imperfect shadow maps for the light vertices
 TIME = {
     PERFECT: {"t_once": 0.2, "t0": 0.05, "t_lists": 0.3, "t_paths": 0.4, "t_texels": 0.5, "t_dirs": 2.0},
     IMPERFECT: {
@@ -54,16 +55,30 @@ TIME = {
         "t_dirs": 2.0,
         "t_light": 0.5,
         "t_connect": 0.3,
+    },
+    ISM: {
+        "t_once": 0.2,
+        "t0": 0.05,
+        "t_lists": 0.3,
+        "t_paths": 0.4,
+        "t_dirs": 2.0,
+        "t_light": 0.5,
+        "t_connect": 0.3,
+        "t_ism_points": 0.6,
+        "t_ism_texels": 0.1,
     },  # fmt: skip
 }
 ERROR = {
-    PERFECT: {"b": 0.004, "v": 0.05, "w": 0.5, "m": 0.001},
-    IMPERFECT: {"b": 0.004, "v": 0.05, "w": 0.5, "m": 0.001, "h": 0.3, "g": 0.002},
-    BIDIRECTIONAL: {"b": 0.004, "v": 0.01, "w": 0.5, "m": 0.001, "u": 0.8},
+    PERFECT: {"b": 0.004, "v": 0.05, "w": 0.5},
+    IMPERFECT: {"b": 0.004, "v": 0.05, "w": 0.5, "h": 0.3, "g": 0.002},
+    BIDIRECTIONAL: {"b": 0.004, "v": 0.01, "w": 0.5, "u": 0.8},
+    ISM: {"b": 0.004, "v": 0.01, "w": 0.5, "u": 0.8},
 }
+# The exact maps' measured bias (`Model.measured`): what each size adds, no power of it.
+MAPS = {"settings": ["light_sample_map_size"], "values": [[32, 64, 128, 256]], "bias": [0.008, 0.001, 2e-4, 0.0]}
 
 
-def settings(K, R, N=16384, s=1.8, F=1, V=32, S=16, M=64) -> dict:
+def settings(K, R, N=16384, s=1.8, F=1, V=32, S=16, M=64, P=4096, n=64) -> dict:
     return {
         "directions": K,
         "resolution": R,
@@ -73,19 +88,27 @@ def settings(K, R, N=16384, s=1.8, F=1, V=32, S=16, M=64) -> dict:
         "frames": F,
         "spp": S,
         "light_sample_map_size": M,
+        "ism_points": P,
+        "ism_size": n,
     }
 
 
-def synthetic_rows(candidate: Candidate) -> list[dict]:
-    """Rows as calibration runs would give them, from the models with known constants."""
+def synthetic_rows(candidate: Candidate, measured: dict | None = None) -> list[dict]:
+    """Rows as calibration runs would give them, from the models with known constants (and the
+    bias terms ``measured``)."""
     time_model = Model(candidate, "time", TIME[candidate], [])
-    error_model = Model(candidate, "error", ERROR[candidate], [])
+    error_model = Model(
+        candidate, "error", {**ERROR[candidate], **dict.fromkeys(measured or {}, 1.0)}, [], measured=measured or {}
+    )
     splats = [(4096, 1.4), (16384, 1.8), (8192, 2.4)] if candidate == IMPERFECT else [(16384, 1.8)]
-    light_paths = [8, 64] if candidate == BIDIRECTIONAL else [32]
+    light_paths = [8, 64] if candidate in (BIDIRECTIONAL, ISM) else [32]
+    maps = [(M, 4096, 64) for M in (32, 256)]
+    if candidate == ISM:
+        maps = [(256, P, n) for P, n in ((1024, 64), (16384, 32), (4096, 128), (65536, 64))]
     rows = []
-    grid = itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats, light_paths, (1, 4, 64), (32, 256))
-    for K, R, F, (N, s), V, S, M in grid:
-        x = settings(K, R, N, s, F, V, S, M)
+    grid = itertools.product((8, 16, 32, 64), (64, 96, 128), (1, 4, 16), splats, light_paths, (1, 4, 64), maps)
+    for K, R, F, (N, s), V, S, (M, P, n) in grid:
+        x = settings(K, R, N, s, F, V, S, M, P, n)
         rows.append(
             {
                 **candidate.settings(),
@@ -98,7 +121,7 @@ def synthetic_rows(candidate: Candidate) -> list[dict]:
     return rows
 
 
-@pytest.mark.parametrize("candidate", [PERFECT, IMPERFECT, BIDIRECTIONAL], ids=lambda c: c.name)
+@pytest.mark.parametrize("candidate", [PERFECT, IMPERFECT, BIDIRECTIONAL, ISM], ids=lambda c: c.name)
 def test_fits_recover_known_time_and_error_constants(candidate):
     rows = synthetic_rows(candidate) + synthetic_rows(PERFECT if candidate != PERFECT else IMPERFECT)
     time_model = fit_model(candidate, "time", rows)  # each candidate fits its own rows only
@@ -111,25 +134,38 @@ def test_fits_recover_known_time_and_error_constants(candidate):
 
 
 def test_a_measured_bias_term_is_kept_and_the_others_are_fitted_around_it():
-    """A bias term measured at each value of its setting replaces its feature (interpolated between
-    them, constant 1); the fit recovers the other constants around it, and a wrong table shows in
-    the residuals."""
-    rows = synthetic_rows(PERFECT)
-    values = axes(PERFECT)["light_sample_map_size"]
-    table = {"setting": "light_sample_map_size", "values": values, "bias": [0.001 * (64 / M) ** 2 for M in values]}
-    model = fit_model(PERFECT, "error", rows, "indirect_relmse", measured={"m": table})
+    """A bias term measured at each value of its setting is a term of constant 1 (interpolated
+    between them); the fit recovers the other constants around it, and a wrong table shows in the
+    residuals."""
+    rows = synthetic_rows(PERFECT, {"m": MAPS})
+    model = fit_model(PERFECT, "error", rows, "indirect_relmse", measured={"m": MAPS})
     assert model.constants["m"] == 1.0 and model.rms_residual() < 1e-3
     for name, value in ERROR[PERFECT].items():
-        if name != "m":
-            assert model.constants[name] == pytest.approx(value, rel=0.01), name
-    truth = Model(PERFECT, "error", ERROR[PERFECT], [])
-    for M in (32, 64, 256):
-        x = settings(16, 96, F=4, M=M)
-        assert float(model.predict(x)) == pytest.approx(float(truth.predict(x)), rel=0.01)
-    between = [float(model.predict(settings(16, 96, F=4, M=M))) for M in (32, 45.25, 64)]
-    assert between[0] > between[1] > between[2]
-    wrong = fit_model(PERFECT, "error", rows, "indirect_relmse", measured={"m": {**table, "bias": [0.1, 0, 0, 0]}})
+        assert model.constants[name] == pytest.approx(value, rel=0.01), name
+    between = [float(model.predict(settings(16, 96, F=4, M=M))) for M in (32, 45.25, 64, 181, 256)]
+    assert between[0] > between[1] > between[2] > between[3] > between[4]
+    assert between[1] - between[4] == pytest.approx((0.008 + 0.001) / 2, rel=1e-3)  # halfway in log M
+    wrong = fit_model(PERFECT, "error", rows, "indirect_relmse", measured={"m": {**MAPS, "bias": [0.1, 0, 0, 0]}})
     assert wrong.rms_residual() > 0.01
+
+
+def test_a_bias_term_of_two_settings_is_interpolated_over_both():
+    """The imperfect maps' i over their points and size: the table's values where measured,
+    bilinear in the logarithms between them, held beyond them; and fitted around as a 1-D one is."""
+    table = {
+        "settings": ["ism_points", "ism_size"],
+        "values": [[1024, 4096, 16384, 65536], [32, 64, 128]],
+        "bias": [[0.04, 0.03, 0.05], [0.02, 0.01, 0.02], [0.01, 0.004, 0.006], [0.005, 0.002, 0.001]],
+    }
+    x = {"ism_points": np.array([4096, 8192, 4096, 1e6, 512]), "ism_size": np.array([128, 64, 90.51, 128, 16])}
+    got = measured_bias(table, x)
+    assert got == pytest.approx([0.02, (0.01 + 0.004) / 2, (0.01 + 0.02) / 2, 0.001, 0.04], rel=1e-3)
+    assert measured_bias(table, {"ism_points": 16384, "ism_size": 32}) == pytest.approx(0.01)
+    rows = synthetic_rows(ISM, {"i": table})
+    model = fit_model(ISM, "error", rows, "indirect_relmse", measured={"i": table})
+    assert model.constants["i"] == 1.0 and model.rms_residual() < 1e-3
+    for name, value in ERROR[ISM].items():
+        assert model.constants[name] == pytest.approx(value, rel=0.01), name
 
 
 def test_a_bias_term_is_measured_by_renders_that_differ_only_in_its_setting():
@@ -138,8 +174,9 @@ def test_a_bias_term_is_measured_by_renders_that_differ_only_in_its_setting():
     g: no power of M) and independent noise at the two seeds, the estimate is what each M adds to
     the error once the noise has gone, (c + beta g(M))^2 - (c + beta g(256))^2, and 0 where the
     maps' bias cancels c."""
-    [(term, setting, runs)] = bias_runs(PERFECT, {}, 16, seed=5)
-    assert term == "m" and setting == "light_sample_map_size"
+    [(term, table, runs)] = bias_runs(PERFECT, {}, 16, seed=5)
+    setting = "light_sample_map_size"
+    assert term == "m" and table == {"settings": [setting], "values": [[32, 64, 128, 256]]}
     assert [(r["seed"], r[setting], r["frames"]) for r in runs] == [
         (seed, M, seed - 4) for seed in (5, 6) for M in (32, 64, 128, 256)
     ]  # one frame at the first seed, two at the next: the time model tells the once-per-render cost
@@ -167,6 +204,48 @@ def test_a_bias_term_is_measured_by_renders_that_differ_only_in_its_setting():
     )
     cancelling = [[reference - 0.05 + 0.04 * (M < 256) for M in values] for _ in range(2)]
     assert measure_bias(cancelling, reference, "indirect_mse") == [0.0] * 4
+
+
+def test_imperfect_maps_are_measured_against_exact_maps_for_the_same_light_vertices():
+    """The imperfect maps' i: renders at every combination of points and size, then one with exact
+    maps, at each of two seeds: what each combination adds is measured against exact visibility,
+    not against the largest combination (whose maps still leak and hide)."""
+    [(term, table, runs)] = bias_runs(ISM, {}, 4, seed=0)
+    assert term == "i" and table == {
+        "settings": ["ism_points", "ism_size"],
+        "values": [[1024, 4096, 16384, 65536], [32, 64, 128]],
+    }
+    assert len(runs) == 2 * (12 + 1)
+    for seed in (0, 1):
+        own = runs[seed * 13 : (seed + 1) * 13]
+        assert [(r["ism_points"], r["ism_size"]) for r in own[:12]] == list(itertools.product(*table["values"]))
+        assert all(Candidate.of(r) == ISM for r in own[:12]) and Candidate.of(own[12]) == BIDIRECTIONAL
+        assert all(r["seed"] == seed and r["frames"] == seed + 1 for r in own)
+        assert all(
+            {k: v for k, v in r.items() if k not in ("ism_points", "ism_size")}
+            == {k: v for k, v in own[0].items() if k not in ("ism_points", "ism_size")}
+            for r in own[:12]
+        )
+    # Eye paths in a scene without emissive triangles draw no map: nothing to measure.
+    assert (
+        bias_runs(
+            Candidate("perfect", "eye", "imperfect"), idle_axes(Candidate("perfect", "eye", "imperfect"), False), 4, 0
+        )
+        == []
+    )
+
+
+def test_the_maps_settings_stay_at_their_defaults_under_metrics_that_cannot_measure_their_bias():
+    """Renders measure a bias only under the metrics that square errors; under FLIP, say, the
+    settings of the measured terms keep their defaults, which the optimiser then never moves."""
+    assert unmeasured_axes(BIDIRECTIONAL, "indirect_relmse") == {} == unmeasured_axes(ISM, "total_mse")
+    assert unmeasured_axes(BIDIRECTIONAL, "total_flip") == {"light_sample_map_size": 256}
+    assert unmeasured_axes(ISM, "indirect_smape") == {"ism_points": 4096, "ism_size": 64}
+    assert "light_sample_map_size" not in term_names(BIDIRECTIONAL, "error")  # no table: no term
+    time_model = Model(ISM, "time", TIME[ISM], [])
+    error_model = Model(ISM, "error", ERROR[ISM], [])
+    best = optimise(time_model, error_model, 10.0, unmeasured_axes(ISM, "total_flip"))
+    assert (best.settings["ism_points"], best.settings["ism_size"]) == (4096, 64)
 
 
 def test_rows_of_one_frame_each_count_the_once_per_render_cost_per_frame():
@@ -396,7 +475,7 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     assert result["idle"] == {}  # cornell-box's emitter samples draw maps: their size is tuned
     for method in ("perfect", "imperfect"):  # with the maps' bias measured by renders at each size
         table = result["measured_bias"][method]["m"]
-        assert table["values"] == [32, 64, 128, 256] and len(table["runs"]) == 8
+        assert table["values"] == [[32, 64, 128, 256]] and len(table["runs"]) == 8
         assert table["bias"][-1] == 0 and min(table["bias"]) >= 0
         assert result["models"][method]["error"]["constants"]["m"] == 1.0
         assert all((tmp_path / "bias" / "runs" / run).is_dir() for run in table["runs"])
@@ -445,37 +524,58 @@ def test_a_candidates_calibration_is_its_methods_runs_with_the_other_units_setti
     )
     assert axes(BIDIRECTIONAL).keys() == {"directions", "resolution", "spp", "light_paths", "light_sample_map_size"}
     assert axes(PERFECT, {"spp": 4})["spp"] == [4]
+    # Imperfect maps' points and size in a cycle of 5 of their own: four values of the points, three of the size.
+    imperfect = calibration_grid([ISM], 10.0)
+    assert [(r["ism_points"], r["ism_size"]) for r in imperfect][:6] == [
+        (1024, 64), (16384, 32), (4096, 128), (65536, 64), (4096, 32), (1024, 64)
+    ]  # fmt: skip
+    assert all("light_sample_map_size" not in r for r in imperfect)
+    assert axes(ISM).keys() == {"directions", "resolution", "spp", "light_paths", "ism_points", "ism_size"}
 
 
 def test_tune_chooses_between_strategies_on_a_room_lit_only_after_a_bounce(tmp_path):
-    """`--strategy both` calibrates, refines and checks eye and bidirectional paths alike, with the
-    eye paths per pixel tuned too (`--spp tune`); in the lit room, where eye paths find the light only by chance,
-    the bidirectional optimum measures less error and is recommended with its light paths."""
+    """`--strategy both --shadow-maps both` calibrates, refines and checks eye and bidirectional
+    paths alike, with the eye paths per pixel tuned too (`--spp tune`), and the light vertices'
+    maps exact or imperfect, their sizes and points tuned; in the lit room, where eye paths find
+    the light only by chance, a bidirectional optimum measures less error and is recommended with
+    its light paths."""
     r = run_evalkit(
-        "tune", "lit-room", "--budget", "2", "--method", "perfect", "--strategy", "both", "--width", "32",
-        "--height", "32", "--spp", "tune", "--reference-spp", "4096", "--calibration-share", "1", "--json",
-        "--out", str(tmp_path),
+        "tune", "lit-room", "--budget", "2", "--method", "perfect", "--strategy", "both", "--shadow-maps", "both",
+        "--width", "32", "--height", "32", "--spp", "tune", "--reference-spp", "4096", "--calibration-share", "1",
+        "--json", "--out", str(tmp_path),
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout.strip().splitlines()[-1])
     candidates = {Candidate.of(c): c for c in result["candidates"]}
-    assert candidates.keys() == {PERFECT, BIDIRECTIONAL} and result["strategy"] == "both"
-    assert result["models"][BIDIRECTIONAL.name]["time"]["constants"].keys() == TIME[BIDIRECTIONAL].keys()
-    assert result["models"][BIDIRECTIONAL.name]["error"]["constants"].keys() == ERROR[BIDIRECTIONAL].keys()
+    # The room has a spot light and no emissive triangles: eye paths draw no light vertex's map, so
+    # eye paths with imperfect maps would render what eye paths with exact ones do, and are not a candidate.
+    assert candidates.keys() == {PERFECT, BIDIRECTIONAL, ISM} and result["strategy"] == "both"
+    for c in (BIDIRECTIONAL, ISM):
+        assert result["models"][c.name]["time"]["constants"].keys() == TIME[c].keys()
+        assert result["models"][c.name]["error"]["constants"].keys() == {*ERROR[c], *result["measured_bias"][c.name]}
+        assert candidates[c]["measured"]["error"] < candidates[PERFECT]["measured"]["error"]
     assert "light_paths" in candidates[BIDIRECTIONAL] and "light_paths" not in candidates[PERFECT]
-    assert candidates[BIDIRECTIONAL]["measured"]["error"] < candidates[PERFECT]["measured"]["error"]
     rec = result["recommended"]
-    assert rec["strategy"] == "bidirectional" and rec["light_paths"] == candidates[BIDIRECTIONAL]["light_paths"]
-    assert result["pinned"] == {} and rec["spp"] == candidates[BIDIRECTIONAL]["spp"] in axes(PERFECT)["spp"]
+    chosen = candidates[Candidate.of(rec)]
+    assert rec["strategy"] == "bidirectional" and rec["light_paths"] == chosen["light_paths"]
+    assert result["pinned"] == {} and rec["spp"] == chosen["spp"] in axes(PERFECT)["spp"]
     calibrated = [json.loads(line) for line in (tmp_path / "calibration" / "results.jsonl").read_text().splitlines()]
     assert {r["spp"] for r in calibrated} == {1, 4, 16, 32}
     report = (tmp_path / "report.html").read_text()
     assert "perfect strategy=bidirectional" in report and f"{rec['spp']} paths per pixel per frame (tuned)" in report
-    # The room has a spot light and no emissive triangles: eye paths draw no light vertex's map.
     assert result["idle"] == {"perfect": {"light_sample_map_size": 256}}
     assert (
         candidates[PERFECT]["light_sample_map_size"] == 256
         and "light_sample_map_size=256 left at the default" in report
     )
     assert candidates[BIDIRECTIONAL]["light_sample_map_size"] in axes(BIDIRECTIONAL)["light_sample_map_size"]
-    assert result["measured_bias"].keys() == {BIDIRECTIONAL.name}  # the eye paths draw no map to measure
+    assert result["measured_bias"].keys() == {BIDIRECTIONAL.name, ISM.name}  # the eye paths draw no map to measure
+    # The imperfect maps' bias at every combination of points and size, against exact maps.
+    table = result["measured_bias"][ISM.name]["i"]
+    assert table["settings"] == ["ism_points", "ism_size"] and np.shape(table["bias"]) == (4, 3)
+    assert np.min(table["bias"]) >= 0 and len(table["runs"]) == 26
+    assert {candidates[ISM]["ism_points"], candidates[ISM]["ism_size"]} <= {
+        *axes(ISM)["ism_points"],
+        *axes(ISM)["ism_size"],
+    }
+    assert "(ism_points, ism_size)" in report

@@ -5,7 +5,8 @@ For a scene, an image (width x height, B bounces) and a budget of T seconds of r
 settings are the candidate (a bundle method, a path strategy and a light visibility: `Candidate`), K
 directions, R lines per side, S eye paths per pixel per frame (only with ``--spp tune``), for
 imperfect bundles N points and splat scale s, for bidirectional paths V light paths, for exact
-shadow maps of light vertices their size M, and F frames.
+shadow maps of light vertices their size M, for imperfect ones their points P and size n, and F
+frames.
 Each model is fitted per scene and candidate, to the rows of a calibration study (`evalkit.study`,
 so its runs are cached in the output folder and a second call with the same budget runs nothing
 new):
@@ -17,21 +18,24 @@ terms, declared with it: `gpu_impl.units.TuneTerms`; today's are):
     imperfect      t = t_once + F (t0 + t_lists K R^2 + t_paths S + t_points K N + t_nodes K R^2 s^2)
     bidirectional  the method's + F (t_light V + t_connect V S)
     exact maps     + F t_texels (M / 256)^2 V / 8   (eye paths: V = 8, their emitter samples)
+    imperfect maps + F (t_ism_points P / 4096 + t_ism_texels (n / 64)^2) V / 8
 
 t_once is what a render does once (a static scene's shadow maps, reading the images back); t0 what
 a frame does that does not depend on the bundles (G-buffer, emitter samples, the bounce passes at
 this image size); K R^2 are the lists, S the eye paths, K the per-direction draw (perfect), K N the
 splat points and K R^2 s^2 the splat nodes (a splat covers about s^2 A / (4 r^2) R^2 / N lines); V
 the light paths' B V vertices, each a shadow map (exact or imperfect: the cost of drawing its
-triangles or points is in t_light, fitted per candidate; exact maps' texels are t_texels), and V S
-a connection from every eye vertex to each.
+triangles is in t_light, fitted per candidate; exact maps' texels are t_texels, imperfect maps'
+points and texels t_ism_points and t_ism_texels), and V S a connection from every eye vertex to
+each.
 
 **Error** (the chosen metric, e.g. relMSE of the indirect image against the Mitsuba reference):
 
     perfect        E = b (64 / R)^2 + (v 16 / S + w / K) / F
     imperfect      E = the same + h exp(-c s^q) + g s^2 (16384 / N)
     bidirectional  the method's + u / (F V)
-    exact maps     + m(M), measured (with the metrics that square errors) or m (64 / M)^2, fitted
+    exact maps     + m(M), measured
+    imperfect maps + i(P, n), measured
 
 b (64 / R)^2 is the squared O(1/R) bias of the line a path takes (docs/MEASURED_FACTS.md); v 16 /
 (F S) the paths' variance; w / (F K) what a frame's K shared directions add (the directions study),
@@ -41,14 +45,20 @@ studies/hole_vs_splat.toml); g s^2 / N the splats' overhang, which grows with th
 u / (F V) what the connections add, shared by a frame's pixels, and so, like w, not falling with S;
 m(M) the squared bias of a shadow map's texel (light leaked or hidden beside contacts, a band a
 texel or so wide), and t_texels the maps' texels, which on atrium are 40 % of a bidirectional
-frame at M = 256 and next to nothing at 32 (gpu_impl/visibility/exact.py). Under mse and relmse,
-m(M) is measured, not fitted: renders at each M with the same seed (the same paths) differ by
-their maps' bias and noise, and at two seeds (`BIAS_SEEDS`) the differences from the render at the
-largest M give an unbiased estimate of what each M adds to the metric in the limit, the cross term
-with every other bias included (`calibration.measure_bias`; at least 0). A calibration run's noise
-hides that bias where a close-up of a contact shows it (+9 % at M = 32), and it follows no one
-power of M. Eye paths in a scene without emissive triangles draw no map: M stays
-at its default for them (`models.idle_axes`).
+frame at M = 256 and next to nothing at 32 (gpu_impl/visibility/exact.py); i(P, n) what imperfect
+maps change against exact maps for the same light vertices (light leaked through holes and the
+slope-scaled bias of coarse texels, light hidden by splats), which falls with P and, at each P,
+rises or falls with n (gpu_impl/visibility/imperfect.py). m(M) and i(P, n) are measured, not
+fitted: renders at each M (each P and n) with the same seed (the same paths) differ by their maps'
+bias and noise, and at two seeds (`BIAS_SEEDS`) their differences from a render without that bias
+(at the largest M; with exact maps) give an unbiased estimate of what each setting adds to the
+metric in the limit, the cross term with every other bias included (`calibration.measure_bias`; at
+least 0). A calibration run's noise hides that bias where a close-up of a contact shows it (+9 %
+at M = 32), and it follows no one power of M: fitted, m followed the noise. Renders can measure a
+bias so only under the metrics that square errors (mse, relmse); under the others these settings
+stay at their defaults, with a warning (`models.unmeasured_axes`). Eye paths in a scene without
+emissive triangles draw no map: M, P and n stay at their defaults for them (`models.idle_axes`),
+and candidates that differ only in the kind of map they never draw are tuned once.
 Each candidate fits its own v: the eye paths' variance is what the light paths take away. The
 shared terms are why S can matter to the choice of strategy: on atrium eye paths beat
 bidirectional paths from S = 16 on and lose at S = 4 (docs/BIDIRECTIONAL.md). With ``--spp tune``

@@ -22,8 +22,18 @@ from evalkit.metrics.images import RELMSE_EPSILON
 from evalkit.pages import is_number
 from evalkit.study.executors import read_rows, run_study
 from evalkit.study.run import versions
-from evalkit.study.spec import study_from_dict
-from evalkit.tune.models import CALIBRATION_SPP, TUNE_METRICS, Candidate, axes, fit_model, idle_axes
+from evalkit.study.spec import make_run, run_id, study_from_dict
+from evalkit.tune.models import (
+    CALIBRATION_SPP,
+    SQUARED_METRICS,
+    TUNE_METRICS,
+    Candidate,
+    axes,
+    draws_light_maps,
+    fit_model,
+    idle_axes,
+    unmeasured_axes,
+)
 from evalkit.tune.optimise import Recommendation, optimise
 from evalkit.tune.report import settings_text, write_tune_report
 from gpu_impl.registry import KINDS
@@ -48,9 +58,6 @@ BUDGET_TOLERANCE = 0.1
 # The seeds of the renders that measure a bias term (`TuneTerms.measured`): two, so that their noise
 # is independent and the estimate unbiased (`measure_bias`).
 BIAS_SEEDS = 2
-# The metrics that are a mean of squared per-pixel errors, to which a bias adds its square, so that
-# renders can measure it; under the others (SMAPE, FLIP, Delta E) the bias terms are fitted.
-SQUARED_METRICS = ("mse", "relmse")
 # The status prefix of a run whose settings the renderer refused before rendering (`LimitError`);
 # its row names the settings at fault in ``limit_settings`` (evalkit/study/run.py).
 REFUSED = f"error: {LimitError.__name__}: "
@@ -75,34 +82,40 @@ def calibration_grid(candidates: list[Candidate], seconds: float, spp: tuple[int
     ]
 
 
-def bias_runs(candidate: Candidate, idle: dict, spp: int, seed: int) -> list[tuple[str, str, list[dict]]]:
+def bias_runs(candidate: Candidate, idle: dict, spp: int, seed: int) -> list[tuple[str, dict, list[dict]]]:
     """Per error term of ``candidate`` that renders measure (`TuneTerms.measured`; not those of its
-    ``idle`` settings): the term, its setting and its runs, the candidate's first calibration run at
-    each value of the setting's axis with ``spp`` paths, for each of `BIAS_SEEDS` seeds from
-    ``seed`` (in that order: every value at the first seed, then at the next). The first seed's
-    runs render one frame, the next seed's two: beside calibration runs that render one frame each
-    (a short budget), that lets the time model tell the once-per-render cost from a frame's."""
+    ``idle`` settings): the term, its table to fill (`Model.measured`: its settings and their
+    values) and its runs, for each of `BIAS_SEEDS` seeds from ``seed``: the candidate's first
+    calibration run with ``spp`` paths at every combination of the settings' values, then with the
+    settings ``unbiased`` where the unit gives them (otherwise the last combination, every setting
+    at its largest value, is the one compared with). The first seed's runs render one frame, the
+    next seed's two: beside calibration runs that render one frame each (a short budget), that lets
+    the time model tell the once-per-render cost from a frame's."""
     sweeps = []
-    for tune_terms in candidate.tunes:
-        for term, setting in tune_terms.measured.items():
-            if setting in idle:
+    base = {**candidate.calibration()[0], "spp": spp, "time_budget": 0.0}
+    for kind, name in candidate.settings().items():
+        unit = KINDS[kind][name]
+        for term, settings in unit.tune.measured.items():
+            if any(s in idle for s in settings):
                 continue
-            base = {**candidate.calibration()[0], "spp": spp, "time_budget": 0.0}
-            values = axes(candidate)[setting]
-            runs = [{**base, "seed": seed + i, "frames": i + 1, setting: v} for i in range(BIAS_SEEDS) for v in values]
-            sweeps.append((term, setting, runs))
+            values = [axes(candidate)[s] for s in settings]
+            runs = [{**base, **dict(zip(settings, v))} for v in itertools.product(*values)]
+            if unit.tune.unbiased:  # another unit's run: without this one's settings
+                runs.append({**{k: v for k, v in base.items() if k not in unit.option_names()}, **unit.tune.unbiased})
+            runs = [{**run, "seed": seed + i, "frames": i + 1} for i in range(BIAS_SEEDS) for run in runs]
+            sweeps.append((term, {"settings": list(settings), "values": values}, runs))
     return sweeps
 
 
 def measure_bias(images: list[list[np.ndarray]], reference: np.ndarray, metric: str) -> list[float]:
-    """What each value of a setting adds to the metric, over its largest value, once the noise has
-    gone: from renders at every value (``images[i][j]``: seed i, value j, the largest last; the
-    metric's image) at two seeds. At one seed the renders take the same paths, so their difference
-    D from the largest value's render is the difference of their biases plus what noise the
-    setting itself adds; E = that render - ``reference`` is the largest value's bias plus noise.
-    The metric then grows by D^2 + 2 D E in the limit, and D1 D2 + D1 E2 + D2 E1, with seeds 1 and 2
-    independent, is an unbiased estimate of it (normalised as the metric is). A value whose bias
-    cancels another (a leak brightening an image that is too dark) is given no credit: at least 0."""
+    """What each render's settings add to the metric over those of the last render, once the noise
+    has gone: from renders at two seeds (``images[i][j]``: seed i, setting j, the one compared with
+    last; the metric's image). At one seed the renders take the same paths, so their difference D
+    from the last render is the difference of their biases plus what noise the settings themselves
+    add; E = the last render - ``reference`` is its bias plus noise. The metric then grows by
+    D^2 + 2 D E in the limit, and D1 D2 + D1 E2 + D2 E1, with seeds 1 and 2 independent, is an
+    unbiased estimate of it (normalised as the metric is). Settings whose bias cancels another (a
+    leak brightening an image that is too dark) are given no credit: at least 0."""
     name = metric.split("_", 1)[1]
     ref = reference.astype(np.float64)
     norm = np.square(ref) + RELMSE_EPSILON if name == "relmse" else 1.0
@@ -128,8 +141,10 @@ class TunerStudies:
     progress: object = print
 
     def run(self, name: str, grid: list[dict], refusals: bool = False) -> list[dict]:
-        """The rows of the runs ``grid`` (in ``out``/``name``); a failed run is an error naming the
-        folder, except, with ``refusals``, one whose settings the renderer refused (a row with ``limit_settings``)."""
+        """The rows of the runs ``grid`` (in ``out``/``name``), one per run in its order (runs whose
+        settings are the same once their defaults are filled in are rendered once and share a row); a
+        failed run is an error naming the folder, except, with ``refusals``, one whose settings the
+        renderer refused (a row with ``limit_settings``)."""
         image, metric = self.metric.split("_", 1)
         study = study_from_dict(
             {
@@ -151,7 +166,8 @@ class TunerStudies:
             raise InputError(
                 str(self.out / name), f"{len(failed)} of the tuner's runs failed, first: {failed[0]['status']}"
             )
-        return rows
+        by_id = {r["run_id"]: r for r in rows}
+        return [by_id[run_id(make_run(run, self.defaults, name))] for run in grid]
 
 
 def tune(
@@ -198,12 +214,18 @@ def tune(
             str(grid), "no results.jsonl: run the grid study first (evalkit study studies/tune_check.toml)"
         )
     names = {f: KINDS[f].names if n == "both" else (n or KINDS[f].default.name,) for f, n in choices.items()}
-    candidates = [Candidate(**dict(zip(names, units))) for units in itertools.product(*names.values())]
+    emitters = load_scene(scene).features().emitters
+    # Candidates that differ only in a light visibility their renders never use are one: the first.
+    unique = {}
+    for units in itertools.product(*names.values()):
+        c = Candidate(**dict(zip(names, units)))
+        unique.setdefault((c.method, c.strategy, draws_light_maps(c, emitters) and c.light_visibility), c)
+    candidates = list(unique.values())
     out = Path(out or f"out/tune/{Path(scene).stem}")
     image = {"width": width, "height": height, "bounces": bounces}
     pinned = {} if spp is None else {"spp": spp}
-    emitters = load_scene(scene).features().emitters
     idle = {c: idle_axes(c, emitters) for c in candidates}
+    unmeasured = {c: {a: v for a, v in unmeasured_axes(c, metric).items() if a not in idle[c]} for c in candidates}
     start = time.perf_counter()
     studies = TunerStudies({"scene": scene, "seed": seed, **image}, metric, reference_spp, out, progress)
     seconds = calibration_share * budget
@@ -221,24 +243,27 @@ def tune(
         bias_rows = studies.run("bias", [run for *_, runs in sweeps for run in runs])  # in the order given
         reference = load_reference(bias_rows[0]["reference"]).images[image_name]  # every run's, one scene and image
         remaining = iter(bias_rows)
-        for c, term, setting, runs in sweeps:
+        for c, term, table, runs in sweeps:
             rows_of = [next(remaining) for _ in runs]
             images = [read_exr(out / "bias" / "runs" / r["run_id"] / f"{image_name}.exr")[0] for r in rows_of]
-            values = axes(c)[setting]
-            per_seed = [images[i * len(values) : (i + 1) * len(values)] for i in range(BIAS_SEEDS)]
-            biases[c][term] = {
-                "setting": setting,
-                "values": values,
-                "bias": measure_bias(per_seed, reference, metric),
-                "runs": [r["run_id"] for r in rows_of],
-            }
-            rows += rows_of  # ordinary calibration rows as well
+            n = len(runs) // BIAS_SEEDS
+            grows = measure_bias([images[i * n : (i + 1) * n] for i in range(BIAS_SEEDS)], reference, metric)
+            shape = [len(v) for v in table["values"]]
+            bias = np.reshape(grows[: int(np.prod(shape))], shape)  # without the unbiased render's own 0
+            biases[c][term] = {**table, "bias": bias.tolist(), "runs": [r["run_id"] for r in rows_of]}
+        # Ordinary calibration rows as well, each once (an unbiased render is another candidate's,
+        # and may be one of its own bias runs).
+        rows += list({r["run_id"]: r for r in bias_rows}.values())
     models = {c: _fit(c, rows, metric, biases[c]) for c in candidates}
     refused = {c: [] for c in candidates}  # (setting, the renderer's reason)
 
     def optimum(c: Candidate) -> Recommendation:
         return optimise(
-            models[c]["time"], models[c]["error"], budget, {**pinned, **idle[c]}, tuple(s for s, _ in refused[c])
+            models[c]["time"],
+            models[c]["error"],
+            budget,
+            {**pinned, **idle[c], **unmeasured[c]},
+            tuple(s for s, _ in refused[c]),
         )
 
     share = round((1 - SPREAD) * seconds / len(candidates), 3)
@@ -286,6 +311,9 @@ def tune(
         "pinned": pinned,
         # Settings left at their defaults because nothing in the candidate's renders uses them.
         "idle": {c.name: idle[c] for c in candidates if idle[c]},
+        # Settings left at their defaults because the metric is not one that renders can measure
+        # their bias under (`models.unmeasured_axes`).
+        "unmeasured": {c.name: unmeasured[c] for c in candidates if unmeasured[c]},
         # Bias terms measured by renders instead of fitted (`TuneTerms.measured`).
         "measured_bias": {c.name: biases[c] for c in candidates if biases[c]},
         "seed": seed,
@@ -315,6 +343,12 @@ def tune(
             f"the renderer refused {settings_text({**c.settings(), **setting})} ({reason}): the next best was taken"
             for c in candidates
             for setting, reason in refused[c]
+        ]
+        + [
+            f"{c.name}: {', '.join(f'{k}={v}' for k, v in unmeasured[c].items())} kept at the default: renders measure "
+            f"the bias of these settings only under {' and '.join(SQUARED_METRICS)}, not {metric_kind}"
+            for c in candidates
+            if unmeasured[c]
         ]
         + overran,
         "calibration": {

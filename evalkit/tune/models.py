@@ -9,6 +9,7 @@ import math
 from dataclasses import dataclass, field, fields
 
 import numpy as np
+from scipy.interpolate import RegularGridInterpolator
 
 from evalkit.core.errors import InputError
 from evalkit.core.settings import IMAGES
@@ -40,6 +41,10 @@ CALIBRATION_SPP = (4, 32, 1, 16)
 # take away (error).
 TIME_TERMS = ("t_once", "t0", "t_lists", "t_paths")
 ERROR_TERMS = ("b", "v", "w")
+# The metrics that are a mean of squared per-pixel errors, to which a bias adds its square, so that
+# renders can measure it (`gpu_impl.units.TuneTerms.measured`); under the others (SMAPE, FLIP,
+# Delta E) the settings of the measured terms stay at their defaults (`unmeasured_axes`).
+SQUARED_METRICS = ("mse", "relmse")
 
 
 @dataclass(frozen=True)
@@ -85,22 +90,44 @@ def axes(candidate: Candidate, pinned: dict | None = None) -> dict:
     return {**grid, **{a: [v] for a, v in (pinned or {}).items()}}
 
 
+def draws_light_maps(candidate: Candidate, emitters: bool) -> bool:
+    """Whether ``candidate``'s renders draw a light vertex's map: those of light paths, or the
+    emitter samples of a scene with emissive triangles (``emitters``)."""
+    return emitters or KINDS["strategy"][candidate.strategy].light_vertices
+
+
 def idle_axes(candidate: Candidate, emitters: bool) -> dict:
-    """The light visibility's axes at their defaults where ``candidate`` renders no light vertex:
-    eye paths in a scene without emissive triangles (``emitters``), whose images nothing of the
-    maps changes. Tuned there, they would follow the fit's noise (atrium's eye paths were
+    """The light visibility's axes at their defaults where ``candidate`` renders no light vertex
+    (`draws_light_maps`): eye paths in a scene without emissive triangles, whose images nothing of
+    the maps changes. Tuned there, they would follow the fit's noise (atrium's eye paths were
     recommended maps of 256 texels that they never draw)."""
-    if emitters or KINDS["strategy"][candidate.strategy].light_vertices:
+    if draws_light_maps(candidate, emitters):
         return {}
     unit = KINDS["light_visibility"][candidate.light_visibility]
     defaults = {f.name: f.default for f in fields(unit.settings)}
     return {a: defaults[a] for a in unit.tune.axes}
 
 
-def term_names(candidate: Candidate, kind: str) -> tuple[str, ...]:
+def unmeasured_axes(candidate: Candidate, metric: str) -> dict:
+    """The settings of ``candidate``'s measured bias terms at their defaults where renders cannot
+    measure them under ``metric`` (not a mean of squares: `SQUARED_METRICS`)."""
+    if metric.split("_", 1)[1] in SQUARED_METRICS:
+        return {}
+    defaults = {}
+    for kind, name in candidate.settings().items():
+        unit = KINDS[kind][name]
+        for f in fields(unit.settings):
+            if any(f.name in settings for settings in unit.tune.measured.values()):
+                defaults[f.name] = f.default
+    return defaults
+
+
+def term_names(candidate: Candidate, kind: str, measured: dict | None = None) -> tuple[str, ...]:
+    """The terms of ``candidate``'s time or error model; the error model's end with the bias terms
+    ``measured`` (`Model.measured`)."""
     if kind == "time":
         return (*TIME_TERMS, *(n for t in candidate.tunes for n in t.time_terms))
-    return (*ERROR_TERMS, *(n for t in candidate.tunes for n in t.error_terms))
+    return (*ERROR_TERMS, *(n for t in candidate.tunes for n in t.error_terms), *(measured or {}))
 
 
 def time_features(candidate: Candidate, x: dict) -> list:
@@ -122,10 +149,15 @@ def error_features(candidate: Candidate, x: dict) -> list:
     ]
 
 
-def measured_bias(table: dict, value):
-    """A measured bias term (`Model.measured`) at ``value`` of its setting (numpy arrays or scalars):
-    interpolated linearly in the logarithm of the setting between the values measured."""
-    return np.interp(np.log(value), np.log(np.asarray(table["values"], dtype=np.float64)), table["bias"])
+def measured_bias(table: dict, x: dict):
+    """A measured bias term (`Model.measured`) at settings ``x`` (numpy arrays or scalars):
+    interpolated multilinearly in the logarithms of its settings between the values measured, and
+    held at the nearest value measured beyond them."""
+    grid = [np.log(np.asarray(v, dtype=np.float64)) for v in table["values"]]
+    at = np.broadcast_arrays(*(np.log(np.asarray(x[s], dtype=np.float64)) for s in table["settings"]))
+    points = np.stack([np.clip(a, g[0], g[-1]) for a, g in zip(at, grid)], axis=-1)
+    interpolate = RegularGridInterpolator(grid, np.asarray(table["bias"], dtype=np.float64))
+    return interpolate(points.reshape(-1, len(grid))).reshape(at[0].shape)
 
 
 @dataclass
@@ -138,8 +170,9 @@ class Model:
     residuals: list  # log(predicted / measured) per calibration row
     sampler: str = "stratified"
     warning: str = ""  # what the fit could not tell from its rows
-    # Error terms measured, not fitted (`TuneTerms.measured`): term -> {"setting", "values", "bias"},
-    # what each value of the setting adds to the metric; the term's constant is 1.
+    # Error terms measured, not fitted (`TuneTerms.measured`): term -> {"settings", "values" (each
+    # setting's), "bias" (what each combination adds to the metric, an array over the values)}; the
+    # term's constant is 1.
     measured: dict = field(default_factory=dict)
 
     def terms(self, x: dict) -> list:
@@ -149,16 +182,17 @@ class Model:
         if self.kind == "time":
             return time_features(self.candidate, x)
         features = error_features(self.candidate, {"sampler": self.sampler, **x})
-        names = term_names(self.candidate, "error")
-        for term, table in self.measured.items():
-            features[names.index(term)] = measured_bias(table, x[table["setting"]])
-        return features
+        return features + [measured_bias(table, x) for table in self.measured.values()]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return term_names(self.candidate, self.kind, self.measured)
 
     def predict(self, x: dict):
         """Seconds for ``x["frames"]`` frames (time) or the metric after them (error), at settings
         ``x`` (the candidate's axes; numpy arrays or scalars)."""
         terms = self.terms({"frames": 1.0, **x})
-        return sum(self.constants[n] * t for n, t in zip(term_names(self.candidate, self.kind), terms))
+        return sum(self.constants[n] * t for n, t in zip(self.names, terms))
 
     def rms_residual(self) -> float:
         return float(np.sqrt(np.mean(np.square(self.residuals)))) if self.residuals else float("nan")
@@ -177,7 +211,7 @@ def fit_model(
     residuals; the error terms ``measured`` (`Model.measured`) are kept as measured."""
     measured = measured or {}
     fixed = dict.fromkeys(measured, 1.0)
-    names = term_names(candidate, kind)
+    names = term_names(candidate, kind, measured)
     target_key = "wall_s" if kind == "time" else metric
     rows = [r for r in rows if Candidate.of(r) == candidate and is_number(r.get(target_key))]
     if len(rows) < len(names):

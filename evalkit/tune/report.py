@@ -4,6 +4,7 @@ the fitted constants and their residuals."""
 from __future__ import annotations
 
 import html
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -90,7 +91,7 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
         f"cached in {html.escape(' and '.join(calibration['folders']))}.</p>",
         *[
             f"<p>{html.escape(name)}: the bias term {term} measured by renders with the same paths that differ only "
-            f"in {html.escape(table['setting'])} (runs {html.escape(', '.join(table['runs']))}): "
+            f"in {html.escape(', '.join(table['settings']))} (runs {html.escape(', '.join(table['runs']))}): "
             + html.escape(bias_text(table))
             + ".</p>"
             for name, terms in result.get("measured_bias", {}).items()
@@ -158,8 +159,14 @@ def _check_viewers(result: dict, folder: Path) -> list[str]:
 
 
 def bias_text(table: dict) -> str:
-    """'32: 0.0123, 64: 0.00102, ...': a measured bias term (`Model.measured`) at each value."""
-    return ", ".join(f"{v}: {b:.3g}" for v, b in zip(table["values"], table["bias"]))
+    """'light_sample_map_size 32: 0.0123, 64: 0.00102, ...' or '(ism_points, ism_size) (1024, 32):
+    0.0123, ...': a measured bias term (`Model.measured`) at each value of its settings."""
+    names, values = table["settings"], table["values"]
+    bias = np.ravel(table["bias"])
+    if len(names) == 1:
+        return f"{names[0]} " + ", ".join(f"{v}: {b:.3g}" for v, b in zip(values[0], bias))
+    combinations = (", ".join(map(str, c)) for c in itertools.product(*values))
+    return f"({', '.join(names)}) " + ", ".join(f"({c}): {b:.3g}" for c, b in zip(combinations, bias))
 
 
 def settings_text(settings: dict) -> str:

@@ -88,17 +88,6 @@ def _time(x: dict) -> list:
     return [x["frames"] * (M / 256.0) ** 2 * x.get("light_paths", 8) / 8.0]
 
 
-def _error(x: dict) -> list:
-    # m: the squared bias of a map's texel, as b is of a bundle pixel: the light leaked or hidden
-    # beside contacts and edges is a band a texel or so wide. The direct light of a close-up of a
-    # ball and a box on a floor under an area light, over Mitsuba's: 1.092 and 0.971 with maps of
-    # 32 texels, 1.014 and 0.985 with 64, 1.003 and 1.000 with 256 (docs/BIDIRECTIONAL.md): no
-    # one power of M. Where the metric allows, renders at each M measure it (`TuneTerms.measured`);
-    # this form is what the fit falls back on.
-    M = x["light_sample_map_size"]
-    return [(64.0 / M) * (64.0 / M)]
-
-
 VISIBILITY = LightVisibility(
     name="exact",
     summary="a cube of shadow maps per light vertex, rasterized from the triangles",
@@ -108,11 +97,14 @@ VISIBILITY = LightVisibility(
         axes={"light_sample_map_size": [32, 64, 128, 256]},
         time_terms=("t_texels",),
         time=_time,
-        error_terms=("m",),
-        error=_error,
         # A cycle of 5 against the bundle methods' 10 or 13 runs, the light paths' 3 and the eye
         # paths' 4, so that the map size moves apart from every other setting.
         calibration=tuple({"light_sample_map_size": m} for m in (32, 256, 64, 128, 256)),
-        measured={"m": "light_sample_map_size"},
+        # m(M): the squared bias of a map's texel, as b is of a bundle pixel: the light leaked or
+        # hidden beside contacts and edges is a band a texel or so wide. The direct light of a
+        # close-up of a ball and a box on a floor under an area light, over Mitsuba's: 1.092 and
+        # 0.971 with maps of 32 texels, 1.014 and 0.985 with 64, 1.003 and 1.000 with 256
+        # (docs/BIDIRECTIONAL.md): no one power of M, so renders at each M measure it.
+        measured={"m": ("light_sample_map_size",)},
     ),
 )

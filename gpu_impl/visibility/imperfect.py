@@ -25,7 +25,7 @@ import numpy as np
 from evalkit.core.settings import setting
 from gpu_impl.layout import BINDINGS, LIGHT_VISIBILITY_IMPERFECT
 from gpu_impl.lights import Views
-from gpu_impl.units import LightVisibility
+from gpu_impl.units import LightVisibility, TuneTerms
 
 DEFAULT_ISM_SIZE = 64
 DEFAULT_ISM_POINTS = 4096
@@ -40,12 +40,13 @@ MAX_DRAW_VERTICES = 2**31 - 1
 @dataclass(frozen=True)
 class ImperfectSettings:
     ism_size: int = setting(
-        DEFAULT_ISM_SIZE, "texels per side of each light vertex's paraboloid map", minimum=2, unit="texels"
+        DEFAULT_ISM_SIZE, "texels per side of each light vertex's paraboloid map", minimum=2, unit="texels", symbol="n"
     )
     ism_points: int = setting(
         DEFAULT_ISM_POINTS,
         "surface points splatted into each light vertex's map, a different set per vertex",
         minimum=1,
+        symbol="P",
     )
     ism_splat_scale: float = setting(
         DEFAULT_SPLAT_SCALE,
@@ -178,9 +179,35 @@ class PullPush:
             self.buffer.release()
 
 
+def _time(x: dict) -> list:
+    # t_ism_points: the maps' points, P per light vertex (V light paths; the 8 emitter samples of eye
+    # paths); t_ism_texels: clearing and filtering their texels. Atrium, 256 light vertices: 240 ms
+    # at 64 texels and 4096 points, 891 ms at 16384 points, 307 ms at 128 texels
+    # (docs/BIDIRECTIONAL.md): the points' cost is linear in them, the texels' about a tenth of it.
+    P, size, vertices = x["ism_points"], x["ism_size"], x.get("light_paths", 8) / 8.0
+    return [x["frames"] * vertices * P / 4096.0, x["frames"] * vertices * (size / 64.0) ** 2]
+
+
 VISIBILITY = LightVisibility(
     name="imperfect",
     summary="imperfect shadow maps: a paraboloid map per light vertex, splatted from its own surface points",
     settings=ImperfectSettings,
     maps=ImperfectShadowMaps,
+    tune=TuneTerms(
+        axes={"ism_points": [1024, 4096, 16384, 65536], "ism_size": [32, 64, 128]},
+        time_terms=("t_ism_points", "t_ism_texels"),
+        time=_time,
+        # A cycle of 5 against the bundle methods' 10 or 13 runs, the light paths' 3 and the eye
+        # paths' 4, in which the points take four values and the size three.
+        calibration=tuple(
+            {"ism_points": p, "ism_size": n} for p, n in ((1024, 64), (16384, 32), (4096, 128), (65536, 64), (4096, 32))
+        ),
+        # i(P, size): what the maps change of the image against exact maps for the same light
+        # vertices. It is no product of the two: more texels lower the light leaked through the
+        # slope-scaled bias and leave more of a map uncovered by P points (atrium's changed
+        # connections at 4096 points: 21.8 % at 64 texels, 24.5 % at 128; at 65536 points 10.7 and
+        # 8.4 %: docs/BIDIRECTIONAL.md), so renders measure every combination, against exact maps.
+        measured={"i": ("ism_points", "ism_size")},
+        unbiased={"light_visibility": "exact"},
+    ),
 )
