@@ -460,6 +460,7 @@ def _tune(args) -> int:
         calibration_share=args.calibration_share,
         check=not args.no_check,
         grid=args.grid,
+        pin=dict(args.pin or ()),
         progress=(lambda line: None) if args.json else print,
     )
     rec, predicted = result["recommended"], result["predicted"]
@@ -670,6 +671,18 @@ _positive_int, _non_negative_int, _positive_float = (
     _number("int", 0),
     _number("float", positive=True),
 )
+
+
+def _pin(value: str) -> tuple[str, int | float]:
+    """evalkit tune's --pin: SETTING=VALUE, the value a number."""
+    name, _, number = value.partition("=")
+    try:
+        parsed = float(number)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{value!r} is not SETTING=NUMBER") from None
+    if not name or not math.isfinite(parsed):
+        raise argparse.ArgumentTypeError(f"{value!r} is not SETTING=NUMBER")
+    return name, int(parsed) if parsed.is_integer() else parsed
 
 
 def _spp_or_tune(value: str) -> int | None:
@@ -893,6 +906,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="X",
         help=f"the calibration's render time in budgets (default {CALIBRATION_SHARE:g}; "
         "each run renders at least one frame)",
+    )
+    p.add_argument(
+        "--pin",
+        type=_pin,
+        action="append",
+        metavar="SETTING=VALUE",
+        help="keep a setting the tuner would choose at this value, by name or symbol (M=256, directions=32); "
+        "repeatable",
     )
     p.add_argument("--no-check", action="store_true", help="recommend without rendering the recommendation")
     p.add_argument(

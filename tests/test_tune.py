@@ -443,6 +443,13 @@ def test_a_budget_below_the_cheapest_setting_says_what_is_possible():
         (["--budget", "10", "--strategy", "light"], "strategy must be eye, bidirectional or both, got 'light'"),
         (["--budget", "10", "--shadow-maps", "rays"], "light_visibility must be exact, imperfect or both, got 'rays'"),
         (["--budget", "10", "--spp", "fast"], "argument --spp: 'fast' is not an integer, or tune"),
+        (["--budget", "10", "--pin", "M=big"], "argument --pin: 'M=big' is not SETTING=NUMBER"),
+        (
+            ["--budget", "10", "--pin", "V=8"],
+            "--pin V: not a setting chosen for perfect, imperfect; known: directions,",
+        ),
+        (["--budget", "10", "--pin", "spp=4"], "(or their symbols; the eye paths per pixel: --spp)"),
+        (["--budget", "10", "--shadow-maps", "imperfect", "--pin", "n=1"], "ism_size must be at least 2 texels, got 1"),
     ],
 )
 def test_bad_tune_input_is_one_line(tmp_path, args, said):
@@ -453,7 +460,8 @@ def test_bad_tune_input_is_one_line(tmp_path, args, said):
 def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     """The whole chain on cornell-box at 1 s: calibration, refinement, a check of each method's
     optimum, --json's last line, tune.json and report.html. One path per pixel a frame, so that a
-    frame fits the budget on a slow machine (16, the default, took 2.1 s a frame here on llvmpipe)."""
+    frame fits the budget on a slow machine (16, the default, took 2.1 s a frame here on llvmpipe),
+    and the exact maps' size pinned by its symbol."""
     r = run_evalkit(
         "tune",
         "cornell-box",
@@ -463,6 +471,8 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
         "1",
         "--calibration-share",
         "1",
+        "--pin",
+        "M=64",
         "--json",
         "--out",
         str(tmp_path),
@@ -471,7 +481,8 @@ def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     result = json.loads(r.stdout.strip().splitlines()[-1])
     rec = result["recommended"]
     assert {"method", "directions", "resolution", "frames", "width", "height", "bounces", "spp"} <= rec.keys()
-    assert result["pinned"] == {"spp": 1} and rec["spp"] == 1
+    assert result["pinned"] == {"spp": 1, "light_sample_map_size": 64} and rec["spp"] == 1
+    assert all(c["light_sample_map_size"] == 64 for c in result["candidates"])  # pinned by its symbol
     assert result["idle"] == {}  # cornell-box's emitter samples draw maps: their size is tuned
     for method in ("perfect", "imperfect"):  # with the maps' bias measured by renders at each size
         table = result["measured_bias"][method]["m"]

@@ -64,7 +64,8 @@ shared terms are why S can matter to the choice of strategy: on atrium eye paths
 bidirectional paths from S = 16 on and lose at S = 4 (docs/BIDIRECTIONAL.md). With ``--spp tune``
 the calibration runs take S in a cycle of their own (`CALIBRATION_SPP`); the default keeps S = 16,
 whose recommendations measured as good or better (README: the same calibration time spread over
-one more setting fits it less well).
+one more setting fits it less well). ``--pin`` holds any other setting the optimiser chooses at a
+value (`calibration.pins`); its calibration runs still vary it, which its terms need.
 
 Both fits minimise the squared log residuals by gradient descent with Dr.Jit's automatic
 differentiation (`evalkit.metrics.fitting`). The calibration costs about ``calibration_share`` times

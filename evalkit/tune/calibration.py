@@ -36,7 +36,7 @@ from evalkit.tune.models import (
 )
 from evalkit.tune.optimise import Recommendation, optimise
 from evalkit.tune.report import settings_text, write_tune_report
-from gpu_impl.registry import KINDS
+from gpu_impl.registry import KINDS, settings_symbols
 from references.mitsuba import load_reference
 
 # The last two calibration runs of each candidate have LONG shares of the calibration time: runs where
@@ -187,6 +187,7 @@ def tune(
     calibration_share: float = CALIBRATION_SHARE,
     check: bool = True,
     grid: str | Path | None = None,
+    pin: dict | None = None,
     progress=print,
 ) -> dict:
     """Recommend settings for ``scene`` within ``budget`` seconds of render time, predicted by models
@@ -196,8 +197,9 @@ def tune(
     the default units), with ``spp`` eye paths per pixel per frame (None: tuned as well:
     on atrium and cornell-box no better than 16, and worse at short budgets, README),
     and (``check``) measure the recommendation; ``grid``: a study's folder to compare it with
-    (`compare_with_grid`). Returns everything `evalkit tune --json` prints; writes ``tune.json``
-    and ``report.html`` to ``out``."""
+    (`compare_with_grid`); ``pin``: settings the optimiser keeps at the values given (`pins`).
+    Returns everything `evalkit tune --json` prints; writes ``tune.json`` and ``report.html`` to
+    ``out``."""
     if not (isinstance(budget, (int, float)) and math.isfinite(budget) and budget > 0):
         raise InputError("tune", f"the budget must be a positive number of seconds, got {budget}")
     if metric not in TUNE_METRICS:
@@ -223,9 +225,11 @@ def tune(
     candidates = list(unique.values())
     out = Path(out or f"out/tune/{Path(scene).stem}")
     image = {"width": width, "height": height, "bounces": bounces}
-    pinned = {} if spp is None else {"spp": spp}
+    pinned = {**({} if spp is None else {"spp": spp}), **pins(scene, candidates, pin or {})}
     idle = {c: idle_axes(c, emitters) for c in candidates}
-    unmeasured = {c: {a: v for a, v in unmeasured_axes(c, metric).items() if a not in idle[c]} for c in candidates}
+    unmeasured = {
+        c: {a: v for a, v in unmeasured_axes(c, metric).items() if a not in {**idle[c], **pinned}} for c in candidates
+    }
     start = time.perf_counter()
     studies = TunerStudies({"scene": scene, "seed": seed, **image}, metric, reference_spp, out, progress)
     seconds = calibration_share * budget
@@ -368,6 +372,28 @@ def tune(
     write_text(out / "tune.json", json.dumps(result, indent=2) + "\n")
     write_tune_report(result, rows, models, out / "report.html")
     return result
+
+
+def pins(scene: str, candidates: list[Candidate], pin: dict) -> dict:
+    """``pin`` (settings by name or symbol: ``M``, ``light_sample_map_size``) by name, each a
+    setting that the optimiser chooses for one of ``candidates`` (not the eye paths per pixel,
+    which ``spp`` gives) and valid for it; an `InputError` naming the setting otherwise. The
+    calibration still varies a pinned setting: the models need its terms."""
+    names = {symbol: name for name, symbol in settings_symbols().items()}
+    known = sorted({a for c in candidates for a in axes(c)} - {"spp"})
+    pinned = {}
+    for key, value in pin.items():
+        name = names.get(key, key)
+        having = [c for c in candidates if name in known and name in axes(c)]
+        if not having:
+            raise InputError(
+                "tune",
+                f"--pin {key}: not a setting chosen for {', '.join(c.name for c in candidates)}; "
+                f"known: {', '.join(known)} (or their symbols; the eye paths per pixel: --spp)",
+            )
+        make_run({**having[0].settings(), name: value}, {"scene": scene}, f"tune --pin {key}={value}")
+        pinned[name] = value
+    return pinned
 
 
 def _rendered_optima(studies: TunerStudies, name: str, optima: list, run, optimum, refused: dict) -> tuple[list, list]:

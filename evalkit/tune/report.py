@@ -84,7 +84,7 @@ def write_tune_report(result: dict, rows: list[dict], models: dict, path: Path) 
     parts = [
         f"<h1>evalkit tune: {html.escape(result['scene'])}, {budget:g} s</h1>",
         f"<p>Metric {html.escape(metric)}; image {rec['width']}x{rec['height']}, {rec['bounces']} bounces, "
-        f"{rec['spp']} paths per pixel per frame ({'given' if result['pinned'] else 'tuned'}); "
+        f"{rec['spp']} paths per pixel per frame ({'given' if 'spp' in result['pinned'] else 'tuned'}); "
         f"calibration: {calibration['runs']} runs, {render_s:.1f} s of "
         f"render time ({render_s / budget:.2f}x the budget; asked for {calibration['share']:g}x), "
         f"{calibration['run_s']:.1f} s with loading and measuring, "
