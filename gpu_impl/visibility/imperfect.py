@@ -202,7 +202,7 @@ VISIBILITY = LightVisibility(
         calibration=tuple(
             {"ism_points": p, "ism_size": n} for p, n in ((1024, 64), (16384, 32), (4096, 128), (65536, 64), (4096, 32))
         ),
-        # i(P, size): what the maps change of the image against exact maps for the same light
+        # i(P, n): what the maps change of the image against exact maps for the same light
         # vertices. It is no product of the two: more texels lower the light leaked through the
         # slope-scaled bias and leave more of a map uncovered by P points (atrium's changed
         # connections at 4096 points: 21.8 % at 64 texels, 24.5 % at 128; at 65536 points 10.7 and
