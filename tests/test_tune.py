@@ -590,3 +590,25 @@ def test_tune_chooses_between_strategies_on_a_room_lit_only_after_a_bounce(tmp_p
         *axes(ISM)["ism_size"],
     }
     assert "(ism_points, ism_size)" in report
+
+
+def test_under_a_metric_that_does_not_square_errors_the_maps_keep_their_defaults(tmp_path):
+    """Under SMAPE renders cannot measure the maps' bias: nothing is rendered to measure it, and
+    the maps' settings of every candidate keep their defaults, with a warning saying why."""
+    r = run_evalkit(
+        "tune", "cornell-box", "--budget", "1", "--method", "perfect", "--strategy", "bidirectional",
+        "--shadow-maps", "both", "--metric", "indirect_smape", "--width", "32", "--height", "32", "--spp", "1",
+        "--reference-spp", "256", "--calibration-share", "1", "--no-check", "--json", "--out", str(tmp_path),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    assert result["measured_bias"] == {} and not (tmp_path / "bias").exists()
+    assert result["unmeasured"] == {
+        BIDIRECTIONAL.name: {"light_sample_map_size": 256},
+        ISM.name: {"ism_size": 64, "ism_points": 4096},
+    }
+    candidates = {Candidate.of(c): c for c in result["candidates"]}
+    assert candidates[BIDIRECTIONAL]["light_sample_map_size"] == 256
+    assert (candidates[ISM]["ism_points"], candidates[ISM]["ism_size"]) == (4096, 64)
+    said = [w for w in result["warnings"] if "only under mse and relmse, not smape" in w]
+    assert len(said) == 2 and said[0].startswith(f"{BIDIRECTIONAL.name}: light_sample_map_size=256 kept at the default")
