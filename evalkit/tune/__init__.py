@@ -73,10 +73,11 @@ the budget: each of its runs renders frames until its share of that time is spen
 ``time_budget``), at least one, so a larger budget calibrates with more frames, where the bias
 terms it must then predict show through the noise. Half of that time goes to runs spread over the
 settings; the other half renders each candidate's first optimum, which then anchors the refit
-(`SPREAD`). The renders that measure a bias term (one or two frames each) come on top. The optimisation evaluates, per candidate, every setting of its grid (`models.GRID` and
-the units' axes), each with the whole frames that fill the budget, F = floor((T - t_once) / (time
-per frame)), and takes the least predicted error: a continuous optimum rounded to the grid (the
-first version) missed where whole frames matter. The check renders each candidate's optimum and
+(`SPREAD`). The renders that measure a bias term (one or two frames each) come on top. The
+optimisation evaluates, per candidate, every setting of its grid (`models.GRID` and the units'
+axes), each with the whole frames that fill the budget, F = floor((T - t_once) / (time per
+frame)), and takes the least predicted error: a continuous optimum rounded to the grid (the first
+version) missed where whole frames matter. The check renders each candidate's optimum and
 measures its time and error (an optimum that overran the budget is rendered again with the frames
 its measured time fits); the recommendation is the one with the least measured error of those
 that kept the budget (within `BUDGET_TOLERANCE`, a run's timing noise; of all, with a warning,
