@@ -220,6 +220,7 @@ def test_imperfect_maps_are_measured_against_exact_maps_for_the_same_light_verti
         own = runs[seed * 13 : (seed + 1) * 13]
         assert [(r["ism_points"], r["ism_size"]) for r in own[:12]] == list(itertools.product(*table["values"]))
         assert all(Candidate.of(r) == ISM for r in own[:12]) and Candidate.of(own[12]) == BIDIRECTIONAL
+        assert "ism_points" not in own[12] and "light_sample_map_size" not in own[12]  # exact maps at their default
         assert all(r["seed"] == seed and r["frames"] == seed + 1 for r in own)
         assert all(
             {k: v for k, v in r.items() if k not in ("ism_points", "ism_size")}
@@ -227,12 +228,8 @@ def test_imperfect_maps_are_measured_against_exact_maps_for_the_same_light_verti
             for r in own[:12]
         )
     # Eye paths in a scene without emissive triangles draw no map: nothing to measure.
-    assert (
-        bias_runs(
-            Candidate("perfect", "eye", "imperfect"), idle_axes(Candidate("perfect", "eye", "imperfect"), False), 4, 0
-        )
-        == []
-    )
+    eye = Candidate("perfect", "eye", "imperfect")
+    assert bias_runs(eye, idle_axes(eye, emitters=False), 4, seed=0) == []
 
 
 def test_the_maps_settings_stay_at_their_defaults_under_metrics_that_cannot_measure_their_bias():
