@@ -93,8 +93,7 @@ def bias_runs(candidate: Candidate, idle: dict, spp: int, seed: int) -> list[tup
     the time model tell the once-per-render cost from a frame's."""
     sweeps = []
     base = {**candidate.calibration()[0], "spp": spp, "time_budget": 0.0}
-    for kind, name in candidate.settings().items():
-        unit = KINDS[kind][name]
+    for unit in candidate.units:
         for term, settings in unit.tune.measured.items():
             if any(s in idle for s in settings):
                 continue

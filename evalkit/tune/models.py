@@ -72,8 +72,12 @@ class Candidate:
         return " ".join([self.method, *others])
 
     @property
+    def units(self) -> list:
+        return [KINDS[k][v] for k, v in self.settings().items()]
+
+    @property
     def tunes(self) -> list:
-        return [KINDS[k][v].tune for k, v in self.settings().items()]
+        return [unit.tune for unit in self.units]
 
     def calibration(self) -> list[dict]:
         """The calibration runs: the bundle method's, each with the other units' settings taken in
@@ -104,8 +108,7 @@ def idle_axes(candidate: Candidate, emitters: bool) -> dict:
     if draws_light_maps(candidate, emitters):
         return {}
     unit = KINDS["light_visibility"][candidate.light_visibility]
-    defaults = {f.name: f.default for f in fields(unit.settings)}
-    return {a: defaults[a] for a in unit.tune.axes}
+    return {a: getattr(unit.settings(), a) for a in unit.tune.axes}
 
 
 def unmeasured_axes(candidate: Candidate, metric: str) -> dict:
@@ -113,13 +116,12 @@ def unmeasured_axes(candidate: Candidate, metric: str) -> dict:
     measure them under ``metric`` (not a mean of squares: `SQUARED_METRICS`)."""
     if metric.split("_", 1)[1] in SQUARED_METRICS:
         return {}
-    defaults = {}
-    for kind, name in candidate.settings().items():
-        unit = KINDS[kind][name]
-        for f in fields(unit.settings):
-            if any(f.name in settings for settings in unit.tune.measured.values()):
-                defaults[f.name] = f.default
-    return defaults
+    return {
+        s: getattr(unit.settings(), s)
+        for unit in candidate.units
+        for settings in unit.tune.measured.values()
+        for s in settings
+    }
 
 
 def term_names(candidate: Candidate, kind: str, measured: dict | None = None) -> tuple[str, ...]:
