@@ -11,6 +11,7 @@ from test_bundles import QUAD, QUAD_FACES, build, scene_of
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import Material, Mesh, load_scene
+from evalkit.core.settings import RenderSettings
 from evalkit.metrics.bundles import (
     NEXT_HIT_ERROR_TARGET,
     SLOPE_BINS,
@@ -220,3 +221,67 @@ def test_the_slope_breakdown_adds_up(gl):
     assert sum(s["exact_nodes"]) == r["exact_nodes"] and sum(s["test_nodes"]) == r["test_nodes"]
     holes = sum(rate * n for rate, n in zip(s["hole_rate"], s["exact_nodes"]))
     assert round(holes) == r["holes"]
+
+
+@pytest.mark.parametrize("method", ["perfect", "imperfect"])
+def test_the_shaders_lookups_are_the_emulations_vertex_by_vertex(gl, method):
+    """`bundle_lookup` is the renderer's lookup (shaders/bundle_step.glsl) in float64, and every
+    next-hit figure, `evalkit scene info`'s choice of R among them, rests on that. One bundle (K = 1,
+    so the direction every path takes is known) of the parts scene, whose small parts send many
+    lookups to the lines' vote: each camera vertex's first step in the shader, read back from the
+    paths, against the emulation on the same bundles from the same vertices. A rule tried since
+    (docs/MEASURED_FACTS.md, "Rings") passed every next-hit test in its emulation while its shader
+    left 0.2 % more lookups on a surface: this test found it."""
+    from gpu_impl.bundles import decode_normals
+    from gpu_impl.layout import PATH, PATH_ENDED, PATH_SUMS
+    from gpu_impl.renderer import Renderer
+
+    parts = load_scene("parts")
+    sky = replace(parts.lights[0], kind="constant", envmap=None, to_world=None)  # every miss adds light
+    scene = replace(parts, lights=[sky])
+    settings = RenderSettings(
+        method=method,
+        bounces=1,
+        directions=1,
+        resolution=128,
+        width=96,
+        height=72,
+        spp=1,
+        frames=1,
+        **({"points": 65536} if method == "imperfect" else {}),
+    )
+    seen = {}
+    with Renderer(gl, scene, settings) as renderer:
+        bounce = renderer.strategy.bounce
+
+        def first_step(j, frame, lazy):
+            if j == 1:
+                read = lambda name, dtype: gl.read(renderer.buffers[name], dtype, renderer.paths)  # noqa: E731
+                seen["before"], sums = read("PATHS", PATH), read("PATH_SUMS", PATH_SUMS)["direct"]
+                bounce(j, frame, lazy)
+                seen["after"], seen["left"] = read("PATHS", PATH), read("PATH_SUMS", PATH_SUMS)["direct"] > sums
+                seen["bundles"], seen["centre"] = renderer.tracer.read(), renderer.gpu_scene.centre
+            else:
+                bounce(j, frame, lazy)
+
+        renderer.strategy.bounce = first_step
+        renderer.render()
+    before, after, bundles = seen["before"], seen["after"], seen["bundles"]
+    live = before["bundle"] != PATH_ENDED
+    look = bundle_lookup(
+        bundles,
+        ExactTracer(scene).arrays,
+        before["position"][live].astype(np.float64) + seen["centre"],
+        decode_normals(before["normal"][live]).astype(np.float64),
+        decode_normals(before["geometric"][live]).astype(np.float64),
+        np.zeros(live.sum(), np.int64),
+    )
+    shader_hit, shader_left = after["bundle"][live] != PATH_ENDED, seen["left"][live].any(axis=1)
+    hit, left = look["leaves"] & (look["node"] >= 0), look["leaves"] & (look["node"] < 0)
+    landed = after["position"][live].astype(np.float64) + seen["centre"]
+    apart = np.linalg.norm(landed - np.nan_to_num(look["point"]), axis=1) > 0.01 * bundles.pixel_size()
+    assert live.sum() > 3000 and hit.sum() > 500 and left.sum() > 500, (live.sum(), hit.sum(), left.sum())
+    # A path that lands on the back of a one-sided surface ends there, dark: the emulation's hit.
+    disagree = (shader_left != left) | (shader_hit & ~hit) | (hit & shader_hit & apart)
+    # Measured: no lookup differs (perfect bundles, 3 runs of 25,000 vertices at R = 256 too).
+    assert disagree.sum() <= 2, disagree.sum()
