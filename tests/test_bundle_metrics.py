@@ -21,6 +21,9 @@ from evalkit.metrics.bundles import (
     next_hit_errors,
     resolution_advice,
 )
+from gpu_impl.bundles import decode_normals
+from gpu_impl.layout import PATH, PATH_ENDED, PATH_SUMS
+from gpu_impl.renderer import Renderer
 from references.embree import ExactTracer
 
 
@@ -232,10 +235,6 @@ def test_the_shaders_lookups_are_the_emulations_vertex_by_vertex(gl, method):
     paths, against the emulation on the same bundles from the same vertices. A rule tried since
     (docs/MEASURED_FACTS.md, "Rings") passed every next-hit test in its emulation while its shader
     left 0.2 % more lookups on a surface: this test found it."""
-    from gpu_impl.bundles import decode_normals
-    from gpu_impl.layout import PATH, PATH_ENDED, PATH_SUMS
-    from gpu_impl.renderer import Renderer
-
     parts = load_scene("parts")
     sky = replace(parts.lights[0], kind="constant", envmap=None, to_world=None)  # every miss adds light
     scene = replace(parts, lights=[sky])
@@ -254,9 +253,11 @@ def test_the_shaders_lookups_are_the_emulations_vertex_by_vertex(gl, method):
     with Renderer(gl, scene, settings) as renderer:
         bounce = renderer.strategy.bounce
 
+        def read(name, dtype):
+            return gl.read(renderer.buffers[name], dtype, renderer.paths)
+
         def first_step(j, frame, lazy):
             if j == 1:
-                read = lambda name, dtype: gl.read(renderer.buffers[name], dtype, renderer.paths)  # noqa: E731
                 seen["before"], sums = read("PATHS", PATH), read("PATH_SUMS", PATH_SUMS)["direct"]
                 bounce(j, frame, lazy)
                 seen["after"], seen["left"] = read("PATHS", PATH), read("PATH_SUMS", PATH_SUMS)["direct"] > sums
