@@ -269,7 +269,7 @@ def test_the_shaders_lookups_are_the_emulations_vertex_by_vertex(gl, method):
         renderer.render()
     before, after, bundles = seen["before"], seen["after"], seen["bundles"]
     live = before["bundle"] != PATH_ENDED
-    arrays = ExactTracer(scene).arrays
+    arrays = scene.arrays()  # the triangles primitive ids refer to, as the renderer uploaded them
     look = bundle_lookup(
         bundles,
         arrays,
