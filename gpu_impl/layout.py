@@ -86,7 +86,10 @@ MATERIAL_TWOSIDED = np.uint32(2)
 TRIANGLE_SMOOTH = np.uint32(0x80000000)  # Triangle.material_flags: interpolate vertex normals
 # Triangle.material_flags: the triangle bounds a solid (scene_buffers.py: solid_triangles)
 TRIANGLE_SOLID = np.uint32(0x40000000)
-TRIANGLE_MATERIAL = np.uint32(0x3FFFFFFF)  # Triangle.material_flags: the material index
+# Triangle.material_flags: bits TRIANGLE_SHARP_SHIFT + e, edge e (corner e to e + 1) is sharp, so
+# splats end there (evalkit/core/scene/edges.py: sharp_edges)
+TRIANGLE_SHARP_SHIFT = np.uint32(27)
+TRIANGLE_MATERIAL = np.uint32(0x07FFFFFF)  # Triangle.material_flags: the material index
 # Light.position.w; "emitter_sample" is a point drawn on an emissive triangle for next-event
 # estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its
 # normal; "light_path_vertex" is a vertex a light path left on a surface (strategies/bidirectional.py),
@@ -125,6 +128,7 @@ SHADER_CONSTANTS = {
     "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,
     "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH,
     "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL,
+    "TRIANGLE_SHARP_SHIFT": TRIANGLE_SHARP_SHIFT,
     "TRIANGLE_SOLID": TRIANGLE_SOLID,
     "FACING_BIT": FACING_BIT,
     "FACING_IMAGE_NEAREST": FACING_IMAGE_UNITS[0],

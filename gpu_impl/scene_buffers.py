@@ -6,6 +6,7 @@ import numpy as np
 
 from evalkit.core.bundleset import FRAME_PADDING
 from evalkit.core.scene import Scene
+from evalkit.core.scene.edges import sharp_edges, solid_triangles
 from gpu_impl.context import GLContext
 from gpu_impl.layout import (
     BINDINGS,
@@ -13,6 +14,7 @@ from gpu_impl.layout import (
     MATERIAL_TEXTURED,
     MATERIAL_TWOSIDED,
     TRIANGLE,
+    TRIANGLE_SHARP_SHIFT,
     TRIANGLE_SMOOTH,
     TRIANGLE_SOLID,
     VERTEX,
@@ -45,6 +47,7 @@ class GpuScene:
         self.radius = radius * FRAME_PADDING
         self.triangle_count = len(a.faces)
         self._solid = None  # `solids`, found when a pass first needs them
+        self._sharp = None  # `sharp_edges`, found when splats first need them
         self._cluster_bounds = None  # `cluster_bounds`, found when a pass first culls
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
@@ -112,6 +115,15 @@ class GpuScene:
             self.buffers["TRIANGLES"].write(self._triangles(self.arrays))
         return self._solid
 
+    def sharp_edges(self) -> np.ndarray:
+        """Per triangle and edge, whether the edge is sharp (`evalkit.core.scene.edges.sharp_edges`;
+        the TRIANGLE_SHARP_SHIFT bits of the triangle records): splats end there. Found,
+        and uploaded, the first time splats ask. Rigid poses keep it."""
+        if self._sharp is None:
+            self._sharp = sharp_edges(self.arrays.positions, self.arrays.faces, self.arrays.tri_normal)
+            self.buffers["TRIANGLES"].write(self._triangles(self.arrays))
+        return self._sharp
+
     def cluster_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The corners (lowest, highest; (C, 3) each, relative to the bundle centre) of the box
         around each run of `CLUSTER_TRIANGLES` triangles in the scene's order: a pass that draws
@@ -141,7 +153,7 @@ class GpuScene:
 
     def _triangles(self, a) -> bytes:
         """The triangle records: geometric normal, material and flags (TRIANGLE_SOLID once `solids`
-        has been found)."""
+        has been found, the sharp edges once `sharp_edges` has)."""
         triangles = np.zeros(len(a.faces), dtype=TRIANGLE)
         triangles["normal"] = a.tri_normal
         triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(
@@ -149,6 +161,9 @@ class GpuScene:
         ).astype(np.uint32)
         if self._solid is not None:
             triangles["material_flags"] |= np.where(self._solid, TRIANGLE_SOLID, 0).astype(np.uint32)
+        if self._sharp is not None:
+            bits = (self._sharp.astype(np.uint32) << np.arange(3, dtype=np.uint32)).sum(axis=1, dtype=np.uint32)
+            triangles["material_flags"] |= bits << TRIANGLE_SHARP_SHIFT
         return triangles.tobytes()
 
     def pose(self, scene: Scene) -> None:
@@ -239,36 +254,3 @@ def provoking_vertices(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray
     sources = np.concatenate([np.arange(vertex_count), faces[copies, 0]])
     raster[copies, 2] = vertex_count + np.arange(len(copies))
     return raster, sources
-
-
-def solid_triangles(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Per triangle, whether it bounds a solid: its connected surface (triangles joined by shared
-    edges, corners welded within a ten-millionth of the scene's extent) is closed, every edge shared
-    by exactly two triangles. A box or a ball resting on a floor is one; the floor, a quad light and a room open
-    on one side are not (shaders/shadow_maps.glsl: what lies behind a solid's surface is inside it).
-    A triangle that welding collapses (at a UV sphere's poles) has no area and no say, and is not one."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    solid = np.zeros(len(faces), dtype=bool)
-    if not len(faces):
-        return solid
-    # A seam's copies of a corner differ by rounding.
-    extent = float(np.ptp(positions, axis=0).max()) or 1.0
-    _, welded = np.unique(np.round(positions / (1e-7 * extent)), axis=0, return_inverse=True)
-    corners = welded.reshape(-1)[faces]
-    kept = np.flatnonzero((corners != np.roll(corners, 1, axis=1)).all(axis=1))
-    if not len(kept):
-        return solid
-    corners = corners[kept]
-    ends = np.stack([corners, np.roll(corners, -1, axis=1)], axis=2).reshape(-1, 2)
-    key = ends.min(axis=1).astype(np.int64) * (int(welded.max()) + 1) + ends.max(axis=1)  # one per edge
-    _, edge, shared = np.unique(key, return_inverse=True, return_counts=True)
-    # Triangles and edges as the nodes of one graph, each triangle joined to its three edges.
-    n = len(kept) + len(shared)
-    triangle = np.repeat(np.arange(len(kept)), 3)
-    graph = coo_matrix((np.ones(len(triangle)), (triangle, len(kept) + edge.reshape(-1))), shape=(n, n))
-    _, component = connected_components(graph, directed=False)
-    open_components = np.unique(component[len(kept) + np.flatnonzero(shared != 2)])
-    solid[kept] = ~np.isin(component[: len(kept)], open_components)
-    return solid

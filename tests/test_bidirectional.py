@@ -17,6 +17,7 @@ from evalkit.core.errors import LimitError
 from evalkit.core.scene import Material, Mesh, Scene, assemble, load_scene
 from evalkit.core.scene.assemble import look_at
 from evalkit.core.scene.builtin import furnace_radiance
+from evalkit.core.scene.edges import solid_triangles
 from evalkit.core.scene.model import Camera, Light
 from evalkit.core.scene.tessellate import box, unit_sphere
 from evalkit.core.settings import RenderSettings
@@ -36,7 +37,7 @@ from gpu_impl.layout import LIGHT_PATH_VERTEX
 from gpu_impl.lights import NO_SURFACE, LightVertices
 from gpu_impl.registry import resolve
 from gpu_impl.renderer import Renderer
-from gpu_impl.scene_buffers import GpuScene, solid_triangles
+from gpu_impl.scene_buffers import GpuScene
 from gpu_impl.strategies.bidirectional import LightSources
 from gpu_impl.visibility.exact import faces_front
 from gpu_impl.visibility.imperfect import DEFAULT_ISM_POINTS
@@ -143,8 +144,10 @@ def test_imperfect_shadow_maps_agree_with_exact_maps_and_rays_on_most_connection
     # Frame 0's light path vertices of lit-room (V=32, B=2) against 512 points the camera sees.
     # Measured (`python benchmarks/shadow_maps.py --scene lit-room --vertices 32 --receivers 512`):
     # exact maps disagree with Embree rays on 0.4 % of connections; imperfect maps at the defaults
-    # (64 texels, 4096 points, splat scale 1.6) with exact maps on 4.1 %, at 32 texels and 1024
-    # points on 7.1 % (5.6 % and 10.3 % with splats facing the vertex, independent points, 1.0).
+    # (64 texels, 4096 points, splat scale 1.6) with exact maps on 3.1 % (1.0 % hidden, 2.1 %
+    # leaked), at 32 texels and 1024 points on 7.1 % (5.6 % and 10.3 % with splats facing the vertex,
+    # independent points, 1.0). Before splats ended at their triangles' sharp edges (the boxes'
+    # edges: shaders/scene.glsl, inside_sharp_edges), the defaults hid 2.1 % and leaked 1.7 %.
     scene = load_scene("lit-room")
     base = dict(method="perfect", strategy="bidirectional", directions=32, resolution=128, bounces=2, frames=1)
     settings = {
@@ -159,7 +162,8 @@ def test_imperfect_shadow_maps_agree_with_exact_maps_and_rays_on_most_connection
     truth = traced_visibility(scene, vertices, receivers)
     assert len(vertices.positions) == 32 and (exact >= 0).mean() > 0.3
     assert differing_share(exact, truth) < 0.01
-    assert differing_share(exact, imperfect) < 0.06
+    hidden, leaked = changed_shares(exact, imperfect)
+    assert hidden + leaked < 0.05 and hidden < 0.015
 
 
 @contextmanager

@@ -10,6 +10,7 @@ import pytest
 from evalkit.core.errors import InputError
 from evalkit.core.scene import Material, Mesh, assemble
 from evalkit.core.scene.assemble import default_camera, look_at
+from evalkit.core.scene.edges import sharp_edges
 from evalkit.core.scene.model import Light
 from evalkit.core.scene.tessellate import box, unit_sphere
 
@@ -156,3 +157,34 @@ def test_look_at_matches_mitsuba(mi):
     m = look_at([1, 2, 3], [0, 0.5, -1], [0, 1, 0])
     ref = np.array(mi.ScalarTransform4f().look_at(origin=[1, 2, 3], target=[0, 0.5, -1], up=[0, 1, 0]).matrix)
     np.testing.assert_allclose(m, ref, atol=1e-6)
+
+
+def _normals(positions, faces):
+    n = np.cross(positions[faces[:, 1]] - positions[faces[:, 0]], positions[faces[:, 2]] - positions[faces[:, 0]])
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def test_sharp_edges_are_convex_creases_and_boundaries():
+    """Where imperfect bundles' splats end (evalkit.core.scene.edges.sharp_edges): every edge of a box
+    seen from outside, none seen from inside (a room's corners are concave), a quad's outline but
+    not its diagonal, and none of a finely tessellated sphere."""
+    p, f = box(np.zeros(3), np.ones(3), subdivisions=2)
+    sharp = sharp_edges(p, f, _normals(p, f))
+    # Each face's 2 x 2 quads: the edges on the face's outline are the box's edges, the rest lie flat.
+    corners = p[f]
+    ends = np.stack([corners, np.roll(corners, -1, axis=1)], axis=2)  # (T, 3 edges, 2 ends, 3)
+    a, b = ends[:, :, 0], ends[:, :, 1]
+    on_box_edge = ((a == b) & np.isin(a, [0.0, 1.0])).sum(axis=2) >= 2  # it runs along two of the box's planes
+    assert sharp.sum() == 12 * 2 * 2 and np.array_equal(sharp, on_box_edge)  # edges x halves x sides
+
+    p, f = box(np.zeros(3), np.ones(3), subdivisions=2, inward=True)
+    assert not sharp_edges(p, f, _normals(p, f)).any()
+
+    sharp = sharp_edges(QUAD, QUAD_FACES, _normals(QUAD, QUAD_FACES))
+    # Faces (0, 1, 2) and (0, 2, 3): the diagonal is edge 2 of the first and edge 0 of the second.
+    assert np.array_equal(sharp, [[True, True, False], [False, True, True]])
+
+    p, f, _, _ = unit_sphere((48, 24))
+    assert not sharp_edges(p, f, _normals(p, f)).any()
+    assert sharp_edges(p, f, _normals(p, f), crease_degrees=2.0).any()  # its facets part by 7.5 degrees
+    assert sharp_edges(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3))).shape == (0, 3)

@@ -44,6 +44,7 @@ import numpy as np
 
 from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.display import fields_html
+from evalkit.core.scene.edges import sharp_edges
 from evalkit.core.settings import DEPTH_TOLERANCE, RenderSettings
 
 DEFAULT_SELF_HIT_BIAS = RenderSettings().self_hit_bias
@@ -448,17 +449,39 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
 
 def _on_surface_test(bundles: BundleSet, arrays):
     """Whether point y on node j's plane lies on its surface, as shaders/bundle_hits.glsl tells:
-    within the splat's disk, or inside the triangle up to 1e-4 of its barycentrics."""
-    if bundles.has_splats:
-        r2 = float(bundles.params["splat_radius"]) ** 2 * (1 + 1e-4)
-        return lambda j, y: np.sum((y - bundles.splat_centre[j]) ** 2) <= r2
+    within the splat's disk and inside its triangle's sharp edges, or inside the triangle, up to 1e-4
+    of its barycentrics."""
     triangles = bundles.node_triangle()
 
-    def inside(j, y):
+    def barycentrics(j, y):
         p0, p1, p2 = arrays.positions[arrays.faces[triangles[j]]]
         e1, e2, q = p1 - p0, p2 - p0, y - p0
         a, b, c = e1 @ e1, e1 @ e2, e2 @ e2
-        b1, b2 = np.array([c * (q @ e1) - b * (q @ e2), a * (q @ e2) - b * (q @ e1)]) / (a * c - b * b)
+        return np.array([c * (q @ e1) - b * (q @ e2), a * (q @ e2) - b * (q @ e1)]) / (a * c - b * b)
+
+    if bundles.has_splats:
+        r2 = float(bundles.params["splat_radius"]) ** 2 * (1 + 1e-4)
+        crease = bundles.params.get("crease_degrees")  # None: built before splats ended at sharp edges
+        sharp = (
+            sharp_edges(arrays.positions, arrays.faces, arrays.tri_normal, crease)
+            if crease is not None
+            else np.zeros((len(arrays.faces), 3), bool)
+        )
+
+        def on_splat(j, y):
+            if np.sum((y - bundles.splat_centre[j]) ** 2) > r2:
+                return False
+            edges = sharp[triangles[j]]
+            if not edges.any():
+                return True
+            b1, b2 = barycentrics(j, y)
+            inner = np.array([b2, 1 - b1 - b2, b1]) >= -1e-4  # edge e runs from corner e to e + 1
+            return bool(np.all(inner | ~edges))
+
+        return on_splat
+
+    def inside(j, y):
+        b1, b2 = barycentrics(j, y)
         return b1 >= -1e-4 and b2 >= -1e-4 and b1 + b2 <= 1 + 1e-4
 
     return inside

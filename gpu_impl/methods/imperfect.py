@@ -1,7 +1,8 @@
 """Imperfect ray bundles (the poster's point splats): each direction draws its own seeded set of N
 points on the surfaces, each a disk of radius ``splat_scale * sqrt(A / (pi N))`` (or
 ``splat_radius``) in its source triangle's plane, and the nodes are where bundle lines cross the
-disks.
+disks. A splat ends at its triangle's sharp edges (convex creases and boundaries:
+`evalkit.core.scene.edges.sharp_edges`), where a disk would stand out into empty space.
 
 - ``points``: N points per direction (shaders/splat_points.glsl), stratified along a space-filling
   curve or independent (``sampler``).
@@ -25,6 +26,7 @@ import moderngl
 import numpy as np
 
 from evalkit.core.errors import LimitError
+from evalkit.core.scene.edges import CREASE_DEGREES
 from evalkit.core.settings import DEPTH_TOLERANCE, setting
 from gpu_impl.bundles import BundleTracer, LinkedListTracer
 from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT
@@ -94,6 +96,7 @@ class SplatTracer(BundleTracer):
         if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
             raise ValueError(f"the splat radius must be positive and finite, got {self.splat_radius}")
         super().__init__(gl, gpu_scene, settings, **hooks)
+        gpu_scene.sharp_edges()  # where splats end (shaders/scene.glsl: inside_sharp_edges)
         self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N))  # triangle 0 for a warm-up draw
 
     points_are = "splat points"
@@ -175,6 +178,7 @@ class SplatTracer(BundleTracer):
             "sampler": self.sampler,
             "splatter": self.splatter,
             "merged": self.merge,
+            "crease_degrees": CREASE_DEGREES,
         }
 
     def read_points(self) -> np.ndarray:

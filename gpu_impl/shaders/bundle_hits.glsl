@@ -69,11 +69,15 @@ bool own_surface(uint ref, vec3 x, vec3 ng) {
 }
 
 // Whether point y, on the plane of a node's surface, lies on that surface: inside its triangle
-// (perfect bundles), or within its splat's disk (imperfect), up to round-off.
+// (perfect bundles), or within its splat's disk and inside its triangle's sharp edges (imperfect),
+// up to round-off.
 bool on_node_surface(uint ref, vec3 y) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
-    vec3 to_centre = y - splat_source(ref).centre;
-    return dot(to_centre, to_centre) <= splat_radius * splat_radius * (1.0 + 1e-4);
+    SplatSource s = splat_source(ref);
+    vec3 to_centre = y - s.centre;
+    if (dot(to_centre, to_centre) > splat_radius * splat_radius * (1.0 + 1e-4)) return false;
+    uint sharp = triangle_sharp_edges(s.triangle);
+    return sharp == 0u || inside_sharp_edges(sharp, plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y));
 #else
     uvec3 v = triangle_vertices(ref);
     vec3 p0 = vertex_position(v.x);

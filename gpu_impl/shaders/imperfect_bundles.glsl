@@ -1,7 +1,8 @@
 // Imperfect ray bundles drawn by the rasterizer (the poster's point splats; --splatter raster):
 // each direction draws its own N surface points (splat_points.glsl) as small triangles in the
 // tangent plane of the point's source triangle, and the fragment shader cuts the inscribed circle
-// out of the triangle, so overlapping splats add fewer redundant nodes. A node is its depth and
+// out of the triangle, so overlapping splats add fewer redundant nodes, and the source triangle's
+// sharp edges off the circle (scene.glsl: inside_sharp_edges). A node is its depth and
 // the point (bundle.glsl), with FACING_BIT set when the splat faces along +d (the merge in
 // resolve_lists.glsl keeps surfaces facing either way apart). splat_lists.glsl finds the same
 // nodes without the rasterizer (--splatter compute, the default).
@@ -17,10 +18,12 @@
 #if defined VERTEX_SHADER
 
 out vec2 v_disk;  // position in the splat in units of its radius: the cut-out keeps |v_disk| <= 1
+out vec2 v_barycentrics;  // in the source triangle's plane: its sharp edges cut the splat too
 // Constant over a splat, handed over flat, so a fragment reads no memory.
 flat out vec3 v_depth_plane;  // depth at bundle pixel (i, j): dot(v_depth_plane, (1, i, j))
 flat out uint v_ref;          // the point | FACING_BIT
 flat out int v_direction;
+flat out uint v_sharp;
 
 void main() {
     uint splat = uint(gl_VertexID) / 3u;
@@ -35,6 +38,8 @@ void main() {
     float angle = 2.0943951023931953 * float(corner);
     v_disk = 2.0 * vec2(cos(angle), sin(angle));
     vec3 p = center + splat_radius * (v_disk.x * tangent + v_disk.y * bitangent);
+    v_barycentrics = plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, p);
+    v_sharp = triangle_sharp_edges(s.triangle);
 
     int k = int(splat / points_per_direction);
     BundleFrame f = frames[k];
@@ -48,13 +53,16 @@ void main() {
 #elif defined FRAGMENT_SHADER
 
 in vec2 v_disk;
+in vec2 v_barycentrics;
 flat in vec3 v_depth_plane;
 flat in uint v_ref;
 flat in int v_direction;
+flat in uint v_sharp;
 
 void main() {
 #if !defined NULL_FRAGMENT
     if (dot(v_disk, v_disk) > 1.0) return;  // the circular cut-out
+    if (v_sharp != 0u && !inside_sharp_edges(v_sharp, v_barycentrics)) return;
     ivec2 pixel = fragment_pixel(v_direction);
     if (pixel.x < 0) return;
     append_node(pixel_list(v_direction, pixel), dot(v_depth_plane, vec3(1.0, vec2(pixel))), v_ref);

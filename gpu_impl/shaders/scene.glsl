@@ -19,8 +19,8 @@ struct Vertex {
     float nx, ny, nz;  // normal; zero where a mesh has none
     float u, v;
 };
-// The flags MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE_SMOOTH, TRIANGLE_SOLID and the mask TRIANGLE_MATERIAL
-// come from gpu_impl/layout.py.
+// The flags MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE_SMOOTH, TRIANGLE_SOLID, the mask TRIANGLE_MATERIAL
+// and TRIANGLE_SHARP_SHIFT come from gpu_impl/layout.py.
 
 layout(std430, binding = BINDING_MATERIALS) readonly buffer Materials { Material materials[]; };
 layout(std430, binding = BINDING_TRIANGLES) readonly buffer Triangles { Triangle triangles[]; };
@@ -41,6 +41,24 @@ bool triangle_smooth(uint t) {
 // triangles (gpu_impl/scene_buffers.py: solid_triangles).
 bool triangle_solid(uint t) {
     return (triangles[t].material_flags & TRIANGLE_SOLID) != 0u;
+}
+
+// The triangle's sharp edges, bit e for edge e from corner e to corner e + 1 (gpu_impl/scene_buffers.py:
+// sharp_edges; all clear until splats ask for them).
+uint triangle_sharp_edges(uint t) {
+    return (triangles[t].material_flags >> TRIANGLE_SHARP_SHIFT) & 7u;
+}
+
+// A splat (imperfect bundles', imperfect shadow maps') ends at its triangle's sharp edges: reaching
+// over a convex crease or a boundary, a flat disk would stand out into empty space, and lines
+// passing there would find a surface that is not there (docs/MEASURED_FACTS.md, "Splats end at
+// sharp edges"). A point of the triangle's plane with barycentrics b lies inside edge 0 (corners 0
+// to 1) where b2 >= 0, inside edge 1 where 1 - b1 - b2 >= 0 and inside edge 2 where b1 >= 0, up to
+// round-off.
+bool inside_sharp_edges(uint sharp, vec2 b) {
+    const float tolerance = -1e-4;
+    return ((sharp & 1u) == 0u || b.y >= tolerance) && ((sharp & 2u) == 0u || 1.0 - b.x - b.y >= tolerance) &&
+           ((sharp & 4u) == 0u || b.x >= tolerance);
 }
 
 bool material_twosided(uint m) {

@@ -22,7 +22,9 @@
 // |q - c|^2 = du^2 + dv^2 + (n_u du + n_v dv)^2 / n_d^2, so in pixels, with everything times n_d^2,
 // (n_d^2 + n_u^2) du^2 + 2 n_u n_v du dv + (n_d^2 + n_v^2) dv^2 <= (r n_d)^2: an ellipse, whose rows
 // are solved for their span of columns. The depth at a line is the splat plane's (depth_plane),
-// the same as the raster splatter's.
+// the same as the raster splatter's. A line beyond one of the triangle's sharp edges is not in the
+// splat (scene.glsl: inside_sharp_edges); its barycentrics are the centre's plus its offset in
+// pixels mapped back through the triangle's edges as the bundle sees them.
 
 #extension GL_ARB_gpu_shader_int64 : require
 #define NODE_REFERENCE NODE_SPLAT_POINT
@@ -117,6 +119,8 @@ uint splat(uint id) {
     // The triangle's edges in pixels: a neighbour's offset is linear in its barycentrics' offset.
     float pixels = 0.5 * float(resolution) / radius;
     mat2 edges = pixels * mat2(dot(e1, f.u.xyz), dot(e1, f.v.xyz), dot(e2, f.u.xyz), dot(e2, f.v.xyz));
+    uint sharp = triangle_sharp_edges(t);
+    mat2 to_barycentrics = sharp != 0u ? inverse(edges) : mat2(0.0);
     for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
         uint j = id + uint(slot < NEIGHBOURS ? slot - NEIGHBOURS : slot - NEIGHBOURS + 1);
         bool here = nearest_only && j >= first_point && j < end_point && points[j].triangle == t;
@@ -144,8 +148,10 @@ uint splat(uint id) {
         precise float root = sqrt(disc);
         int x0 = max(0, int(ceil(c.x + (-B * dy - root) / A)));
         int x1 = min(resolution - 1, int(floor(c.x + (-B * dy + root) / A)));
-        covered += uint(max(0, x1 - x0 + 1));
         for (int x = x0; x <= x1; x++) {
+            precise vec2 line_barycentrics = b + to_barycentrics * vec2(float(x) - c.x, dy);
+            if (sharp != 0u && !inside_sharp_edges(sharp, line_barycentrics)) continue;
+            covered++;
             if (neighbours) {
                 vec2 q = vec2(float(x) - c.x, dy);
                 bool nearer = false;  // a splat of this triangle nearer the line
