@@ -1,6 +1,7 @@
 """What a triangle soup's edges say about its surfaces: which triangles bound a solid, and which
-edges are sharp, where an imperfect bundle's splats must end. Corners are welded within a
-ten-millionth of the scene's extent first: a seam's copies of a corner differ by rounding."""
+edges are sharp, where splats (imperfect bundles', imperfect shadow maps') must end. Corners are
+welded within a ten-millionth of the scene's extent first: a seam's copies of a corner differ by
+rounding."""
 
 from __future__ import annotations
 
