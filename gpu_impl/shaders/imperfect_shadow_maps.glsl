@@ -40,6 +40,7 @@ flat out float v_far;      // 1 / the map's farthest distance
 flat out uint v_sharp;     // the triangle's sharp edges (scene.glsl: inside_sharp_edges)
 flat out vec2 v_b;         // the point's barycentrics
 flat out mat2x3 v_dual;    // an offset in the plane dotted with these: its barycentrics' change
+                           // (scene.glsl's plane_barycentrics solved once per point, not per fragment)
 
 void main() {
     uint id = uint(gl_VertexID), m = id / points_per_map, j = id % points_per_map;

@@ -149,8 +149,10 @@ uint splat(uint id) {
         int x0 = max(0, int(ceil(c.x + (-B * dy - root) / A)));
         int x1 = min(resolution - 1, int(floor(c.x + (-B * dy + root) / A)));
         for (int x = x0; x <= x1; x++) {
-            precise vec2 line_barycentrics = b + to_barycentrics * vec2(float(x) - c.x, dy);
-            if (sharp != 0u && !inside_sharp_edges(sharp, line_barycentrics)) continue;
+            if (sharp != 0u) {
+                precise vec2 line_barycentrics = b + to_barycentrics * vec2(float(x) - c.x, dy);
+                if (!inside_sharp_edges(sharp, line_barycentrics)) continue;
+            }
             covered++;
             if (neighbours) {
                 vec2 q = vec2(float(x) - c.x, dy);
