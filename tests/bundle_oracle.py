@@ -42,9 +42,11 @@ def exact_lists(scene: Scene, template: BundleSet) -> list[list[np.ndarray]]:
 
 def agreement(test: BundleSet, exact: list[list[np.ndarray]], depth_tolerance: float) -> dict:
     """Exact nodes matched by a test node of the same list within ``depth_tolerance`` (greedy in
-    depth order), test nodes with no exact node, and the matched pairs' primitive agreement."""
+    depth order), test nodes with no exact node, and the matched pairs' primitive agreement;
+    ``crossings`` lists every exact node as (direction, line, depth, matched)."""
     R2 = test.resolution**2
     matched = spurious = total = same_prim = 0
+    crossings = []
     for k, lists in enumerate(exact):
         for line, ref in enumerate(lists):
             lo, hi = test.offsets[k * R2 + line], test.offsets[k * R2 + line + 1]
@@ -53,6 +55,7 @@ def agreement(test: BundleSet, exact: list[list[np.ndarray]], depth_tolerance: f
             total += len(ref)
             for r_depth, r_prim in ref:
                 free = np.nonzero(~used & (np.abs(depth - r_depth) <= depth_tolerance))[0]
+                crossings.append((k, line, r_depth, len(free) > 0))
                 if len(free):
                     j = free[np.argmin(np.abs(depth[free] - r_depth))]
                     used[j] = True
@@ -65,4 +68,5 @@ def agreement(test: BundleSet, exact: list[list[np.ndarray]], depth_tolerance: f
         "spurious": spurious,
         "agreement": matched / max(total, 1),
         "same_prim": same_prim / max(matched, 1),
+        "crossings": np.array(crossings, dtype=np.float64).reshape(-1, 4),
     }

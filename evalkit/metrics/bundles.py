@@ -44,7 +44,7 @@ import numpy as np
 
 from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.display import fields_html
-from evalkit.core.scene.edges import sharp_edges
+from evalkit.core.scene.edges import sharp_edges, sharp_splat_radii
 from evalkit.core.settings import DEPTH_TOLERANCE, RenderSettings
 
 DEFAULT_SELF_HIT_BIAS = RenderSettings().self_hit_bias
@@ -355,8 +355,9 @@ def bundle_lookup(
     offset = grid - corner
     depths = bundles.depth.astype(np.float64)
     plane = arrays.tri_normal[bundles.node_triangle()]
-    on_surface = _on_surface_test(bundles, arrays)
-    own_surface = _own_surface_test(bundles, plane)
+    splats = _SplatShapes(bundles, arrays) if bundles.has_splats else None
+    on_surface = _on_surface_test(bundles, arrays, splats)
+    own_surface = _own_surface_test(splats, plane)
     smaller_than_pixel = _smaller_than_pixel(bundles, arrays)
     bias = self_hit_bias * h
     node = np.full(len(k), -1, np.int64)
@@ -419,15 +420,54 @@ def bundle_lookup(
     return {"omega": omega, "leaves": leaves, "node": node, "point": point, "on_surface": landed}
 
 
-def _own_surface_test(bundles: BundleSet, plane):
+class _SplatShapes:
+    """The splats of an imperfect set as the shaders cut and grow them, per node j: its triangle's
+    sharp edges (shaders/scene.glsl: inside_sharp_edges) and its radius (sharp_splat_radius). A set
+    built before splats ended at sharp edges (no ``crease_degrees`` in its params) has none; one
+    built before cut splats grew (no ``splats_keep_area``) keeps every radius at splat_radius."""
+
+    def __init__(self, bundles: BundleSet, arrays):
+        self.radius = float(bundles.params["splat_radius"])
+        self.triangles = bundles.node_triangle()
+        self.centres = bundles.splat_centre
+        self.arrays = arrays
+        crease = bundles.params.get("crease_degrees")
+        self.sharp = (
+            sharp_edges(arrays.positions, arrays.faces, arrays.tri_normal, crease)
+            if crease is not None
+            else np.zeros((len(arrays.faces), 3), bool)
+        )
+        self.grows = bool(bundles.params.get("splats_keep_area", False))
+
+    def barycentrics(self, j: int, y: np.ndarray) -> np.ndarray:
+        """Point y's barycentrics in node j's triangle's plane."""
+        p0, p1, p2 = self.arrays.positions[self.arrays.faces[self.triangles[j]]]
+        return _plane_barycentrics(p0, p1 - p0, p2 - p0, y)
+
+    def splat_radius(self, j: int) -> float:
+        edges = self.sharp[self.triangles[j]]
+        if not (self.grows and edges.any()):
+            return self.radius
+        p0, p1, p2 = self.arrays.positions[self.arrays.faces[self.triangles[j]]]
+        b = self.barycentrics(j, self.centres[j])
+        return float(sharp_splat_radii(self.radius, edges[None], b[None], (p1 - p0)[None], (p2 - p0)[None])[0])
+
+
+def _plane_barycentrics(p0, e1, e2, y) -> np.ndarray:
+    q = y - p0
+    a, b, c = e1 @ e1, e1 @ e2, e2 @ e2
+    return np.array([c * (q @ e1) - b * (q @ e2), a * (q @ e2) - b * (q @ e1)]) / (a * c - b * b)
+
+
+def _own_surface_test(splats: _SplatShapes | None, plane):
     """Whether node j is a splat of the surface vertex x lies on: x within the splat's cylinder of
     its radius (across and along its normal), facing the same way."""
-    if not bundles.has_splats:
+    if splats is None:
         return lambda j, x, ng: False
-    r = float(bundles.params["splat_radius"])
 
     def covers(j, x, ng):
-        q = x - bundles.splat_centre[j]
+        r = splats.splat_radius(j)
+        q = x - splats.centres[j]
         along = q @ plane[j]
         return plane[j] @ ng > 0 and abs(along) <= r and q @ q - along * along <= r * r
 
@@ -447,44 +487,36 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
     return lambda j: small[triangles[j]]
 
 
-def _on_surface_test(bundles: BundleSet, arrays):
+def _on_surface_test(bundles: BundleSet, arrays, splats: _SplatShapes | None):
     """Whether point y on node j's plane lies on its surface, as shaders/bundle_hits.glsl tells:
-    within the splat's disk and inside its triangle's sharp edges, or inside the triangle, up to 1e-4
-    of its barycentrics."""
+    within the splat's radius, inside its triangle's sharp edges and, beyond the radius before it
+    grew, inside the triangle (scene.glsl: inside_splat); or inside the triangle. Up to 1e-4 of the
+    barycentrics and of the squared radius."""
     triangles = bundles.node_triangle()
 
-    def barycentrics(j, y):
-        p0, p1, p2 = arrays.positions[arrays.faces[triangles[j]]]
-        e1, e2, q = p1 - p0, p2 - p0, y - p0
-        a, b, c = e1 @ e1, e1 @ e2, e2 @ e2
-        return np.array([c * (q @ e1) - b * (q @ e2), a * (q @ e2) - b * (q @ e1)]) / (a * c - b * b)
+    def inside(b, edges):  # edge e runs from corner e to e + 1
+        inner = np.array([b[1], 1 - b[0] - b[1], b[0]]) >= -1e-4
+        return bool(np.all(inner | ~edges))
 
-    if bundles.has_splats:
-        r2 = float(bundles.params["splat_radius"]) ** 2 * (1 + 1e-4)
-        crease = bundles.params.get("crease_degrees")  # None: built before splats ended at sharp edges
-        sharp = (
-            sharp_edges(arrays.positions, arrays.faces, arrays.tri_normal, crease)
-            if crease is not None
-            else np.zeros((len(arrays.faces), 3), bool)
-        )
+    if splats is not None:
+        disk = splats.radius**2 * (1 + 1e-4)
 
         def on_splat(j, y):
-            if np.sum((y - bundles.splat_centre[j]) ** 2) > r2:
+            d2 = np.sum((y - splats.centres[j]) ** 2)
+            if d2 > splats.splat_radius(j) ** 2 * (1 + 1e-4):
                 return False
-            edges = sharp[triangles[j]]
+            edges = splats.sharp[triangles[j]]
             if not edges.any():
                 return True
-            b1, b2 = barycentrics(j, y)
-            inner = np.array([b2, 1 - b1 - b2, b1]) >= -1e-4  # edge e runs from corner e to e + 1
-            return bool(np.all(inner | ~edges))
+            return inside(splats.barycentrics(j, y), np.ones(3, bool) if d2 > disk else edges)
 
         return on_splat
 
-    def inside(j, y):
-        b1, b2 = barycentrics(j, y)
-        return b1 >= -1e-4 and b2 >= -1e-4 and b1 + b2 <= 1 + 1e-4
+    def on_triangle(j, y):
+        p0, p1, p2 = arrays.positions[arrays.faces[triangles[j]]]
+        return inside(_plane_barycentrics(p0, p1 - p0, p2 - p0, y), np.ones(3, bool))
 
-    return inside
+    return on_triangle
 
 
 def next_hit_errors(

@@ -179,6 +179,7 @@ class SplatTracer(BundleTracer):
             "splatter": self.splatter,
             "merged": self.merge,
             "crease_degrees": CREASE_DEGREES,
+            "splats_keep_area": True,  # cut splats grow (shaders/scene.glsl: sharp_splat_radius)
         }
 
     def read_points(self) -> np.ndarray:

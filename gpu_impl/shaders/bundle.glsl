@@ -35,6 +35,8 @@ struct SplatPoint {
     uint triangle;
     uint barycentrics;
 };
+uniform uint points_per_direction;  // N
+uniform float splat_radius;         // in scene units
 #if defined SPLAT_POINTS_WRITE
 layout(std430, binding = BINDING_POINTS) writeonly buffer Points { SplatPoint points[]; };
 #else
@@ -46,7 +48,9 @@ vec2 point_barycentrics(uint point) {
 
 // A splat point on its source triangle (scene.glsl): the triangle, its vertex indices and edges
 // e1, e2 from its first corner, the point's barycentrics b and the point p0 + b.x e1 + b.y e2, the
-// splat's centre. Every pass that places a splat takes its centre from here, so they agree bitwise.
+// splat's centre, and its radius (splat_radius, grown where sharp edges cut it:
+// scene.glsl: sharp_splat_radius). Every pass that places a splat takes it from here, so they
+// agree bitwise.
 struct SplatSource {
     uint triangle;
     uvec3 vertices;
@@ -54,6 +58,7 @@ struct SplatSource {
     vec3 e2;
     vec2 b;
     vec3 centre;
+    float radius;
 };
 
 SplatSource splat_source(uint point) {
@@ -65,11 +70,10 @@ SplatSource splat_source(uint point) {
     s.e2 = vertex_position(s.vertices.z) - p0;
     s.b = point_barycentrics(point);
     s.centre = p0 + s.b.x * s.e1 + s.b.y * s.e2;
+    s.radius = sharp_splat_radius(splat_radius, triangle_sharp_edges(s.triangle), s.b, s.e1, s.e2);
     return s;
 }
 #endif
-uniform uint points_per_direction;  // N
-uniform float splat_radius;         // in scene units
 #endif
 
 #if defined BUNDLE_LOOKUP

@@ -60,9 +60,10 @@ uint ref_triangle(uint ref) {
 bool own_surface(uint ref, vec3 x, vec3 ng) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
     vec3 n = triangle_normal(ref_triangle(ref));
-    vec3 q = x - splat_source(ref).centre;
+    SplatSource s = splat_source(ref);
+    vec3 q = x - s.centre;
     float along = dot(q, n);
-    return dot(n, ng) > 0.0 && abs(along) <= splat_radius && dot(q, q) - along * along <= splat_radius * splat_radius;
+    return dot(n, ng) > 0.0 && abs(along) <= s.radius && dot(q, q) - along * along <= s.radius * s.radius;
 #else
     return false;
 #endif
@@ -75,9 +76,11 @@ bool on_node_surface(uint ref, vec3 y) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
     SplatSource s = splat_source(ref);
     vec3 to_centre = y - s.centre;
-    if (dot(to_centre, to_centre) > splat_radius * splat_radius * (1.0 + 1e-4)) return false;
+    float d2 = dot(to_centre, to_centre);
+    if (d2 > s.radius * s.radius * (1.0 + 1e-4)) return false;
     uint sharp = triangle_sharp_edges(s.triangle);
-    return sharp == 0u || inside_sharp_edges(sharp, plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y));
+    bool beyond_disk = d2 > splat_radius * splat_radius * (1.0 + 1e-4);
+    return sharp == 0u || inside_splat(sharp, plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y), beyond_disk);
 #else
     uvec3 v = triangle_vertices(ref);
     vec3 p0 = vertex_position(v.x);

@@ -7,6 +7,8 @@
 #define BIDIRECTIONAL 0
 #endif
 
+#define PI 3.141592653589793
+
 // The index that points nowhere: the end of a linked list, a path that found no node.
 #define NO_NODE 0xFFFFFFFFu
 

@@ -2,10 +2,10 @@
 // each direction draws its own N surface points (splat_points.glsl) as small triangles in the
 // tangent plane of the point's source triangle, and the fragment shader cuts the inscribed circle
 // out of the triangle, so overlapping splats add fewer redundant nodes, and the source triangle's
-// sharp edges off the circle (scene.glsl: inside_sharp_edges). A node is its depth and
-// the point (bundle.glsl), with FACING_BIT set when the splat faces along +d (the merge in
-// resolve_lists.glsl keeps surfaces facing either way apart). splat_lists.glsl finds the same
-// nodes without the rasterizer (--splatter compute, the default).
+// sharp edges off the circle (scene.glsl: inside_splat; the circle grown where they cut it). A
+// node is its depth and the point (bundle.glsl), with FACING_BIT set when the splat faces along +d
+// (the merge in resolve_lists.glsl keeps surfaces facing either way apart). splat_lists.glsl
+// finds the same nodes without the rasterizer (--splatter compute, the default).
 
 #define NODE_REFERENCE NODE_SPLAT_POINT
 #define LINKED_LISTS
@@ -24,6 +24,7 @@ flat out vec3 v_depth_plane;  // depth at bundle pixel (i, j): dot(v_depth_plane
 flat out uint v_ref;          // the point | FACING_BIT
 flat out int v_direction;
 flat out uint v_sharp;
+flat out float v_disk_limit;  // |v_disk|^2 beyond which a splat grown at sharp edges keeps to its triangle
 
 void main() {
     uint splat = uint(gl_VertexID) / 3u;
@@ -37,9 +38,10 @@ void main() {
     // The equilateral triangle around the unit disk has its corners at distance 2.
     float angle = 2.0943951023931953 * float(corner);
     v_disk = 2.0 * vec2(cos(angle), sin(angle));
-    vec3 p = center + splat_radius * (v_disk.x * tangent + v_disk.y * bitangent);
+    vec3 p = center + s.radius * (v_disk.x * tangent + v_disk.y * bitangent);
     v_barycentrics = plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, p);
     v_sharp = triangle_sharp_edges(s.triangle);
+    v_disk_limit = (splat_radius / s.radius) * (splat_radius / s.radius);
 
     int k = int(splat / points_per_direction);
     BundleFrame f = frames[k];
@@ -58,11 +60,12 @@ flat in vec3 v_depth_plane;
 flat in uint v_ref;
 flat in int v_direction;
 flat in uint v_sharp;
+flat in float v_disk_limit;
 
 void main() {
 #if !defined NULL_FRAGMENT
     if (dot(v_disk, v_disk) > 1.0) return;  // the circular cut-out
-    if (v_sharp != 0u && !inside_sharp_edges(v_sharp, v_barycentrics)) return;
+    if (v_sharp != 0u && !inside_splat(v_sharp, v_barycentrics, dot(v_disk, v_disk) > v_disk_limit)) return;
     ivec2 pixel = fragment_pixel(v_direction);
     if (pixel.x < 0) return;
     append_node(pixel_list(v_direction, pixel), dot(v_depth_plane, vec3(1.0, vec2(pixel))), v_ref);

@@ -7,12 +7,12 @@
 // a disk in its triangle's tangent plane, of the radius its share of the surface would have, as
 // the imperfect bundles' splats are: a point sprite covers the disk's widest extent, and each
 // fragment meets the disk's plane along its own direction, is cut out beyond the radius and beyond
-// the triangle's sharp edges (scene.glsl: inside_sharp_edges), and stores that distance from the
-// vertex; the depth test keeps the nearest. A disk facing the vertex instead would stand a radius
-// off its surface wherever the map sees it at a grazing angle
-// (a floor between the vertex and a receiver): atrium, 64 light vertices, 1024 receivers, 4096
-// points a map: 11.1 % of connections hidden that exact maps see, 6.8 % with tangent-plane disks
-// (docs/BIDIRECTIONAL.md).
+// the triangle's sharp edges (scene.glsl: inside_splat; the disk grown where they cut it, as the
+// bundles' splats are), and stores that distance from the vertex; the depth test keeps the
+// nearest. A disk facing the vertex instead would stand a radius off its surface wherever the map
+// sees it at a grazing angle (a floor between the vertex and a receiver): atrium, 64 light
+// vertices, 1024 receivers, 4096 points a map: 11.1 % of connections hidden that exact maps see,
+// 6.8 % with tangent-plane disks (docs/BIDIRECTIONAL.md).
 // Lookups: light_visibility_imperfect.glsl.
 
 #define SHADOW_MAP_RASTER
@@ -37,7 +37,8 @@ flat out vec3 v_centre;    // the disk's centre relative to the vertex
 flat out vec3 v_normal;    // its plane's normal
 flat out vec3 v_axis;      // the map's axis (the vertex's normal)
 flat out float v_far;      // 1 / the map's farthest distance
-flat out uint v_sharp;     // the triangle's sharp edges (scene.glsl: inside_sharp_edges)
+flat out uint v_sharp;     // the triangle's sharp edges (scene.glsl: inside_splat)
+flat out float v_radius;   // the disk's radius, grown where sharp edges cut it (scene.glsl: sharp_splat_radius)
 flat out vec2 v_b;         // the point's barycentrics
 flat out mat2x3 v_dual;    // an offset in the plane dotted with these: its barycentrics' change
                            // (scene.glsl's plane_barycentrics solved once per point, not per fragment)
@@ -61,6 +62,7 @@ void main() {
     v_normal = normalize(cross(e1, e2));
     v_sharp = triangle_sharp_edges(triangle);
     v_b = b;
+    v_radius = sharp_splat_radius(splat_radius, v_sharp, b, e1, e2);
     float a11 = dot(e1, e1), a12 = dot(e1, e2), a22 = dot(e2, e2), det = a11 * a22 - a12 * a12;
     v_dual = mat2x3((a22 * e1 - a12 * e2) / det, (a11 * e2 - a12 * e1) / det);
     v_axis = view.axis.xyz;
@@ -69,7 +71,7 @@ void main() {
     // Points behind the vertex are never looked up. Nor are those within a splat radius of its
     // tangent plane: its own surface's splats, which stand up to a radius off the surface where
     // the map sees them edge-on, and would shadow every direction near its horizon.
-    if (local.z * dist <= splat_radius) {
+    if (local.z * dist <= v_radius) {
         gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // outside the clip volume
         return;
     }
@@ -78,7 +80,7 @@ void main() {
     // A disk of radius r at distance dist spans at most 2 asin(r / dist) radians, and a radian at
     // angle theta 1 / (1 + cos theta) of the map's [-1, 1]; a texel more for the scale's change
     // across the sprite and for coverage at texel centres.
-    float angle = asin(min(splat_radius / dist, 1.0));
+    float angle = asin(min(v_radius / dist, 1.0));
     gl_PointSize = clamp(angle * view.tile.z / (1.0 + local.z) + 2.0, 1.0, 64.0);
 }
 
@@ -90,6 +92,7 @@ flat in vec3 v_normal;
 flat in vec3 v_axis;
 flat in float v_far;
 flat in uint v_sharp;
+flat in float v_radius;
 flat in vec2 v_b;
 flat in mat2x3 v_dual;
 layout(location = 0) out vec2 out_distance;  // no second surface (lights.glsl: lit_tap)
@@ -105,9 +108,10 @@ void main() {
     // The disk seen edge-on, behind the vertex, or missed: its plane met beyond its radius.
     if (abs(facing) < 1e-6 || !(t > 0.0)) discard;
     vec3 offset = t * direction - v_centre;
-    if (dot(offset, offset) > splat_radius * splat_radius) discard;
+    float d2 = dot(offset, offset);
+    if (d2 > v_radius * v_radius) discard;
     vec2 b = v_b + vec2(dot(offset, v_dual[0]), dot(offset, v_dual[1]));
-    if (v_sharp != 0u && !inside_sharp_edges(v_sharp, b)) discard;
+    if (v_sharp != 0u && !inside_splat(v_sharp, b, d2 > splat_radius * splat_radius)) discard;
     out_distance = vec2(t, NO_SURFACE);
     gl_FragDepth = clamp(t * v_far, 0.0, 1.0);
 }

@@ -46,7 +46,6 @@
 layout(local_size_x = LOCAL_SIZE) in;
 
 #define INV_PI 0.3183098861837907
-#define PI 3.141592653589793
 
 uniform uint invocations;       // V
 uniform usampler2D shadow_triangles;  // the triangle + 1 each shadow texel saw

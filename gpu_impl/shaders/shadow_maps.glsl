@@ -25,6 +25,7 @@
 
 #define SHADOW_MAP_RASTER
 #define SHADOW_LIGHTS 1
+#include "common.glsl"
 #include "lights.glsl"
 #define SCENE_MATERIALS_ONLY
 #include "scene.glsl"

@@ -1,5 +1,5 @@
 // Imperfect ray bundles without the rasterizer (--splatter compute, the default): each splat, the
-// disk of radius splat_radius around its point in the point's triangle's plane, finds the bundle
+// disk of its radius (bundle.glsl: SplatSource) around its point in the point's triangle's plane, finds the bundle
 // lines that cross it in its own direction's bundle, row by row of the bundle's pixel grid.
 //
 // COUNT_SPLATS counts every list's nodes (list_counts); a prefix sum makes them list_offsets; then,
@@ -23,8 +23,9 @@
 // (n_d^2 + n_u^2) du^2 + 2 n_u n_v du dv + (n_d^2 + n_v^2) dv^2 <= (r n_d)^2: an ellipse, whose rows
 // are solved for their span of columns. The depth at a line is the splat plane's (depth_plane),
 // the same as the raster splatter's. A line beyond one of the triangle's sharp edges is not in the
-// splat (scene.glsl: inside_sharp_edges); its barycentrics are the centre's plus its offset in
-// pixels mapped back through the triangle's edges as the bundle sees them.
+// splat, nor one outside the triangle beyond the disk's radius before it grew at those edges
+// (scene.glsl: inside_splat); its barycentrics are the centre's plus its offset in pixels mapped
+// back through the triangle's edges as the bundle sees them.
 
 #extension GL_ARB_gpu_shader_int64 : require
 #define NODE_REFERENCE NODE_SPLAT_POINT
@@ -108,8 +109,10 @@ uint splat(uint id) {
 
     // The ellipse in the pixel grid: centre c, and A dx^2 + 2 B dx dy + C dy^2 <= E.
     precise vec2 c = bundle_grid_position(f, centre);
-    float rp = splat_radius * 0.5 * float(resolution) / radius;  // the radius in pixels
+    float rp = s.radius * 0.5 * float(resolution) / radius;  // the radius in pixels
     precise float A = nd * nd + nu * nu, B = nu * nv, C = nd * nd + nv * nv, E = rp * rp * nd * nd;
+    // The disk before it grew at sharp edges: lines beyond it must lie on the triangle.
+    float disk_pixels = splat_radius * 0.5 * float(resolution) / radius, E_disk = disk_pixels * disk_pixels * nd * nd;
     // The neighbours on this triangle (the same plane, so the same ellipse): the linear test of
     // each, dot(q, gradient) > threshold with q the line's offset from this centre in pixels.
     vec2 gradient[NEIGHBOUR_SLOTS];
@@ -124,7 +127,11 @@ uint splat(uint id) {
     for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
         uint j = id + uint(slot < NEIGHBOURS ? slot - NEIGHBOURS : slot - NEIGHBOURS + 1);
         bool here = nearest_only && j >= first_point && j < end_point && points[j].triangle == t;
-        vec2 e = edges * ((here ? point_barycentrics(j) : b) - b);
+        vec2 bj = here ? point_barycentrics(j) : b;
+        // A nearer splat covers the line only if it is as large: splats grown at sharp edges
+        // keep their lines (a redundant node at worst, which the merge removes).
+        here = here && sharp_splat_radius(splat_radius, sharp, bj, e1, e2) == s.radius;
+        vec2 e = edges * (bj - b);
         gradient[slot] = 2.0 * vec2(A * e.x + B * e.y, B * e.x + C * e.y);
         threshold[slot] = here ? A * e.x * e.x + 2.0 * B * e.x * e.y + C * e.y * e.y + MARGIN * E : 3.4e38;
         neighbours = neighbours || here;
@@ -150,8 +157,10 @@ uint splat(uint id) {
         int x1 = min(resolution - 1, int(floor(c.x + (-B * dy + root) / A)));
         for (int x = x0; x <= x1; x++) {
             if (sharp != 0u) {
-                precise vec2 line_barycentrics = b + to_barycentrics * vec2(float(x) - c.x, dy);
-                if (!inside_sharp_edges(sharp, line_barycentrics)) continue;
+                precise vec2 q = vec2(float(x) - c.x, dy);
+                precise vec2 line_barycentrics = b + to_barycentrics * q;
+                bool beyond_disk = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y > E_disk;
+                if (!inside_splat(sharp, line_barycentrics, beyond_disk)) continue;
             }
             covered++;
             if (neighbours) {

@@ -90,3 +90,25 @@ def sharp_edges(
     own[t1, e1] |= crease
     sharp[kept] = own
     return sharp
+
+
+def sharp_splat_radii(
+    r: float, sharp: np.ndarray, b: np.ndarray, e1: np.ndarray, e2: np.ndarray, iterations: int = 4
+) -> np.ndarray:
+    """The radii (M,) of splats of radius ``r`` at barycentrics ``b`` (M, 2) of triangles with edges
+    ``e1``, ``e2`` (M, 3) and sharp edges ``sharp`` (M, 3), as shaders/scene.glsl's
+    sharp_splat_radius grows them: a splat cut by a sharp edge grows until the part kept has its
+    disk's area pi r^2. A disk of radius R loses R^2 (acos t - t sqrt(1 - t^2)), t = d / R, to each
+    sharp edge at distance d < R; the kept area is held at a quarter disk at least (R <= 2 r), which
+    bounds the corners, where the lost segments overlap and are counted twice."""
+    twice_area = np.linalg.norm(np.cross(e1, e2), axis=1)
+    lengths = np.stack([np.linalg.norm(e1, axis=1), np.linalg.norm(e2 - e1, axis=1), np.linalg.norm(e2, axis=1)], 1)
+    weights = np.stack([b[:, 1], 1.0 - b[:, 0] - b[:, 1], b[:, 0]], 1)  # edge e runs from corner e to e + 1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cut = np.where(sharp, weights * twice_area[:, None] / lengths, np.inf)
+    radius = np.full(len(b), float(r))
+    for _ in range(iterations):
+        t = np.clip(cut / radius[:, None], 0.0, 1.0)
+        lost = (np.arccos(t) - t * np.sqrt(1.0 - t * t)).sum(axis=1)
+        radius = r * np.sqrt(np.pi / np.maximum(np.pi - lost, 0.25 * np.pi))
+    return np.where(np.min(cut, axis=1) >= r, float(r), radius)
