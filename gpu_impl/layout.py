@@ -157,7 +157,7 @@ SHADER_CONSTANTS = {
 MATERIAL = np.dtype([("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "<u4", 4)])  # scene.glsl: Material
 TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.glsl: Triangle
 VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
-SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4")])  # bundle.glsl: SplatPoint (unorm16 b1, b2)
+SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4"), ("radius", "<f4")])  # bundle.glsl: SplatPoint
 # bundle.glsl: BundleFrame, in a uniform block: three vec4, so std140 lays it out as std430 would.
 BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])
 LIGHT = np.dtype(

@@ -99,7 +99,7 @@ def test_splat_nodes_lie_on_their_splats(gl):
     distance = np.linalg.norm(p - bundles.splat_centre, axis=1)
     assert np.all(distance <= radii * (1 + 1e-4))
     beyond = distance > r * (1 + 1e-4)
-    assert beyond.mean() > 0.01
+    assert beyond.sum() > 50  # most lines go to a nearer splat that need not grow
     b = barycentrics(p[beyond], p0[beyond], p1[beyond], p2[beyond])
     assert min(b.min(), (1 - b.sum(axis=1)).min()) > -1e-4
 
@@ -485,25 +485,31 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
     common = compute.keys() & raster.keys()
     assert len(common) > 100_000 and len(common) > 0.999 * max(len(compute), len(raster))
     assert max(abs(compute[n] - raster[n]) for n in common) <= 1e-6 * bundles.radius
-    # Where they differ, the line passes through a splat's rim: its radius (grown where sharp edges
-    # cut it: shaders/scene.glsl: sharp_splat_radius), the radius it grew from, or its triangle's
-    # edge (beyond that radius, where the grown part ends).
+    # Each point's radius, grown where its triangle's sharp edges cut its disk, is the one the
+    # float64 emulation works out (evalkit.core.scene.edges.sharp_splat_radii), to float32's acos
+    # near the 2 r cap, where the radius changes fastest with the cut (measured: 2.8e-4 at most).
+    t = points["triangle"].astype(np.int64)
+    p0, p1, p2 = (arrays.positions[arrays.faces[t, i]] for i in range(3))
     sharp = sharp_edges(arrays.positions, arrays.faces, arrays.tri_normal)
+    b = barycentrics(splat_centres(points, arrays), p0, p1, p2)
+    grown = sharp_splat_radii(radius, sharp[t], b, p1 - p0, p2 - p0)
+    assert (grown > radius * 1.01).mean() > 0.05
+    assert np.allclose(points["radius"], grown, rtol=1e-3)
+    # Where they differ, the line passes through a splat's rim: its radius, the radius it grew from,
+    # or its triangle's edge (beyond that radius, where the grown part ends).
     for line, p in compute.keys() ^ raster.keys():
         k, cell = divmod(line, 64 * 64)
         origin = bundles.line_origins(k)[cell]
         t = int(points["triangle"][p])
         centre = splat_centres(points[p], arrays)
         p0, p1, p2 = arrays.positions[arrays.faces[t]]
-        b = barycentrics(centre[None], p0[None], p1[None], p2[None])
-        grown = sharp_splat_radii(radius, sharp[t][None], b, (p1 - p0)[None], (p2 - p0)[None])[0]
         n, d = arrays.tri_normal[t], directions.directions[k]
         q = origin + np.dot(n, centre - origin) / np.dot(n, d) * d
         snap = 4 / 256 * bundles.pixel_size() / abs(np.dot(n, d))  # four rasterizer steps on the plane
         sides = ((p0, p1 - p0), (p1, p2 - p1), (p2, p0 - p2))
         edge = min(np.linalg.norm(np.cross(q - a, e)) / np.linalg.norm(e) for a, e in sides)
         distance = np.linalg.norm(q - centre)
-        assert min(abs(distance - grown), abs(distance - radius), edge) < snap
+        assert min(abs(distance - points["radius"][p]), abs(distance - radius), edge) < snap
 
 
 @pytest.mark.parametrize(
@@ -512,8 +518,9 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
         (["--points", "0"], "argument --points: 0 must be at least 1"),
         (["--splat-scale", "-1"], "argument --splat-scale: -1.0 must be positive and finite"),
         (
+            # 16,777,216 points of 12 + 16 bytes (SPLAT_POINT, SPLAT_LINES), two 4-byte words per list
             ["--points", "65536", "--node-budget", "10MiB"],
-            "need 416.06 MiB for 16,777,216 splat points, their lines and the list offsets, "
+            "need 480.06 MiB for 16,777,216 splat points, their lines and the list offsets, "
             "over the node budget of 10.00 MiB",
         ),
     ],

@@ -2,10 +2,11 @@
 points on the surfaces, each a disk of radius ``splat_scale * sqrt(A / (pi N))`` (or
 ``splat_radius``) in its source triangle's plane, and the nodes are where bundle lines cross the
 disks. A splat ends at its triangle's sharp edges (convex creases and boundaries:
-`evalkit.core.scene.edges.sharp_edges`), where a disk would stand out into empty space.
+`evalkit.core.scene.edges.sharp_edges`), where a disk would stand out into empty space, and grows
+there, on its own triangle, until it keeps its disk's area (shaders/scene.glsl: sharp_splat_radius).
 
 - ``points``: N points per direction (shaders/splat_points.glsl), stratified along a space-filling
-  curve or independent (``sampler``).
+  curve or independent (``sampler``), each with its splat's radius.
 - ``lists``, compute splatter (the default): every splat counts the lines it covers, a prefix sum
   makes exact-size slot ranges, round-trip 1 reads their total, and every splat writes its nodes
   (shaders/splat_lists.glsl): no linked list, no re-run. The count pass leaves each splat's lines

@@ -62,7 +62,7 @@ void main() {
     v_normal = normalize(cross(e1, e2));
     v_sharp = triangle_sharp_edges(triangle);
     v_b = b;
-    v_radius = sharp_splat_radius(splat_radius, v_sharp, b, e1, e2);
+    v_radius = v_sharp != 0u ? sharp_splat_radius(splat_radius, sharp_edge_heights(v_sharp, e1, e2), b) : splat_radius;
     float a11 = dot(e1, e1), a12 = dot(e1, e2), a22 = dot(e2, e2), det = a11 * a22 - a12 * a12;
     v_dual = mat2x3((a22 * e1 - a12 * e2) / det, (a11 * e2 - a12 * e1) / det);
     v_axis = view.axis.xyz;

@@ -61,21 +61,26 @@ bool inside_sharp_edges(uint sharp, vec2 b) {
            ((sharp & 4u) == 0u || b.x >= tolerance);
 }
 
-// The radius of a splat of radius r, centred at barycentrics b of a triangle with edges e1, e2,
-// that keeps the area pi r^2 of its disk where the triangle's sharp edges cut it. A point stands
-// for its share of the surface; cut down to half a disk at an edge, the splats would cover a
-// line's crossing near the edge half as often as elsewhere, and light would leak along every
-// crease (docs/MEASURED_FACTS.md, "Splats end at sharp edges"). The disk grows along the edge
-// instead: radius R keeps pi R^2 less a segment of R^2 (acos t - t sqrt(1 - t^2)), t = d / R, for
-// each sharp edge at distance d < R. Overlapping segments (at a corner) are counted twice, which
-// the cap of 2 r (a quarter disk's area) bounds.
-float sharp_splat_radius(float r, uint sharp, vec2 b, vec3 e1, vec3 e2) {
-    if (sharp == 0u) return r;
+// The heights of a triangle with edges e1, e2 over its sharp edges, edge e (corner e to e + 1) in
+// component e, and 3.4e38 over the others: a point's distance from edge e is its barycentric
+// weight of the corner opposite (b2, 1 - b1 - b2, b1) times that height.
+vec3 sharp_edge_heights(uint sharp, vec3 e1, vec3 e2) {
     float twice_area = length(cross(e1, e2));
-    // The distances to the three edges: each barycentric times its corner's height over the edge.
-    vec3 d = vec3(b.y / length(e1), 1.0 - b.x - b.y, b.x / length(e2));
-    d *= twice_area * vec3(1.0, 1.0 / length(e2 - e1), 1.0);
-    vec3 cut = vec3(equal(sharp & uvec3(1u, 2u, 4u), uvec3(0u))) * 3.4e38 + d;
+    vec3 heights = twice_area / vec3(length(e1), length(e2 - e1), length(e2));
+    return mix(heights, vec3(3.4e38), equal(sharp & uvec3(1u, 2u, 4u), uvec3(0u)));
+}
+
+// The radius of a splat of radius r, centred at barycentrics b of a triangle with the given
+// heights over its sharp edges (sharp_edge_heights), that keeps the area pi r^2 of its disk where
+// those edges cut it. A point stands for its share of the surface; cut down to half a disk at an
+// edge, the splats would cover a line's crossing near the edge half as often as elsewhere, and
+// light would leak along every crease (docs/MEASURED_FACTS.md, "Cut splats keep their area"). The
+// disk grows along the edge instead: radius R keeps pi R^2 less a segment of
+// R^2 (acos t - t sqrt(1 - t^2)), t = d / R, for each sharp edge at distance d < R (a few
+// fixed-point steps; the kept area changes slowly with R). Overlapping segments (at a corner) are
+// counted twice, which the cap of 2 r (a quarter disk's area) bounds.
+float sharp_splat_radius(float r, vec3 heights, vec2 b) {
+    vec3 cut = max(vec3(b.y, 1.0 - b.x - b.y, b.x), 0.0) * heights;
     if (min(min(cut.x, cut.y), cut.z) >= r) return r;
     float R = r;
     for (int i = 0; i < 4; i++) {

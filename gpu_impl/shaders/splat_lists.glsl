@@ -63,9 +63,12 @@ uniform bool nearest_only;
 // mostly its neighbours on the surface). The nearer splat covers the line too, so no hole is made.
 // A neighbour j is nearer the line at offset q from this splat's centre c_i when
 // (q - e)' M (q - e) < q' M q, e = c_j - c_i, M the ellipse's matrix: dot(q, 2 M e) > e' M e, linear in
-// q. The two splats work it out with different rounding, so a splat defers only by a clear
-// MARGIN of the ellipse's size: near a tie both keep the line (a redundant node, which the merge
-// removes), never neither.
+// q. A neighbour smaller than this splat (this one grown more at sharp edges) must also reach the
+// line: (q - e)' M (q - e) <= E_j, its own ellipse's size, or dot(q, 2 M e) >= q' M q + e' M e - E_j.
+// Nearer and reaching, it covers the line: within its disk where this splat's line is within this
+// one's, on the triangle where it is beyond. The two splats work it out with different rounding,
+// so a splat defers only by a clear MARGIN of the ellipse's size: near a tie both keep the line
+// (a redundant node, which the merge removes), never neither.
 #define NEIGHBOURS 4
 #define NEIGHBOUR_SLOTS 8  // 2 NEIGHBOURS
 #define MARGIN 1e-3
@@ -117,7 +120,8 @@ uint splat(uint id) {
     // each, dot(q, gradient) > threshold with q the line's offset from this centre in pixels.
     vec2 gradient[NEIGHBOUR_SLOTS];
     float threshold[NEIGHBOUR_SLOTS];
-    bool neighbours = false;
+    float reach[NEIGHBOUR_SLOTS];  // a smaller neighbour's: dot(q, gradient) >= q' M q + reach
+    bool neighbours = false, smaller = false;
     uint first_point = uint(k) * points_per_direction, end_point = first_point + points_per_direction;
     // The triangle's edges in pixels: a neighbour's offset is linear in its barycentrics' offset.
     float pixels = 0.5 * float(resolution) / radius;
@@ -128,23 +132,33 @@ uint splat(uint id) {
         uint j = id + uint(slot < NEIGHBOURS ? slot - NEIGHBOURS : slot - NEIGHBOURS + 1);
         bool here = nearest_only && j >= first_point && j < end_point && points[j].triangle == t;
         vec2 bj = here ? point_barycentrics(j) : b;
-        // A nearer splat covers the line only if it is as large: splats grown at sharp edges
-        // keep their lines (a redundant node at worst, which the merge removes).
-        here = here && sharp_splat_radius(splat_radius, sharp, bj, e1, e2) == s.radius;
+        float rj = here ? points[j].radius * pixels : rp;
         vec2 e = edges * (bj - b);
+        float eMe = A * e.x * e.x + 2.0 * B * e.x * e.y + C * e.y * e.y;
         gradient[slot] = 2.0 * vec2(A * e.x + B * e.y, B * e.x + C * e.y);
-        threshold[slot] = here ? A * e.x * e.x + 2.0 * B * e.x * e.y + C * e.y * e.y + MARGIN * E : 3.4e38;
+        threshold[slot] = here ? eMe + MARGIN * E : 3.4e38;
+        reach[slot] = rj < rp ? eMe - (1.0 - MARGIN) * rj * rj * nd * nd : -3.4e38;
         neighbours = neighbours || here;
+        smaller = smaller || (here && rj < rp);
+    }
+    // Where the lines can be: the ellipse's box and, for a splat grown at sharp edges, what
+    // covers both the disk before it grew and the triangle, whose lines alone the growth adds.
+    vec2 lo = vec2(-1e9), hi = vec2(1e9);
+    if (s.radius > splat_radius) {
+        vec2 v0 = edges * -b, v1 = edges * (vec2(1.0, 0.0) - b), v2 = edges * (vec2(0.0, 1.0) - b);
+        lo = c + min(vec2(-disk_pixels), min(min(v0, v1), v2));
+        hi = c + max(vec2(disk_pixels), max(max(v0, v1), v2));
     }
     // Rows: |dy| <= rp sqrt(1 - n_v^2), the ellipse's half-height.
     precise float half_height = rp * sqrt(max(0.0, 1.0 - nv * nv));
-    int y0 = max(0, int(ceil(c.y - half_height))), y1 = min(resolution - 1, int(floor(c.y + half_height)));
+    int y0 = max(0, int(ceil(max(c.y - half_height, lo.y)))), y1 = min(resolution - 1, int(floor(min(c.y + half_height, hi.y))));
+    int column_lo = int(ceil(max(c.x - rp, lo.x))), column_hi = int(floor(min(c.x + rp, hi.x)));
     uint covered = 0u;
 #if defined COUNT_SPLATS
     // The box: columns from x_min, at most the splat's radius either side of its centre (a disk's
     // projection), rows y0 .. y1; a line outside it (round-off) or past bit 31: not kept.
-    int x_min = max(0, int(ceil(c.x - rp)));
-    uint width = uint(clamp(int(floor(c.x + rp)) - x_min + 1, 1, int(LINES_WIDTH)));
+    int x_min = max(0, column_lo);
+    uint width = uint(clamp(column_hi - x_min + 1, 1, int(LINES_WIDTH)));
     uint mask = 0u;
     bool kept = true;
 #endif
@@ -153,8 +167,8 @@ uint splat(uint id) {
         precise float disc = B * B * dy * dy - A * (C * dy * dy - E);
         if (disc < 0.0) continue;
         precise float root = sqrt(disc);
-        int x0 = max(0, int(ceil(c.x + (-B * dy - root) / A)));
-        int x1 = min(resolution - 1, int(floor(c.x + (-B * dy + root) / A)));
+        int x0 = max(max(0, column_lo), int(ceil(c.x + (-B * dy - root) / A)));
+        int x1 = min(min(resolution - 1, column_hi), int(floor(c.x + (-B * dy + root) / A)));
         for (int x = x0; x <= x1; x++) {
             if (sharp != 0u) {
                 precise vec2 q = vec2(float(x) - c.x, dy);
@@ -165,8 +179,12 @@ uint splat(uint id) {
             covered++;
             if (neighbours) {
                 vec2 q = vec2(float(x) - c.x, dy);
-                bool nearer = false;  // a splat of this triangle nearer the line
-                for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) nearer = nearer || dot(q, gradient[slot]) > threshold[slot];
+                float qMq = smaller ? A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y : 0.0;
+                bool nearer = false;  // a splat of this triangle nearer the line, reaching it
+                for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
+                    float g = dot(q, gradient[slot]);
+                    nearer = nearer || (g > threshold[slot] && g >= qMq + reach[slot]);
+                }
                 if (nearer) continue;
             }
             uint list = pixel_list(k, ivec2(x, y));

@@ -13,6 +13,7 @@
 #define NODE_REFERENCE NODE_SPLAT_POINT
 #define SPLAT_POINTS_WRITE
 #include "common.glsl"
+#include "scene.glsl"
 #include "bundle.glsl"
 #include "area_sampling.glsl"
 
@@ -41,7 +42,17 @@ void main() {
     float sq = sqrt(unit_float(r.y)), w = unit_float(r.z);
     vec2 b = vec2(sq * (1.0 - w), sq * w);
 #endif
-    points[id] = SplatPoint(triangle, packUnorm2x16(b));
+    // The radius from the barycentrics as stored, which every pass reads.
+    uint stored = packUnorm2x16(b);
+    uint sharp = triangle_sharp_edges(triangle);
+    float point_radius = splat_radius;
+    if (sharp != 0u) {
+        uvec3 v = triangle_vertices(triangle);
+        vec3 p0 = vertex_position(v.x);
+        vec3 heights = sharp_edge_heights(sharp, vertex_position(v.y) - p0, vertex_position(v.z) - p0);
+        point_radius = sharp_splat_radius(splat_radius, heights, unpackUnorm2x16(stored));
+    }
+    points[id] = SplatPoint(triangle, stored, point_radius);
 }
 
 #endif

@@ -103,7 +103,8 @@ def sharp_splat_radii(
     bounds the corners, where the lost segments overlap and are counted twice."""
     twice_area = np.linalg.norm(np.cross(e1, e2), axis=1)
     lengths = np.stack([np.linalg.norm(e1, axis=1), np.linalg.norm(e2 - e1, axis=1), np.linalg.norm(e2, axis=1)], 1)
-    weights = np.stack([b[:, 1], 1.0 - b[:, 0] - b[:, 1], b[:, 0]], 1)  # edge e runs from corner e to e + 1
+    # Edge e runs from corner e to e + 1, opposite the corner of weight b2, 1 - b1 - b2, b1.
+    weights = np.maximum(np.stack([b[:, 1], 1.0 - b[:, 0] - b[:, 1], b[:, 0]], 1), 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         cut = np.where(sharp, weights * twice_area[:, None] / lengths, np.inf)
     radius = np.full(len(b), float(r))
