@@ -80,7 +80,8 @@ bool on_node_surface(uint ref, vec3 y) {
     if (d2 > s.radius * s.radius * (1.0 + 1e-4)) return false;
     uint sharp = triangle_sharp_edges(s.triangle);
     bool beyond_disk = d2 > splat_radius * splat_radius * (1.0 + 1e-4);
-    return sharp == 0u || inside_splat(sharp, plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y), beyond_disk);
+    return sharp == 0u ||
+           inside_splat(sharp, plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y), beyond_disk);
 #else
     uvec3 v = triangle_vertices(ref);
     vec3 p0 = vertex_position(v.x);

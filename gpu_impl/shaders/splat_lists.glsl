@@ -1,6 +1,7 @@
 // Imperfect ray bundles without the rasterizer (--splatter compute, the default): each splat, the
-// disk of its radius (bundle.glsl: SplatSource) around its point in the point's triangle's plane, finds the bundle
-// lines that cross it in its own direction's bundle, row by row of the bundle's pixel grid.
+// disk of its radius (bundle.glsl: SplatSource) around its point in the point's triangle's plane,
+// finds the bundle lines that cross it in its own direction's bundle, row by row of the bundle's
+// pixel grid.
 //
 // COUNT_SPLATS counts every list's nodes (list_counts); a prefix sum makes them list_offsets; then,
 // with list_counts set to every list's end, SCATTER_SPLATS writes each node into its list's slot
@@ -112,10 +113,11 @@ uint splat(uint id) {
 
     // The ellipse in the pixel grid: centre c, and A dx^2 + 2 B dx dy + C dy^2 <= E.
     precise vec2 c = bundle_grid_position(f, centre);
-    float rp = s.radius * 0.5 * float(resolution) / radius;  // the radius in pixels
+    float pixels = 0.5 * float(resolution) / radius;  // per scene unit
+    float rp = s.radius * pixels;  // the radius in pixels
     precise float A = nd * nd + nu * nu, B = nu * nv, C = nd * nd + nv * nv, E = rp * rp * nd * nd;
     // The disk before it grew at sharp edges: lines beyond it must lie on the triangle.
-    float disk_pixels = splat_radius * 0.5 * float(resolution) / radius, E_disk = disk_pixels * disk_pixels * nd * nd;
+    float disk_pixels = splat_radius * pixels, E_disk = disk_pixels * disk_pixels * nd * nd;
     // The neighbours on this triangle (the same plane, so the same ellipse): the linear test of
     // each, dot(q, gradient) > threshold with q the line's offset from this centre in pixels.
     vec2 gradient[NEIGHBOUR_SLOTS];
@@ -124,7 +126,6 @@ uint splat(uint id) {
     bool neighbours = false, smaller = false;
     uint first_point = uint(k) * points_per_direction, end_point = first_point + points_per_direction;
     // The triangle's edges in pixels: a neighbour's offset is linear in its barycentrics' offset.
-    float pixels = 0.5 * float(resolution) / radius;
     mat2 edges = pixels * mat2(dot(e1, f.u.xyz), dot(e1, f.v.xyz), dot(e2, f.u.xyz), dot(e2, f.v.xyz));
     uint sharp = triangle_sharp_edges(t);
     mat2 to_barycentrics = sharp != 0u ? inverse(edges) : mat2(0.0);
@@ -151,7 +152,8 @@ uint splat(uint id) {
     }
     // Rows: |dy| <= rp sqrt(1 - n_v^2), the ellipse's half-height.
     precise float half_height = rp * sqrt(max(0.0, 1.0 - nv * nv));
-    int y0 = max(0, int(ceil(max(c.y - half_height, lo.y)))), y1 = min(resolution - 1, int(floor(min(c.y + half_height, hi.y))));
+    int y0 = max(0, int(ceil(max(c.y - half_height, lo.y))));
+    int y1 = min(resolution - 1, int(floor(min(c.y + half_height, hi.y))));
     int column_lo = int(ceil(max(c.x - rp, lo.x))), column_hi = int(floor(min(c.x + rp, hi.x)));
     uint covered = 0u;
 #if defined COUNT_SPLATS
