@@ -14,7 +14,7 @@ from conftest import make_tracer, run_evalkit, trace
 from evalkit.core.bundleset import FRAME_PADDING, SPLAT_PRIM_ID, BundleSet, DirectionSet
 from evalkit.core.scene import Material, Mesh, assemble, load_scene
 from evalkit.core.scene.colour import sample_texture
-from evalkit.core.scene.edges import sharp_edges, sharp_splat_radii
+from evalkit.core.scene.edges import plane_barycentrics, sharp_edges, sharp_splat_radii
 from evalkit.core.scene.tessellate import box
 from gpu_impl.bundles import NodeBudgetExceeded
 from gpu_impl.context import GLContext
@@ -94,23 +94,14 @@ def test_splat_nodes_lie_on_their_splats(gl):
     assert np.abs(np.einsum("ij,ij->i", p - p0, n)).max() < 1e-5 * bundles.radius
     r = bundles.params["splat_radius"]
     sharp = sharp_edges(a.positions, a.faces, a.tri_normal)[t]
-    radii = sharp_splat_radii(r, sharp, barycentrics(bundles.splat_centre, p0, p1, p2), p1 - p0, p2 - p0)
+    radii = sharp_splat_radii(r, sharp, plane_barycentrics(bundles.splat_centre, p0, p1, p2), p1 - p0, p2 - p0)
     assert radii.min() == r and radii.max() > 1.3 * r  # cornell-box's walls end at sharp edges
     distance = np.linalg.norm(p - bundles.splat_centre, axis=1)
     assert np.all(distance <= radii * (1 + 1e-4))
     beyond = distance > r * (1 + 1e-4)
     assert beyond.sum() > 50  # most lines go to a nearer splat that need not grow
-    b = barycentrics(p[beyond], p0[beyond], p1[beyond], p2[beyond])
+    b = plane_barycentrics(p[beyond], p0[beyond], p1[beyond], p2[beyond])
     assert min(b.min(), (1 - b.sum(axis=1)).min()) > -1e-4
-
-
-def barycentrics(p, p0, p1, p2) -> np.ndarray:
-    """(M, 2): points p's barycentrics (b1, b2) in the planes of triangles (p0, p1, p2)."""
-    e1, e2, q = p1 - p0, p2 - p0, p - p0
-    dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
-    aa, ab, bb = dot(e1, e1), dot(e1, e2), dot(e2, e2)
-    det = aa * bb - ab * ab
-    return np.stack([bb * dot(q, e1) - ab * dot(q, e2), aa * dot(q, e2) - ab * dot(q, e1)], axis=1) / det[:, None]
 
 
 def test_splats_end_at_their_triangles_sharp_edges(gl):
@@ -129,7 +120,7 @@ def test_splats_end_at_their_triangles_sharp_edges(gl):
         )
         p = hit_points(bundles)
         t = bundles.splat_triangle.astype(np.int64)
-        b1, b2 = barycentrics(p, *(a.positions[a.faces[t, i]] for i in range(3))).T
+        b1, b2 = plane_barycentrics(p, *(a.positions[a.faces[t, i]] for i in range(3))).T
         inner = np.stack([b2, 1 - b1 - b2, b1], axis=1)  # edge e runs from corner e to e + 1
         assert inner[sharp[t]].min() > -1e-4
         # What still stands outside the box is where a splat crosses its triangle's inner edge (a
@@ -491,7 +482,7 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
     t = points["triangle"].astype(np.int64)
     p0, p1, p2 = (arrays.positions[arrays.faces[t, i]] for i in range(3))
     sharp = sharp_edges(arrays.positions, arrays.faces, arrays.tri_normal)
-    b = barycentrics(splat_centres(points, arrays), p0, p1, p2)
+    b = plane_barycentrics(splat_centres(points, arrays), p0, p1, p2)
     grown = sharp_splat_radii(radius, sharp[t], b, p1 - p0, p2 - p0)
     assert (grown > radius * 1.01).mean() > 0.05
     assert np.allclose(points["radius"], grown, rtol=1e-3)

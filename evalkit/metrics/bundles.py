@@ -44,7 +44,7 @@ import numpy as np
 
 from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.display import fields_html
-from evalkit.core.scene.edges import sharp_edges, sharp_splat_radii
+from evalkit.core.scene.edges import plane_barycentrics, sharp_edges, sharp_splat_radii
 from evalkit.core.settings import DEPTH_TOLERANCE, RenderSettings
 
 DEFAULT_SELF_HIT_BIAS = RenderSettings().self_hit_bias
@@ -442,21 +442,17 @@ class _SplatShapes:
     def barycentrics(self, j: int, y: np.ndarray) -> np.ndarray:
         """Point y's barycentrics in node j's triangle's plane."""
         p0, p1, p2 = self.arrays.positions[self.arrays.faces[self.triangles[j]]]
-        return _plane_barycentrics(p0, p1 - p0, p2 - p0, y)
+        return plane_barycentrics(y[None], p0[None], p1[None], p2[None])[0]
 
     def splat_radius(self, j: int) -> float:
+        """Node j's splat's radius, worked out when a lookup meets it (nodes are millions; the
+        lookups meet thousands)."""
         edges = self.sharp[self.triangles[j]]
         if not (self.grows and edges.any()):
             return self.radius
         p0, p1, p2 = self.arrays.positions[self.arrays.faces[self.triangles[j]]]
         b = self.barycentrics(j, self.centres[j])
         return float(sharp_splat_radii(self.radius, edges[None], b[None], (p1 - p0)[None], (p2 - p0)[None])[0])
-
-
-def _plane_barycentrics(p0, e1, e2, y) -> np.ndarray:
-    q = y - p0
-    a, b, c = e1 @ e1, e1 @ e2, e2 @ e2
-    return np.array([c * (q @ e1) - b * (q @ e2), a * (q @ e2) - b * (q @ e1)]) / (a * c - b * b)
 
 
 def _own_surface_test(splats: _SplatShapes | None, plane):
@@ -514,7 +510,7 @@ def _on_surface_test(bundles: BundleSet, arrays, splats: _SplatShapes | None):
 
     def on_triangle(j, y):
         p0, p1, p2 = arrays.positions[arrays.faces[triangles[j]]]
-        return inside(_plane_barycentrics(p0, p1 - p0, p2 - p0, y), np.ones(3, bool))
+        return inside(plane_barycentrics(y[None], p0[None], p1[None], p2[None])[0], np.ones(3, bool))
 
     return on_triangle
 

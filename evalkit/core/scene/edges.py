@@ -92,15 +92,24 @@ def sharp_edges(
     return sharp
 
 
-def sharp_splat_radii(
-    r: float, sharp: np.ndarray, b: np.ndarray, e1: np.ndarray, e2: np.ndarray, iterations: int = 4
-) -> np.ndarray:
+def plane_barycentrics(p: np.ndarray, p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """(M, 2): points p's barycentrics (b1, b2) in the planes of triangles (p0, p1, p2), all (M, 3),
+    as shaders/scene.glsl's plane_barycentrics solves them."""
+    e1, e2, q = p1 - p0, p2 - p0, p - p0
+    dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
+    aa, ab, bb = dot(e1, e1), dot(e1, e2), dot(e2, e2)
+    det = aa * bb - ab * ab
+    return np.stack([bb * dot(q, e1) - ab * dot(q, e2), aa * dot(q, e2) - ab * dot(q, e1)], axis=1) / det[:, None]
+
+
+def sharp_splat_radii(r: float, sharp: np.ndarray, b: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
     """The radii (M,) of splats of radius ``r`` at barycentrics ``b`` (M, 2) of triangles with edges
     ``e1``, ``e2`` (M, 3) and sharp edges ``sharp`` (M, 3), as shaders/scene.glsl's
     sharp_splat_radius grows them: a splat cut by a sharp edge grows until the part kept has its
     disk's area pi r^2. A disk of radius R loses R^2 (acos t - t sqrt(1 - t^2)), t = d / R, to each
     sharp edge at distance d < R; the kept area is held at a quarter disk at least (R <= 2 r), which
-    bounds the corners, where the lost segments overlap and are counted twice."""
+    bounds the corners, where the lost segments overlap and are counted twice. Four fixed-point
+    steps, as the shader takes."""
     twice_area = np.linalg.norm(np.cross(e1, e2), axis=1)
     lengths = np.stack([np.linalg.norm(e1, axis=1), np.linalg.norm(e2 - e1, axis=1), np.linalg.norm(e2, axis=1)], 1)
     # Edge e runs from corner e to e + 1, opposite the corner of weight b2, 1 - b1 - b2, b1.
@@ -108,7 +117,7 @@ def sharp_splat_radii(
     with np.errstate(divide="ignore", invalid="ignore"):
         cut = np.where(sharp, weights * twice_area[:, None] / lengths, np.inf)
     radius = np.full(len(b), float(r))
-    for _ in range(iterations):
+    for _ in range(4):
         t = np.clip(cut / radius[:, None], 0.0, 1.0)
         lost = (np.arccos(t) - t * np.sqrt(1.0 - t * t)).sum(axis=1)
         radius = r * np.sqrt(np.pi / np.maximum(np.pi - lost, 0.25 * np.pi))
