@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from evalkit.core.scene.edges import MAX_SPLAT_CUTS
+
 # The workgroup size of every 1-D compute pass, and the most workgroups along one dispatch axis.
 LOCAL_SIZE = 256
 MAX_GROUPS = 65535
@@ -34,6 +36,8 @@ BINDINGS = {
     "INDICES": 4,
     "AREA_CDF": 5,
     "CDF_GUIDE": 30,
+    # what cuts each triangle's splats and where they may grow (scene_buffers.py: splat_shapes)
+    "SPLAT_SHAPES": 12,
     # bundles: frames, splat points, build counters (bundles.py)
     "FRAMES": 6,
     "POINTS": 7,
@@ -86,10 +90,12 @@ MATERIAL_TWOSIDED = np.uint32(2)
 TRIANGLE_SMOOTH = np.uint32(0x80000000)  # Triangle.material_flags: interpolate vertex normals
 # Triangle.material_flags: the triangle bounds a solid (scene_buffers.py: solid_triangles)
 TRIANGLE_SOLID = np.uint32(0x40000000)
-# Triangle.material_flags: bits TRIANGLE_SHARP_SHIFT + e, edge e (corner e to e + 1) is sharp, so
-# splats end there (evalkit/core/scene/edges.py: sharp_edges)
-TRIANGLE_SHARP_SHIFT = np.uint32(27)
+# Triangle.material_flags: lines cut the triangle's splats (scene.glsl: SplatShape), its sharp edges
+# or its flat neighbours' (evalkit/core/scene/edges.py: splat_cuts)
+TRIANGLE_CUT = np.uint32(0x08000000)
 TRIANGLE_MATERIAL = np.uint32(0x07FFFFFF)  # Triangle.material_flags: the material index
+# A triangle's edge with no neighbour in its plane (scene.glsl: splat_shapes)
+NO_NEIGHBOUR = np.uint32(0xFFFFFFFF)
 # Light.position.w; "emitter_sample" is a point drawn on an emissive triangle for next-event
 # estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its
 # normal; "light_path_vertex" is a vertex a light path left on a surface (strategies/bidirectional.py),
@@ -128,8 +134,10 @@ SHADER_CONSTANTS = {
     "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,
     "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH,
     "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL,
-    "TRIANGLE_SHARP_SHIFT": TRIANGLE_SHARP_SHIFT,
+    "TRIANGLE_CUT": TRIANGLE_CUT,
+    "MAX_SPLAT_CUTS": MAX_SPLAT_CUTS,
     "TRIANGLE_SOLID": TRIANGLE_SOLID,
+    "NO_NEIGHBOUR": NO_NEIGHBOUR,
     "FACING_BIT": FACING_BIT,
     "FACING_IMAGE_NEAREST": FACING_IMAGE_UNITS[0],
     "FACING_IMAGE_NEXT": FACING_IMAGE_UNITS[1],
@@ -158,6 +166,8 @@ MATERIAL = np.dtype([("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "
 TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.glsl: Triangle
 VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
 SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4"), ("radius", "<f4")])  # bundle.glsl: SplatPoint
+# scene.glsl: splat_shapes, a triangle's entry (far corners, first cut line's entry) or a cut line's
+SPLAT_SHAPE_ENTRY = np.dtype(("<u4", 4))
 # bundle.glsl: BundleFrame, in a uniform block: three vec4, so std140 lays it out as std430 would.
 BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])
 LIGHT = np.dtype(
@@ -213,6 +223,7 @@ RECORDS = {
     "Triangle": (TRIANGLE, "TRIANGLES"),
     "Vertex": (VERTEX, "VERTICES"),
     "SplatPoint": (SPLAT_POINT, "POINTS"),
+    "SplatShapeEntry": (SPLAT_SHAPE_ENTRY, "SPLAT_SHAPES"),
     "Light": (LIGHT, "LIGHTS"),
     "LightPathStart": (LIGHT_PATH_START, "LIGHT_PATH_STARTS"),
     "LightPathVertex": (LIGHT_PATH_VERTEX, "LIGHT_PATH_VERTICES"),

@@ -6,15 +6,16 @@ import numpy as np
 
 from evalkit.core.bundleset import FRAME_PADDING
 from evalkit.core.scene import Scene
-from evalkit.core.scene.edges import sharp_edges, solid_triangles
+from evalkit.core.scene.edges import flat_neighbours, solid_triangles, splat_cuts
 from gpu_impl.context import GLContext
 from gpu_impl.layout import (
     BINDINGS,
     MATERIAL,
     MATERIAL_TEXTURED,
     MATERIAL_TWOSIDED,
+    NO_NEIGHBOUR,
     TRIANGLE,
-    TRIANGLE_SHARP_SHIFT,
+    TRIANGLE_CUT,
     TRIANGLE_SMOOTH,
     TRIANGLE_SOLID,
     VERTEX,
@@ -47,7 +48,7 @@ class GpuScene:
         self.radius = radius * FRAME_PADDING
         self.triangle_count = len(a.faces)
         self._solid = None  # `solids`, found when a pass first needs them
-        self._sharp = None  # `sharp_edges`, found when splats first need them
+        self._cuts = None  # `splat_shapes`, found when splats first need them
         self._cluster_bounds = None  # `cluster_bounds`, found when a pass first culls
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
@@ -115,14 +116,26 @@ class GpuScene:
             self.buffers["TRIANGLES"].write(self._triangles(self.arrays))
         return self._solid
 
-    def sharp_edges(self) -> np.ndarray:
-        """Per triangle and edge, whether the edge is sharp (`evalkit.core.scene.edges.sharp_edges`;
-        the TRIANGLE_SHARP_SHIFT bits of the triangle records): splats end there. Found,
-        and uploaded, the first time splats ask. Rigid poses keep it."""
-        if self._sharp is None:
-            self._sharp = sharp_edges(self.arrays.positions, self.arrays.faces, self.arrays.tri_normal)
-            self.buffers["TRIANGLES"].write(self._triangles(self.arrays))
-        return self._sharp
+    def splat_shapes(self) -> np.ndarray:
+        """Per triangle, how many lines cut its splats (`evalkit.core.scene.edges.splat_cuts`: its
+        sharp edges and its flat neighbours'; TRIANGLE_CUT in the triangle records) and which
+        neighbours in its plane their grown parts may reach into (`flat_neighbours`), in the
+        SPLAT_SHAPES buffer that shaders/scene.glsl's splat_shape reads. Found, and
+        uploaded, the first time splats ask. Rigid poses keep them."""
+        if self._cuts is None:
+            a = self.arrays
+            first, lines = splat_cuts(a.positions, a.faces, a.tri_normal)
+            across = flat_neighbours(a.positions, a.faces, a.tri_normal)
+            u, e = np.divmod(across, 3)  # the neighbour and its edge; its far corner is past the edge
+            entries = np.zeros((len(a.faces) + 1 + len(lines), 4), dtype=np.uint32)
+            entries[: len(a.faces), :3] = np.where(across < 0, NO_NEIGHBOUR, a.faces[u, (e + 2) % 3])
+            entries[len(a.faces), :3] = NO_NEIGHBOUR
+            entries[: len(a.faces) + 1, 3] = len(a.faces) + 1 + first  # each triangle's first line's entry
+            entries[len(a.faces) + 1 :, :3] = lines.astype(np.float32).view(np.uint32)
+            self.buffers["SPLAT_SHAPES"] = self.gl.buffer(entries.tobytes())
+            self._cuts = np.diff(first)
+            self.buffers["TRIANGLES"].write(self._triangles(a))
+        return self._cuts
 
     def cluster_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The corners (lowest, highest; (C, 3) each, relative to the bundle centre) of the box
@@ -153,7 +166,7 @@ class GpuScene:
 
     def _triangles(self, a) -> bytes:
         """The triangle records: geometric normal, material and flags (TRIANGLE_SOLID once `solids`
-        has been found, the sharp edges once `sharp_edges` has)."""
+        has been found, TRIANGLE_CUT once `splat_shapes` has)."""
         triangles = np.zeros(len(a.faces), dtype=TRIANGLE)
         triangles["normal"] = a.tri_normal
         triangles["material_flags"] = a.tri_material.astype(np.uint32) | np.where(
@@ -161,9 +174,8 @@ class GpuScene:
         ).astype(np.uint32)
         if self._solid is not None:
             triangles["material_flags"] |= np.where(self._solid, TRIANGLE_SOLID, 0).astype(np.uint32)
-        if self._sharp is not None:
-            bits = (self._sharp.astype(np.uint32) << np.arange(3, dtype=np.uint32)).sum(axis=1, dtype=np.uint32)
-            triangles["material_flags"] |= bits << TRIANGLE_SHARP_SHIFT
+        if self._cuts is not None:
+            triangles["material_flags"] |= np.where(self._cuts > 0, TRIANGLE_CUT, 0).astype(np.uint32)
         return triangles.tobytes()
 
     def pose(self, scene: Scene) -> None:

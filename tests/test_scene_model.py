@@ -10,7 +10,7 @@ import pytest
 from evalkit.core.errors import InputError
 from evalkit.core.scene import Material, Mesh, assemble
 from evalkit.core.scene.assemble import default_camera, look_at
-from evalkit.core.scene.edges import sharp_edges
+from evalkit.core.scene.edges import flat_neighbours, sharp_edges
 from evalkit.core.scene.model import Light
 from evalkit.core.scene.tessellate import box, unit_sphere
 
@@ -188,3 +188,27 @@ def test_sharp_edges_are_convex_creases_and_boundaries():
     assert not sharp_edges(p, f, _normals(p, f)).any()
     assert sharp_edges(p, f, _normals(p, f), crease_degrees=2.0).any()  # its facets part by 7.5 degrees
     assert sharp_edges(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3))).shape == (0, 3)
+
+
+def test_flat_neighbours_lie_in_the_triangles_plane():
+    """Where a splat grown at a sharp edge may reach (evalkit.core.scene.edges.flat_neighbours):
+    across a quad's diagonal its other half's far corner, across a face's inner edges of a
+    subdivided box the neighbours on the same face, never across the box's edges, nor between
+    triangles facing opposite ways."""
+    across = flat_neighbours(QUAD, QUAD_FACES, _normals(QUAD, QUAD_FACES))
+    # The diagonal is edge 2 of the first triangle and edge 0 of the second.
+    assert np.array_equal(across, [[-1, -1, 3 * 1 + 0], [3 * 0 + 2, -1, -1]])
+
+    p, f = box(np.zeros(3), np.ones(3), subdivisions=2)
+    across = flat_neighbours(p, f, _normals(p, f))
+    sharp = sharp_edges(p, f, _normals(p, f))
+    assert np.array_equal(across >= 0, ~sharp)  # every inner edge of a face, and nothing else
+    t, e = np.nonzero(across >= 0)
+    u, e_u = np.divmod(across[t, e], 3)
+    # The same edge, run the other way, in a triangle of the same plane.
+    assert np.array_equal(f[t, e], f[u, (e_u + 1) % 3]) and np.array_equal(f[t, (e + 1) % 3], f[u, e_u])
+    assert np.abs(np.einsum("ij,ij->i", p[f[u, (e_u + 2) % 3]] - p[f[t, 0]], _normals(p, f)[t])).max() < 1e-12
+
+    flipped = np.array([[0, 1, 2], [0, 3, 2]])  # the second faces down
+    assert (flat_neighbours(QUAD, flipped, _normals(QUAD, flipped)) < 0).all()
+    assert flat_neighbours(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3))).shape == (0, 3)

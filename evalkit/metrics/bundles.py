@@ -44,7 +44,13 @@ import numpy as np
 
 from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.display import fields_html
-from evalkit.core.scene.edges import plane_barycentrics, sharp_edges, sharp_splat_radii
+from evalkit.core.scene.edges import (
+    cut_distances,
+    flat_neighbours,
+    plane_barycentrics,
+    sharp_splat_radii,
+    splat_cuts,
+)
 from evalkit.core.settings import DEPTH_TOLERANCE, RenderSettings
 
 DEFAULT_SELF_HIT_BIAS = RenderSettings().self_hit_bias
@@ -421,10 +427,13 @@ def bundle_lookup(
 
 
 class _SplatShapes:
-    """The splats of an imperfect set as the shaders cut and grow them, per node j: its triangle's
-    sharp edges (shaders/scene.glsl: inside_sharp_edges) and its radius (sharp_splat_radius). A set
-    built before splats ended at sharp edges (no ``crease_degrees`` in its params) has none; one
-    built before cut splats grew (no ``splats_keep_area``) keeps every radius at splat_radius."""
+    """The splats of an imperfect set as the shaders cut and grow them, per node j: the lines that
+    cut its triangle's splats (shaders/scene.glsl: SplatShape), its radius (sharp_splat_radius) and
+    the surface its grown part may cover (inside_splat). A set built before splats ended at sharp
+    edges (no ``crease_degrees`` in its params) has no lines; one built before cut splats grew (no
+    ``splats_keep_area``) keeps every radius at splat_radius; one built before splats reached
+    into flat neighbours (no ``flat_degrees``) is cut by its own triangle's sharp edges alone, and
+    its grown part keeps to its triangle."""
 
     def __init__(self, bundles: BundleSet, arrays):
         self.radius = float(bundles.params["splat_radius"])
@@ -432,12 +441,28 @@ class _SplatShapes:
         self.centres = bundles.splat_centre
         self.arrays = arrays
         crease = bundles.params.get("crease_degrees")
-        self.sharp = (
-            sharp_edges(arrays.positions, arrays.faces, arrays.tri_normal, crease)
-            if crease is not None
-            else np.zeros((len(arrays.faces), 3), bool)
-        )
+        neighbours = "flat_degrees" in bundles.params
+        if crease is not None:
+            self.first, self.lines = splat_cuts(arrays.positions, arrays.faces, arrays.tri_normal, crease, neighbours)
+        else:
+            self.first, self.lines = np.zeros(len(arrays.faces) + 1, np.int64), np.zeros((0, 3))
         self.grows = bool(bundles.params.get("splats_keep_area", False))
+        across = (
+            flat_neighbours(arrays.positions, arrays.faces, arrays.tri_normal)
+            if neighbours
+            else np.full((len(arrays.faces), 3), -1)
+        )
+        u, e = np.divmod(across, 3)  # the neighbour and its edge; its far corner is past the edge
+        self.far = np.where(across < 0, -1, arrays.faces[u, (e + 2) % 3])
+
+    def cut(self, j: int) -> bool:
+        """Whether lines cut node j's splat."""
+        t = self.triangles[j]
+        return bool(self.first[t + 1] > self.first[t])
+
+    def distances(self, j: int, b: np.ndarray) -> np.ndarray:
+        """Barycentrics b's distances from the lines that cut node j's splat (inf past the last)."""
+        return cut_distances(self.first, self.lines, self.triangles[j : j + 1], b[None])[0]
 
     def barycentrics(self, j: int, y: np.ndarray) -> np.ndarray:
         """Point y's barycentrics in node j's triangle's plane."""
@@ -447,12 +472,41 @@ class _SplatShapes:
     def splat_radius(self, j: int) -> float:
         """Node j's splat's radius, worked out when a lookup meets it (nodes are millions; the
         lookups meet thousands)."""
-        edges = self.sharp[self.triangles[j]]
-        if not (self.grows and edges.any()):
+        if not (self.grows and self.cut(j)):
             return self.radius
-        p0, p1, p2 = self.arrays.positions[self.arrays.faces[self.triangles[j]]]
-        b = self.barycentrics(j, self.centres[j])
-        return float(sharp_splat_radii(self.radius, edges[None], b[None], (p1 - p0)[None], (p2 - p0)[None])[0])
+        distances = self.distances(j, self.barycentrics(j, self.centres[j]))
+        return float(sharp_splat_radii(self.radius, distances[None])[0])
+
+    def inside(self, j: int, y: np.ndarray, beyond_disk: bool) -> bool:
+        """Whether point y of node j's splat's plane, within its radius, lies in the splat: on the
+        inner side of every line that cuts it and, beyond the disk it grew from, on its surface
+        (`on_surface`), up to round-off as scene.glsl's inside_splat allows."""
+        if not self.cut(j):
+            return True
+        b = self.barycentrics(j, y)
+        t = self.triangles[j]
+        lines = self.lines[self.first[t] : self.first[t + 1]]
+        tolerance = 1e-4 * np.abs(lines[:, :2]).max(axis=1, initial=0.0)
+        if np.any(self.distances(j, b)[: len(lines)] < -tolerance):
+            return False
+        return not beyond_disk or self.on_surface(j, b)
+
+    def on_surface(self, j: int, b: np.ndarray) -> bool:
+        """Whether barycentrics b of node j's triangle's plane lie on the surface a grown part may
+        cover: the triangle, or across edge e a neighbour in its plane (corners e, e + 1 and its far
+        corner), up to 1e-4 of the barycentrics (scene.glsl: inside_splat)."""
+        within = np.array([b[1], 1 - b[0] - b[1], b[0]])  # the weight opposite edge e
+        if np.all(within >= -1e-4):
+            return True
+        far = self.far[self.triangles[j]]
+        corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+        for e in np.flatnonzero((within < 0) & (far >= 0)):
+            a = corners[e]
+            f = self.barycentrics(j, self.arrays.positions[far[e]])
+            w = np.linalg.solve(np.stack([corners[(e + 1) % 3] - a, f - a], axis=1), b - a)
+            if w.min() >= -1e-4 and w.sum() <= 1 + 1e-4:
+                return True
+        return False
 
 
 def _own_surface_test(splats: _SplatShapes | None, plane):
@@ -485,32 +539,23 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
 
 def _on_surface_test(bundles: BundleSet, arrays, splats: _SplatShapes | None):
     """Whether point y on node j's plane lies on its surface, as shaders/bundle_hits.glsl tells:
-    within the splat's radius, inside its triangle's sharp edges and, beyond the radius before it
-    grew, inside the triangle (scene.glsl: inside_splat); or inside the triangle. Up to 1e-4 of the
-    barycentrics and of the squared radius."""
-    triangles = bundles.node_triangle()
-
-    def inside(b, edges):  # edge e runs from corner e to e + 1
-        inner = np.array([b[1], 1 - b[0] - b[1], b[0]]) >= -1e-4
-        return bool(np.all(inner | ~edges))
-
+    within the splat's radius and its shape (`_SplatShapes.inside`); or inside the triangle, up to
+    1e-4 of the barycentrics. The radius up to 1e-4 of its square."""
     if splats is not None:
         disk = splats.radius**2 * (1 + 1e-4)
 
         def on_splat(j, y):
             d2 = np.sum((y - splats.centres[j]) ** 2)
-            if d2 > splats.splat_radius(j) ** 2 * (1 + 1e-4):
-                return False
-            edges = splats.sharp[triangles[j]]
-            if not edges.any():
-                return True
-            return inside(splats.barycentrics(j, y), np.ones(3, bool) if d2 > disk else edges)
+            return d2 <= splats.splat_radius(j) ** 2 * (1 + 1e-4) and splats.inside(j, y, d2 > disk)
 
         return on_splat
 
+    triangles = bundles.node_triangle()
+
     def on_triangle(j, y):
         p0, p1, p2 = arrays.positions[arrays.faces[triangles[j]]]
-        return inside(plane_barycentrics(y[None], p0[None], p1[None], p2[None])[0], np.ones(3, bool))
+        b = plane_barycentrics(y[None], p0[None], p1[None], p2[None])[0]
+        return bool(min(b[0], b[1], 1 - b[0] - b[1]) >= -1e-4)
 
     return on_triangle
 

@@ -3,7 +3,8 @@ points on the surfaces, each a disk of radius ``splat_scale * sqrt(A / (pi N))``
 ``splat_radius``) in its source triangle's plane, and the nodes are where bundle lines cross the
 disks. A splat ends at its triangle's sharp edges (convex creases and boundaries:
 `evalkit.core.scene.edges.sharp_edges`), where a disk would stand out into empty space, and grows
-there, on its own triangle, until it keeps its disk's area (shaders/scene.glsl: sharp_splat_radius).
+there, on its own triangle and the neighbours in its plane, until it keeps its disk's area
+(shaders/scene.glsl: sharp_splat_radius, inside_splat).
 
 - ``points``: N points per direction (shaders/splat_points.glsl), stratified along a space-filling
   curve or independent (``sampler``), each with its splat's radius.
@@ -27,7 +28,7 @@ import moderngl
 import numpy as np
 
 from evalkit.core.errors import LimitError
-from evalkit.core.scene.edges import CREASE_DEGREES
+from evalkit.core.scene.edges import CREASE_DEGREES, FLAT_DEGREES
 from evalkit.core.settings import DEPTH_TOLERANCE, setting
 from gpu_impl.bundles import BundleTracer, LinkedListTracer
 from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT
@@ -97,7 +98,7 @@ class SplatTracer(BundleTracer):
         if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
             raise ValueError(f"the splat radius must be positive and finite, got {self.splat_radius}")
         super().__init__(gl, gpu_scene, settings, **hooks)
-        gpu_scene.sharp_edges()  # where splats end (shaders/scene.glsl: inside_sharp_edges)
+        gpu_scene.splat_shapes()  # where splats end and grow (shaders/scene.glsl: SplatShape)
         self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N))  # triangle 0 for a warm-up draw
 
     points_are = "splat points"
@@ -181,6 +182,7 @@ class SplatTracer(BundleTracer):
             "merged": self.merge,
             "crease_degrees": CREASE_DEGREES,
             "splats_keep_area": True,  # cut splats grow (shaders/scene.glsl: sharp_splat_radius)
+            "flat_degrees": FLAT_DEGREES,  # into neighbours in their plane (scene.glsl: inside_splat)
         }
 
     def read_points(self) -> np.ndarray:

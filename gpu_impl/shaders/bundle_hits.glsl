@@ -69,27 +69,6 @@ bool own_surface(uint ref, vec3 x, vec3 ng) {
 #endif
 }
 
-// Whether point y, on the plane of a node's surface, lies on that surface: inside its triangle
-// (perfect bundles), or within its splat's disk and inside its triangle's sharp edges (imperfect),
-// up to round-off.
-bool on_node_surface(uint ref, vec3 y) {
-#if NODE_REFERENCE == NODE_SPLAT_POINT
-    SplatSource s = splat_source(ref);
-    vec3 to_centre = y - s.centre;
-    float d2 = dot(to_centre, to_centre);
-    if (d2 > s.radius * s.radius * (1.0 + 1e-4)) return false;
-    uint sharp = triangle_sharp_edges(s.triangle);
-    bool beyond_disk = d2 > splat_radius * splat_radius * (1.0 + 1e-4);
-    return sharp == 0u ||
-           inside_splat(sharp, plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y), beyond_disk);
-#else
-    uvec3 v = triangle_vertices(ref);
-    vec3 p0 = vertex_position(v.x);
-    vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, y);
-    return b.x >= -1e-4 && b.y >= -1e-4 && b.x + b.y <= 1.0 + 1e-4;
-#endif
-}
-
 // Whether a node's surface is smaller than a bundle pixel (h, the lines' spacing): a triangle whose
 // longest edge, or a splat whose diameter, is shorter. Lines a pixel apart cannot tell a ray's miss
 // of such a triangle or splat from a miss of the surface it is part of (bundle_step.glsl).

@@ -28,6 +28,27 @@
 
 uniform float self_hit_bias;  // in bundle pixels, see below
 
+// Whether point y, on the plane of a node's surface, lies on that surface: inside its triangle
+// (perfect bundles), or within its splat's disk and shape (imperfect; scene.glsl: inside_splat, which SPLAT_SHAPES brings), up
+// to round-off.
+bool on_node_surface(uint ref, vec3 y) {
+#if NODE_REFERENCE == NODE_SPLAT_POINT
+    SplatSource s = splat_source(ref);
+    vec3 to_centre = y - s.centre;
+    float d2 = dot(to_centre, to_centre);
+    if (d2 > s.radius * s.radius * (1.0 + 1e-4)) return false;
+    if (!triangle_cut(s.triangle)) return true;
+    vec3 p0 = vertex_position(s.vertices.x);
+    bool beyond_disk = d2 > splat_radius * splat_radius * (1.0 + 1e-4);
+    return inside_splat(splat_shape(s.triangle, p0, s.e1, s.e2), plane_barycentrics(p0, s.e1, s.e2, y), beyond_disk);
+#else
+    uvec3 v = triangle_vertices(ref);
+    vec3 p0 = vertex_position(v.x);
+    vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, y);
+    return b.x >= -1e-4 && b.y >= -1e-4 && b.x + b.y <= 1.0 + 1e-4;
+#endif
+}
+
 struct BundleStep {
     bool leaves;     // the direction leaves x's geometric surface (else the path would enter it)
     uint hit;        // the node reached, NO_NODE where the ray leaves the scene

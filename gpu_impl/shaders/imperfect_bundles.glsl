@@ -1,13 +1,14 @@
 // Imperfect ray bundles drawn by the rasterizer (the poster's point splats; --splatter raster):
 // each direction draws its own N surface points (splat_points.glsl) as small triangles in the
 // tangent plane of the point's source triangle, and the fragment shader cuts the inscribed circle
-// out of the triangle, so overlapping splats add fewer redundant nodes, and the source triangle's
-// sharp edges off the circle (scene.glsl: inside_splat; the circle grown where they cut it). A
+// out of the triangle, so overlapping splats add fewer redundant nodes, and the lines that cut the
+// splat off the circle (scene.glsl: SplatShape; the circle grown where they cut it). A
 // node is its depth and the point (bundle.glsl), with FACING_BIT set when the splat faces along +d
 // (the merge in resolve_lists.glsl keeps surfaces facing either way apart). splat_lists.glsl
 // finds the same nodes without the rasterizer (--splatter compute, the default).
 
 #define NODE_REFERENCE NODE_SPLAT_POINT
+#define SPLAT_SHAPES
 #define LINKED_LISTS
 #extension GL_ARB_gpu_shader_int64 : require
 #include "common.glsl"
@@ -18,13 +19,16 @@
 #if defined VERTEX_SHADER
 
 out vec2 v_disk;  // position in the splat in units of its radius: the cut-out keeps |v_disk| <= 1
-out vec2 v_barycentrics;  // in the source triangle's plane: its sharp edges cut the splat too
+out vec2 v_barycentrics;  // in the source triangle's plane, where the splat's cut lines lie
 // Constant over a splat, handed over flat, so a fragment reads no memory.
 flat out vec3 v_depth_plane;  // depth at bundle pixel (i, j): dot(v_depth_plane, (1, i, j))
 flat out uint v_ref;          // the point | FACING_BIT
 flat out int v_direction;
-flat out uint v_sharp;
-flat out float v_disk_limit;  // |v_disk|^2 beyond which a splat grown at sharp edges keeps to its triangle
+flat out uint v_cut;  // whether lines cut the splat, and its shape (scene.glsl: SplatShape)
+flat out vec3 v_cuts[MAX_SPLAT_CUTS];
+flat out uint v_flat_edges;
+flat out mat3x2 v_far_corners;
+flat out float v_disk_limit;  // |v_disk|^2 beyond which a splat grown at sharp edges keeps to its surface
 
 void main() {
     uint splat = uint(gl_VertexID) / 3u;
@@ -39,8 +43,15 @@ void main() {
     float angle = 2.0943951023931953 * float(corner);
     v_disk = 2.0 * vec2(cos(angle), sin(angle));
     vec3 p = center + s.radius * (v_disk.x * tangent + v_disk.y * bitangent);
-    v_barycentrics = plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, p);
-    v_sharp = triangle_sharp_edges(s.triangle);
+    vec3 p0 = vertex_position(s.vertices.x);
+    v_barycentrics = plane_barycentrics(p0, s.e1, s.e2, p);
+    v_cut = triangle_cut(s.triangle) ? 1u : 0u;
+    if (v_cut != 0u) {
+        SplatShape shape = splat_shape(s.triangle, p0, s.e1, s.e2);
+        v_cuts = shape.cut;
+        v_flat_edges = shape.flat_edges;
+        v_far_corners = shape.far;
+    }
     v_disk_limit = (splat_radius / s.radius) * (splat_radius / s.radius);
 
     int k = int(splat / points_per_direction);
@@ -59,13 +70,18 @@ in vec2 v_barycentrics;
 flat in vec3 v_depth_plane;
 flat in uint v_ref;
 flat in int v_direction;
-flat in uint v_sharp;
+flat in uint v_cut;
+flat in vec3 v_cuts[MAX_SPLAT_CUTS];
+flat in uint v_flat_edges;
+flat in mat3x2 v_far_corners;
 flat in float v_disk_limit;
 
 void main() {
 #if !defined NULL_FRAGMENT
     if (dot(v_disk, v_disk) > 1.0) return;  // the circular cut-out
-    if (v_sharp != 0u && !inside_splat(v_sharp, v_barycentrics, dot(v_disk, v_disk) > v_disk_limit)) return;
+    if (v_cut != 0u &&
+        !inside_splat(SplatShape(v_cuts, v_flat_edges, v_far_corners), v_barycentrics, dot(v_disk, v_disk) > v_disk_limit))
+        return;
     ivec2 pixel = fragment_pixel(v_direction);
     if (pixel.x < 0) return;
     append_node(pixel_list(v_direction, pixel), dot(v_depth_plane, vec3(1.0, vec2(pixel))), v_ref);

@@ -7,7 +7,7 @@
 // a disk in its triangle's tangent plane, of the radius its share of the surface would have, as
 // the imperfect bundles' splats are: a point sprite covers the disk's widest extent, and each
 // fragment meets the disk's plane along its own direction, is cut out beyond the radius and beyond
-// the triangle's sharp edges (scene.glsl: inside_splat; the disk grown where they cut it, as the
+// the lines that cut it (scene.glsl: SplatShape; the disk grown where they cut it, as the
 // bundles' splats are), and stores that distance from the vertex; the depth test keeps the
 // nearest. A disk facing the vertex instead would stand a radius off its surface wherever the map
 // sees it at a grazing angle (a floor between the vertex and a receiver): atrium, 64 light
@@ -17,6 +17,7 @@
 
 #define SHADOW_MAP_RASTER
 #define SHADOW_LIGHTS 1
+#define SPLAT_SHAPES
 #include "common.glsl"
 #include "scene.glsl"
 #include "lights.glsl"
@@ -37,8 +38,11 @@ flat out vec3 v_centre;    // the disk's centre relative to the vertex
 flat out vec3 v_normal;    // its plane's normal
 flat out vec3 v_axis;      // the map's axis (the vertex's normal)
 flat out float v_far;      // 1 / the map's farthest distance
-flat out uint v_sharp;     // the triangle's sharp edges (scene.glsl: inside_splat)
-flat out float v_radius;   // the disk's radius, grown where sharp edges cut it (scene.glsl: sharp_splat_radius)
+flat out uint v_cut;       // whether lines cut the splat, and its shape (scene.glsl: SplatShape)
+flat out vec3 v_cuts[MAX_SPLAT_CUTS];
+flat out uint v_flat_edges;
+flat out mat3x2 v_far_corners;
+flat out float v_radius;   // the disk's radius, grown where lines cut it (scene.glsl: sharp_splat_radius)
 flat out vec2 v_b;         // the point's barycentrics
 flat out mat2x3 v_dual;    // an offset in the plane dotted with these: its barycentrics' change
                            // (scene.glsl's plane_barycentrics solved once per point, not per fragment)
@@ -60,9 +64,16 @@ void main() {
     v_tile = vec4(view.tile.xy, view.tile.xy + view.tile.z);
     v_centre = d;
     v_normal = normalize(cross(e1, e2));
-    v_sharp = triangle_sharp_edges(triangle);
+    v_cut = triangle_cut(triangle) ? 1u : 0u;
+    v_radius = splat_radius;
+    if (v_cut != 0u) {
+        SplatShape shape = splat_shape(triangle, p0, e1, e2);
+        v_cuts = shape.cut;
+        v_flat_edges = shape.flat_edges;
+        v_far_corners = shape.far;
+        v_radius = sharp_splat_radius(splat_radius, shape, b);
+    }
     v_b = b;
-    v_radius = v_sharp != 0u ? sharp_splat_radius(splat_radius, sharp_edge_heights(v_sharp, e1, e2), b) : splat_radius;
     float a11 = dot(e1, e1), a12 = dot(e1, e2), a22 = dot(e2, e2), det = a11 * a22 - a12 * a12;
     v_dual = mat2x3((a22 * e1 - a12 * e2) / det, (a11 * e2 - a12 * e1) / det);
     v_axis = view.axis.xyz;
@@ -91,7 +102,10 @@ flat in vec3 v_centre;
 flat in vec3 v_normal;
 flat in vec3 v_axis;
 flat in float v_far;
-flat in uint v_sharp;
+flat in uint v_cut;
+flat in vec3 v_cuts[MAX_SPLAT_CUTS];
+flat in uint v_flat_edges;
+flat in mat3x2 v_far_corners;
 flat in float v_radius;
 flat in vec2 v_b;
 flat in mat2x3 v_dual;
@@ -111,7 +125,7 @@ void main() {
     float d2 = dot(offset, offset);
     if (d2 > v_radius * v_radius) discard;
     vec2 b = v_b + vec2(dot(offset, v_dual[0]), dot(offset, v_dual[1]));
-    if (v_sharp != 0u && !inside_splat(v_sharp, b, d2 > splat_radius * splat_radius)) discard;
+    if (v_cut != 0u && !inside_splat(SplatShape(v_cuts, v_flat_edges, v_far_corners), b, d2 > splat_radius * splat_radius)) discard;
     out_distance = vec2(t, NO_SURFACE);
     gl_FragDepth = clamp(t * v_far, 0.0, 1.0);
 }

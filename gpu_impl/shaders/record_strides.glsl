@@ -9,6 +9,7 @@
 
 #if RECORD_GROUP == 0 || RECORD_GROUP == 5
 #define NODE_REFERENCE NODE_SPLAT_POINT
+#define SPLAT_SHAPES
 #include "scene.glsl"
 #include "bundle.glsl"
 #elif RECORD_GROUP == 1
@@ -37,6 +38,7 @@ void main() {
     lengths[1] = uint(triangles.length());
     lengths[2] = uint(vertices.length());
     lengths[3] = uint(points.length());
+    lengths[4] = uint(splat_shapes.length());
 #elif RECORD_GROUP == 5
     lengths[0] = uint(frames[MAX_DIRECTIONS - 1].d.w);
 #elif RECORD_GROUP == 1

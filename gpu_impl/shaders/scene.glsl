@@ -19,8 +19,8 @@ struct Vertex {
     float nx, ny, nz;  // normal; zero where a mesh has none
     float u, v;
 };
-// The flags MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE_SMOOTH, TRIANGLE_SOLID, the mask TRIANGLE_MATERIAL
-// and TRIANGLE_SHARP_SHIFT come from gpu_impl/layout.py.
+// The flags MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE_SMOOTH, TRIANGLE_SOLID, TRIANGLE_CUT, the
+// mask TRIANGLE_MATERIAL and MAX_SPLAT_CUTS come from gpu_impl/layout.py.
 
 layout(std430, binding = BINDING_MATERIALS) readonly buffer Materials { Material materials[]; };
 layout(std430, binding = BINDING_TRIANGLES) readonly buffer Triangles { Triangle triangles[]; };
@@ -43,61 +43,10 @@ bool triangle_solid(uint t) {
     return (triangles[t].material_flags & TRIANGLE_SOLID) != 0u;
 }
 
-// The triangle's sharp edges, bit e for edge e from corner e to corner e + 1 (gpu_impl/scene_buffers.py:
-// sharp_edges; all clear until splats ask for them).
-uint triangle_sharp_edges(uint t) {
-    return (triangles[t].material_flags >> TRIANGLE_SHARP_SHIFT) & 7u;
-}
-
-// A splat (imperfect bundles', imperfect shadow maps') ends at its triangle's sharp edges: reaching
-// over a convex crease or a boundary, a flat disk would stand out into empty space, and lines
-// passing there would find a surface that is not there (docs/MEASURED_FACTS.md, "Splats end at
-// sharp edges"). A point of the triangle's plane with barycentrics b lies inside edge 0 (corners 0
-// to 1) where b2 >= 0, inside edge 1 where 1 - b1 - b2 >= 0 and inside edge 2 where b1 >= 0, up to
-// round-off.
-bool inside_sharp_edges(uint sharp, vec2 b) {
-    const float tolerance = -1e-4;
-    return ((sharp & 1u) == 0u || b.y >= tolerance) && ((sharp & 2u) == 0u || 1.0 - b.x - b.y >= tolerance) &&
-           ((sharp & 4u) == 0u || b.x >= tolerance);
-}
-
-// The heights of a triangle with edges e1, e2 over its sharp edges, edge e (corner e to e + 1) in
-// component e, and 3.4e38 over the others: a point's distance from edge e is its barycentric
-// weight of the corner opposite (b2, 1 - b1 - b2, b1) times that height.
-vec3 sharp_edge_heights(uint sharp, vec3 e1, vec3 e2) {
-    float twice_area = length(cross(e1, e2));
-    vec3 heights = twice_area / vec3(length(e1), length(e2 - e1), length(e2));
-    return mix(heights, vec3(3.4e38), equal(sharp & uvec3(1u, 2u, 4u), uvec3(0u)));
-}
-
-// The radius of a splat of radius r, centred at barycentrics b of a triangle with the given
-// heights over its sharp edges (sharp_edge_heights), that keeps the area pi r^2 of its disk where
-// those edges cut it. A point stands for its share of the surface; cut down to half a disk at an
-// edge, the splats would cover a line's crossing near the edge half as often as elsewhere, and
-// light would leak along every crease (docs/MEASURED_FACTS.md, "Cut splats keep their area"). The
-// disk grows along the edge instead: radius R keeps pi R^2 less a segment of
-// R^2 (acos t - t sqrt(1 - t^2)), t = d / R, for each sharp edge at distance d < R (a few
-// fixed-point steps; the kept area changes slowly with R). Overlapping segments (at a corner) are
-// counted twice, which the cap of 2 r (a quarter disk's area) bounds.
-float sharp_splat_radius(float r, vec3 heights, vec2 b) {
-    vec3 cut = max(vec3(b.y, 1.0 - b.x - b.y, b.x), 0.0) * heights;
-    if (min(min(cut.x, cut.y), cut.z) >= r) return r;
-    float R = r;
-    for (int i = 0; i < 4; i++) {
-        vec3 t = clamp(cut / R, 0.0, 1.0);
-        vec3 segments = acos(t) - t * sqrt(1.0 - t * t);
-        R = r * sqrt(PI / max(PI - segments.x - segments.y - segments.z, 0.25 * PI));
-    }
-    return R;
-}
-
-// Whether a point of a splat's plane at barycentrics b, within the splat's radius, lies in the
-// splat: inside the triangle's sharp edges and, where it lies beyond the disk's radius before it
-// grew (beyond_disk), inside the triangle. The part grown at a sharp edge stays on the triangle,
-// so it adds coverage of the surface itself and never reaches over its smooth edges onto a
-// curved neighbour's offset surface.
-bool inside_splat(uint sharp, vec2 b, bool beyond_disk) {
-    return inside_sharp_edges(beyond_disk ? 7u : sharp, b);
+// Whether lines cut the triangle's splats: its own sharp edges or its flat neighbours'
+// (gpu_impl/scene_buffers.py: splat_shapes; all clear until splats ask).
+bool triangle_cut(uint t) {
+    return (triangles[t].material_flags & TRIANGLE_CUT) != 0u;
 }
 
 bool material_twosided(uint m) {
@@ -137,6 +86,104 @@ vec2 plane_barycentrics(vec3 p0, vec3 e1, vec3 e2, vec3 p) {
     float a = dot(e1, e1), b = dot(e1, e2), c = dot(e2, e2);
     return vec2(c * dot(q, e1) - b * dot(q, e2), a * dot(q, e2) - b * dot(q, e1)) / (a * c - b * b);
 }
+
+// SPLAT_SHAPES: the passes that cut splats (imperfect bundles' points, builders and steps,
+// imperfect shadow maps) read each triangle's flat neighbours and cut lines; the others leave
+// their buffers out (a compute pass may use at most 16 storage blocks).
+#if defined SPLAT_SHAPES
+// One array of 16-byte entries (gpu_impl/scene_buffers.py: splat_shapes), for a pass may use at
+// most 16 storage blocks. Entry t, for each triangle and one past the last: x, y, z the far corner
+// of the triangle across edge e (corner e to e + 1) if the two lie in one plane, else NO_NEIGHBOUR
+// (evalkit/core/scene/edges.py: flat_neighbours); w the entry of its first cut line, up to the
+// next triangle's w. A cut line's entry holds the bits of (l1, l2, l0): l1 b1 + l2 b2 + l0 is the
+// distance of the point at barycentrics b from the line, positive on the surface's side
+// (splat_cuts).
+layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uvec4 splat_shapes[]; };
+
+// What bounds a splat (imperfect bundles', imperfect shadow maps'), worked out once per splat:
+// - The lines that cut it: the sharp edges of its triangle and of the triangle's flat neighbours.
+//   Reaching over a convex crease or a boundary, a flat disk would stand out into empty space,
+//   and lines passing there would find a surface that is not there (docs/MEASURED_FACTS.md,
+//   "Splats end at sharp edges"). Column i: (l1, l2, l0), past the last line one no point is
+//   beyond.
+// - The edges across which a neighbour lies in the plane (bit e) and those neighbours' far corners
+//   in the triangle's barycentrics (column e): where the part grown at the cuts may reach.
+struct SplatShape {
+    vec3 cut[MAX_SPLAT_CUTS];
+    uint flat_edges;
+    mat3x2 far;
+};
+
+SplatShape splat_shape(uint t, vec3 p0, vec3 e1, vec3 e2) {
+    SplatShape shape;
+    uvec4 entry = splat_shapes[t];
+    uint count = splat_shapes[t + 1u].w - entry.w;
+    for (uint i = 0u; i < uint(MAX_SPLAT_CUTS); i++) {
+        shape.cut[i] = i < count ? uintBitsToFloat(splat_shapes[entry.w + i].xyz) : vec3(0.0, 0.0, 3.4e38);
+    }
+    shape.flat_edges = 0u;
+    shape.far = mat3x2(0.0);
+    for (uint e = 0u; e < 3u; e++) {
+        uint far = entry[e];
+        if (far == NO_NEIGHBOUR) continue;
+        shape.flat_edges |= 1u << e;
+        shape.far[e] = plane_barycentrics(p0, e1, e2, vertex_position(far));
+    }
+    return shape;
+}
+
+// The radius of a splat of radius r, centred at barycentrics b, that keeps the area pi r^2 of its
+// disk where its shape's lines cut it. A point stands for its share of the surface; cut down to
+// half a disk at an edge, the splats would cover a line's crossing near the edge half as often as
+// elsewhere, and light would leak along every crease (docs/MEASURED_FACTS.md, "Cut splats keep
+// their area"). The disk grows along the edge instead: radius R keeps pi R^2 less a segment of
+// R^2 (acos t - t sqrt(1 - t^2)), t = d / R, for each line at distance d < R (a few fixed-point
+// steps; the kept area changes slowly with R). Overlapping segments (at a corner) are counted
+// twice, which the cap of 2 r (a quarter disk's area) bounds.
+float sharp_splat_radius(float r, SplatShape shape, vec2 b) {
+    float cut[MAX_SPLAT_CUTS];
+    float nearest = 3.4e38;
+    for (int i = 0; i < MAX_SPLAT_CUTS; i++) {
+        cut[i] = max(dot(shape.cut[i], vec3(b, 1.0)), 0.0);
+        nearest = min(nearest, cut[i]);
+    }
+    if (nearest >= r) return r;
+    float R = r;
+    for (int step = 0; step < 4; step++) {
+        float lost = 0.0;
+        for (int i = 0; i < MAX_SPLAT_CUTS; i++) {
+            float t = clamp(cut[i] / R, 0.0, 1.0);
+            lost += acos(t) - t * sqrt(1.0 - t * t);
+        }
+        R = r * sqrt(PI / max(PI - lost, 0.25 * PI));
+    }
+    return R;
+}
+
+// Whether a point of a splat's plane at barycentrics b, within the splat's radius, lies in the
+// splat: on the inner side of every line that cuts it (up to round-off: 1e-4 of the line's rate
+// of change per unit of barycentrics) and, where it lies beyond the disk's radius before it grew
+// (beyond_disk), on the surface the splat stands for: inside the triangle or inside one of its
+// flat neighbours. The part grown at the cuts adds coverage of the surface itself; it never
+// reaches over a smooth edge onto a curved neighbour's offset surface.
+bool inside_splat(SplatShape shape, vec2 b, bool beyond_disk) {
+    for (int i = 0; i < MAX_SPLAT_CUTS; i++) {
+        vec3 l = shape.cut[i];
+        if (dot(l, vec3(b, 1.0)) < -1e-4 * max(abs(l.x), abs(l.y))) return false;
+    }
+    vec3 within = vec3(b.y, 1.0 - b.x - b.y, b.x);  // the weight opposite edge e: negative beyond it
+    if (!beyond_disk || min(min(within.x, within.y), within.z) >= -1e-4) return true;
+    const vec2 corners[3] = vec2[3](vec2(0.0), vec2(1.0, 0.0), vec2(0.0, 1.0));
+    for (int e = 0; e < 3; e++) {
+        if (within[e] >= 0.0 || (shape.flat_edges & (1u << uint(e))) == 0u) continue;
+        // b in the neighbour (corner e, corner e + 1, far corner): its weights of the last two.
+        vec2 a = corners[e];
+        vec2 w = inverse(mat2(corners[(e + 1) % 3] - a, shape.far[e] - a)) * (b - a);
+        if (min(w.x, w.y) >= -1e-4 && w.x + w.y <= 1.0 + 1e-4) return true;
+    }
+    return false;
+}
+#endif
 
 vec3 texel(uint first, uint width, int x, int y) {
     uint i = 3u * (first + uint(y) * width + uint(x));

@@ -23,13 +23,15 @@
 // |q - c|^2 = du^2 + dv^2 + (n_u du + n_v dv)^2 / n_d^2, so in pixels, with everything times n_d^2,
 // (n_d^2 + n_u^2) du^2 + 2 n_u n_v du dv + (n_d^2 + n_v^2) dv^2 <= (r n_d)^2: an ellipse, whose rows
 // are solved for their span of columns. The depth at a line is the splat plane's (depth_plane),
-// the same as the raster splatter's. A line beyond one of the triangle's sharp edges is not in the
-// splat, nor one outside the triangle beyond the disk's radius before it grew at those edges
-// (scene.glsl: inside_splat); its barycentrics are the centre's plus its offset in pixels mapped
+// the same as the raster splatter's. A line beyond one of the lines that cut the splat (its
+// triangle's sharp edges and its flat neighbours') is not in the splat, nor one off the triangle
+// and its flat neighbours beyond the disk's radius before it grew at those lines (scene.glsl:
+// inside_splat); its barycentrics are the centre's plus its offset in pixels mapped
 // back through the triangle's edges as the bundle sees them.
 
 #extension GL_ARB_gpu_shader_int64 : require
 #define NODE_REFERENCE NODE_SPLAT_POINT
+#define SPLAT_SHAPES
 #define SLOT_LISTS
 #define NODE_KEYS
 #define SPLAT_LINE_RECORDS
@@ -67,7 +69,7 @@ uniform bool nearest_only;
 // q. A neighbour smaller than this splat (this one grown more at sharp edges) must also reach the
 // line: (q - e)' M (q - e) <= E_j, its own ellipse's size, or dot(q, 2 M e) >= q' M q + e' M e - E_j.
 // Nearer and reaching, it covers the line: within its disk where this splat's line is within this
-// one's, on the triangle where it is beyond. The two splats work it out with different rounding,
+// one's, on the triangle or its flat neighbours where it is beyond. The two splats work it out with different rounding,
 // so a splat defers only by a clear MARGIN of the ellipse's size: near a tie both keep the line
 // (a redundant node, which the merge removes), never neither.
 #define NEIGHBOURS 4
@@ -127,8 +129,10 @@ uint splat(uint id) {
     uint first_point = uint(k) * points_per_direction, end_point = first_point + points_per_direction;
     // The triangle's edges in pixels: a neighbour's offset is linear in its barycentrics' offset.
     mat2 edges = pixels * mat2(dot(e1, f.u.xyz), dot(e1, f.v.xyz), dot(e2, f.u.xyz), dot(e2, f.v.xyz));
-    uint sharp = triangle_sharp_edges(t);
-    mat2 to_barycentrics = sharp != 0u ? inverse(edges) : mat2(0.0);
+    bool cut = triangle_cut(t);
+    SplatShape shape;
+    if (cut) shape = splat_shape(t, vertex_position(s.vertices.x), e1, e2);
+    mat2 to_barycentrics = cut ? inverse(edges) : mat2(0.0);
     for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
         uint j = id + uint(slot < NEIGHBOURS ? slot - NEIGHBOURS : slot - NEIGHBOURS + 1);
         bool here = nearest_only && j >= first_point && j < end_point && points[j].triangle == t;
@@ -143,12 +147,19 @@ uint splat(uint id) {
         smaller = smaller || (here && rj < rp);
     }
     // Where the lines can be: the ellipse's box and, for a splat grown at sharp edges, what
-    // covers both the disk before it grew and the triangle, whose lines alone the growth adds.
+    // covers the disk before it grew, the triangle and its flat neighbours, whose lines alone the
+    // growth adds.
     vec2 lo = vec2(-1e9), hi = vec2(1e9);
     if (s.radius > splat_radius) {
         vec2 v0 = edges * -b, v1 = edges * (vec2(1.0, 0.0) - b), v2 = edges * (vec2(0.0, 1.0) - b);
         lo = c + min(vec2(-disk_pixels), min(min(v0, v1), v2));
         hi = c + max(vec2(disk_pixels), max(max(v0, v1), v2));
+        for (uint e = 0u; e < 3u; e++) {
+            if ((shape.flat_edges & (1u << e)) == 0u) continue;
+            vec2 v = edges * (shape.far[e] - b);
+            lo = min(lo, c + v);
+            hi = max(hi, c + v);
+        }
     }
     // Rows: |dy| <= rp sqrt(1 - n_v^2), the ellipse's half-height.
     precise float half_height = rp * sqrt(max(0.0, 1.0 - nv * nv));
@@ -172,11 +183,11 @@ uint splat(uint id) {
         int x0 = max(max(0, column_lo), int(ceil(c.x + (-B * dy - root) / A)));
         int x1 = min(min(resolution - 1, column_hi), int(floor(c.x + (-B * dy + root) / A)));
         for (int x = x0; x <= x1; x++) {
-            if (sharp != 0u) {
+            if (cut) {
                 precise vec2 q = vec2(float(x) - c.x, dy);
                 precise vec2 line_barycentrics = b + to_barycentrics * q;
                 bool beyond_disk = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y > E_disk;
-                if (!inside_splat(sharp, line_barycentrics, beyond_disk)) continue;
+                if (!inside_splat(shape, line_barycentrics, beyond_disk)) continue;
             }
             covered++;
             if (neighbours) {

@@ -11,6 +11,7 @@
 //   stratified_point). Fewer holes for the same splat size, so fewer nodes.
 
 #define NODE_REFERENCE NODE_SPLAT_POINT
+#define SPLAT_SHAPES
 #define SPLAT_POINTS_WRITE
 #include "common.glsl"
 #include "scene.glsl"
@@ -44,13 +45,12 @@ void main() {
 #endif
     // The radius from the barycentrics as stored, which every pass reads.
     uint stored = packUnorm2x16(b);
-    uint sharp = triangle_sharp_edges(triangle);
     float point_radius = splat_radius;
-    if (sharp != 0u) {
+    if (triangle_cut(triangle)) {
         uvec3 v = triangle_vertices(triangle);
         vec3 p0 = vertex_position(v.x);
-        vec3 heights = sharp_edge_heights(sharp, vertex_position(v.y) - p0, vertex_position(v.z) - p0);
-        point_radius = sharp_splat_radius(splat_radius, heights, unpackUnorm2x16(stored));
+        SplatShape shape = splat_shape(triangle, p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0);
+        point_radius = sharp_splat_radius(splat_radius, shape, unpackUnorm2x16(stored));
     }
     points[id] = SplatPoint(triangle, stored, point_radius);
 }

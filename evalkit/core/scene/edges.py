@@ -13,6 +13,13 @@ import numpy as np
 # smooth surface (docs/MEASURED_FACTS.md, "Splats end at sharp edges"): tessellated curved
 # surfaces part by less (atrium's columns by 7.5 degrees, a 16-sided cylinder by 22.5).
 CREASE_DEGREES = 30.0
+# Two triangles across an edge whose normals part by less than this lie in one plane to a splat:
+# the part of a splat grown at a sharp edge may reach from one into the other (flat_neighbours).
+# Over a splat's radius r it stands off the other by at most r sin(0.5 degrees) < r / 100.
+FLAT_DEGREES = 0.5
+# The most lines that cut one triangle's splats (splat_cuts): k sharp edges of its own and two of
+# each of its 3 - k flat neighbours.
+MAX_SPLAT_CUTS = 6
 
 
 def _edges(positions: np.ndarray, faces: np.ndarray):
@@ -54,6 +61,23 @@ def solid_triangles(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return solid
 
 
+def _edge_pairs(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray):
+    """The edges shared by exactly two triangles, each side as (triangle, edge e from corner e to
+    e + 1): sides (t0, e0) and (t1, e1), t indexing `_edges`' kept triangles, with kept, corners and
+    shared from `_edges`, the second normal turned to agree with the first where the two
+    triangles run the edge the same way (inconsistent), and whether they run it opposite ways."""
+    kept, corners, edge, shared = _edges(positions, faces)
+    flat_edge = edge.reshape(-1)
+    slot = np.arange(flat_edge.size)
+    order = np.argsort(flat_edge, kind="stable")
+    pair = order[np.isin(flat_edge[order], np.flatnonzero(shared == 2))].reshape(-1, 2)
+    (t0, e0), (t1, e1) = np.divmod(slot[pair[:, 0]], 3), np.divmod(slot[pair[:, 1]], 3)
+    consistent = corners[t0, e0] == corners[t1, (e1 + 1) % 3]  # one runs a -> b, the other b -> a
+    n0, n1 = normals[kept[t0]], normals[kept[t1]]
+    n1 = np.where(consistent[:, None], n1, -n1)
+    return kept, edge, shared, (t0, e0), (t1, e1), n0, n1, consistent
+
+
 def sharp_edges(
     positions: np.ndarray, faces: np.ndarray, normals: np.ndarray, crease_degrees: float = CREASE_DEGREES
 ) -> np.ndarray:
@@ -68,21 +92,11 @@ def sharp_edges(
     sharp = np.zeros((len(faces), 3), dtype=bool)
     if not len(faces):
         return sharp
-    kept, corners, edge, shared = _edges(positions, faces)
-    flat_edge = edge.reshape(-1)
-    slot = np.arange(flat_edge.size)
-    own = np.zeros((len(kept), 3), dtype=bool)
-    own.reshape(-1)[shared[flat_edge] != 2] = True
-    # The two sides of every edge shared by two triangles, side by side.
-    order = np.argsort(flat_edge, kind="stable")
-    pair = order[np.isin(flat_edge[order], np.flatnonzero(shared == 2))].reshape(-1, 2)
-    (t0, e0), (t1, e1) = np.divmod(slot[pair[:, 0]], 3), np.divmod(slot[pair[:, 1]], 3)
-    i0, i1 = kept[t0], kept[t1]
-    n0, n1 = normals[i0], normals[i1]
-    consistent = corners[t0, e0] == corners[t1, (e1 + 1) % 3]  # one runs a -> b, the other b -> a
-    n1 = np.where(consistent[:, None], n1, -n1)
+    kept, edge, shared, (t0, e0), (t1, e1), n0, n1, consistent = _edge_pairs(positions, faces, normals)
+    own = shared[edge] != 2
     bent = np.einsum("ij,ij->i", n0, n1) < math.cos(math.radians(crease_degrees))
     # Convex: the other triangle's far corner lies behind this one's front.
+    i0, i1 = kept[t0], kept[t1]
     far = positions[faces[i1, (e1 + 2) % 3]] - positions[faces[i0, e0]]
     convex = np.einsum("ij,ij->i", n0, far) < 0
     crease = bent & (convex | ~consistent)
@@ -90,6 +104,100 @@ def sharp_edges(
     own[t1, e1] |= crease
     sharp[kept] = own
     return sharp
+
+
+def flat_neighbours(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(T, 3) int64: per triangle and edge e (corner e to e + 1), the same edge as the triangle
+    across it numbers it, 3 u + e_u, when the two lie in one plane (normals within `FLAT_DEGREES`,
+    facing the same way), else -1; its far corner is faces[u, (e_u + 2) % 3]. A splat grown at a
+    sharp edge may reach into such a neighbour, whose surface continues its own
+    (shaders/scene.glsl: inside_splat), and ends at its sharp edges too (`splat_cuts`)."""
+    across = np.full((len(faces), 3), -1, dtype=np.int64)
+    if not len(faces):
+        return across
+    kept, _, _, (t0, e0), (t1, e1), n0, n1, consistent = _edge_pairs(positions, faces, normals)
+    flat = consistent & (np.einsum("ij,ij->i", n0, n1) > math.cos(math.radians(FLAT_DEGREES)))
+    i0, i1, e0, e1 = kept[t0[flat]], kept[t1[flat]], e0[flat], e1[flat]
+    across[i0, e0] = 3 * i1 + e1
+    across[i1, e1] = 3 * i0 + e0
+    return across
+
+
+def splat_cuts(
+    positions: np.ndarray,
+    faces: np.ndarray,
+    normals: np.ndarray,
+    crease_degrees: float = CREASE_DEGREES,
+    neighbours: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The lines that cut each triangle's splats: the sharp edges (`sharp_edges`) of the triangle
+    and of its flat neighbours (`flat_neighbours`), a surface's outline near the splat. A splat ends
+    at each and grows to keep its disk's area (shaders/scene.glsl: sharp_splat_radius); a splat on a
+    triangle that only touches an outline through its neighbour would otherwise stand out past it,
+    and cover the crossings there half as often as its neighbour's grown splats do.
+
+    Returns ``first`` (T + 1,): triangle t's lines are ``lines[first[t]:first[t + 1]]``, and
+    ``lines`` (L, 3): each line (l1, l2, l0) as an affine function of barycentrics in the triangle's
+    plane, l1 b1 + l2 b2 + l0, the signed distance from the line, positive on the surface's side.
+    A neighbour's edge whose line cuts through the triangle itself (a notch in a flat outline) is
+    left out, and a line that repeats one already listed (an outline along several triangles) is
+    listed once. At most `MAX_SPLAT_CUTS` lines cut a triangle's splats: k of its own edges and two
+    of each of the 3 - k neighbours'. ``neighbours=False``: the triangle's own sharp edges only (as
+    splats were cut before they reached into flat neighbours)."""
+    sharp = sharp_edges(positions, faces, normals, crease_degrees)
+    across = flat_neighbours(positions, faces, normals) if neighbours else np.full((len(faces), 3), -1)
+    corners = positions[faces]  # (T, 3, 3)
+    p0, e1, e2 = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    # Candidates (triangle t, triangle u, u's edge e): t's own sharp edges, then its flat neighbours'.
+    t, e = np.nonzero(sharp)
+    t_list, u_list, e_list = [t], [t], [e]
+    t, slot = np.nonzero(across >= 0)
+    u = across[t, slot] // 3
+    for e in range(3):
+        cut = sharp[u, e]
+        t_list.append(t[cut])
+        u_list.append(u[cut])
+        e_list.append(np.full(int(cut.sum()), e))
+    t, u, e = np.concatenate(t_list), np.concatenate(u_list), np.concatenate(e_list)
+    a = corners[u, e]
+    along = corners[u, (e + 1) % 3] - a
+    inward = np.cross(normals[t], along)
+    inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+    # Turned towards the edge's own triangle: its third corner lies on the surface's side.
+    side = np.sign(np.einsum("ij,ij->i", corners[u, (e + 2) % 3] - a, inward))
+    inward *= np.where(side < 0, -1.0, 1.0)[:, None]
+    lines = np.stack(
+        [
+            np.einsum("ij,ij->i", e1[t], inward),
+            np.einsum("ij,ij->i", e2[t], inward),
+            np.einsum("ij,ij->i", p0[t] - a, inward),
+        ],
+        axis=1,
+    )
+    # Distances of the triangle's own corners: a line that cuts the triangle is a notch's.
+    at_corners = lines[:, 2:3] + np.stack([np.zeros(len(t)), lines[:, 0], lines[:, 1]], axis=1)
+    size = np.linalg.norm(np.stack([e1[t], e2[t]], axis=1), axis=2).max(axis=1)
+    keep = at_corners.min(axis=1) >= -1e-6 * size
+    t, lines, size = t[keep], lines[keep], size[keep]
+    # One line per triangle however many of its neighbours run along it.
+    key = np.round(np.column_stack([t, lines / size[:, None] * 1e6])).astype(np.int64)
+    _, unique = np.unique(key, axis=0, return_index=True)
+    order = unique[np.argsort(t[unique], kind="stable")]
+    first = np.searchsorted(t[order], np.arange(len(faces) + 1))
+    return first, lines[order]
+
+
+def cut_distances(first: np.ndarray, lines: np.ndarray, t: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(M, MAX_SPLAT_CUTS): the signed distances of points at barycentrics ``b`` (M, 2) of
+    triangles ``t`` (M,) from the lines that cut their splats (`splat_cuts`' ``first``, ``lines``),
+    inf past a triangle's last line."""
+    distances = np.full((len(t), MAX_SPLAT_CUTS), np.inf)
+    count = first[t + 1] - first[t]
+    for i in range(MAX_SPLAT_CUTS):
+        has = count > i
+        line = lines[first[t[has]] + i]
+        distances[has, i] = line[:, 0] * b[has, 0] + line[:, 1] * b[has, 1] + line[:, 2]
+    return distances
 
 
 def plane_barycentrics(p: np.ndarray, p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
@@ -102,23 +210,17 @@ def plane_barycentrics(p: np.ndarray, p0: np.ndarray, p1: np.ndarray, p2: np.nda
     return np.stack([bb * dot(q, e1) - ab * dot(q, e2), aa * dot(q, e2) - ab * dot(q, e1)], axis=1) / det[:, None]
 
 
-def sharp_splat_radii(r: float, sharp: np.ndarray, b: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
-    """The radii (M,) of splats of radius ``r`` at barycentrics ``b`` (M, 2) of triangles with edges
-    ``e1``, ``e2`` (M, 3) and sharp edges ``sharp`` (M, 3), as shaders/scene.glsl's
-    sharp_splat_radius grows them: a splat cut by a sharp edge grows until the part kept has its
-    disk's area pi r^2. A disk of radius R loses R^2 (acos t - t sqrt(1 - t^2)), t = d / R, to each
-    sharp edge at distance d < R; the kept area is held at a quarter disk at least (R <= 2 r), which
-    bounds the corners, where the lost segments overlap and are counted twice. Four fixed-point
-    steps, as the shader takes."""
-    twice_area = np.linalg.norm(np.cross(e1, e2), axis=1)
-    lengths = np.stack([np.linalg.norm(e1, axis=1), np.linalg.norm(e2 - e1, axis=1), np.linalg.norm(e2, axis=1)], 1)
-    # Edge e runs from corner e to e + 1, opposite the corner of weight b2, 1 - b1 - b2, b1.
-    weights = np.maximum(np.stack([b[:, 1], 1.0 - b[:, 0] - b[:, 1], b[:, 0]], 1), 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cut = np.where(sharp, weights * twice_area[:, None] / lengths, np.inf)
-    radius = np.full(len(b), float(r))
+def sharp_splat_radii(r: float, distances: np.ndarray) -> np.ndarray:
+    """The radii (M,) of splats of radius ``r`` whose centres lie ``distances`` (M, K) from the lines
+    that cut them (`cut_distances`), as shaders/scene.glsl's sharp_splat_radius grows them: a cut
+    splat grows until the part kept has its disk's area pi r^2. A disk of radius R loses R^2 (acos t
+    - t sqrt(1 - t^2)), t = d / R, to each line at distance d < R; the kept area is held at a quarter
+    disk at least (R <= 2 r), which bounds the corners, where the lost segments overlap and are
+    counted twice. Four fixed-point steps, as the shader takes."""
+    cut = np.maximum(distances, 0.0)
+    radius = np.full(len(cut), float(r))
     for _ in range(4):
         t = np.clip(cut / radius[:, None], 0.0, 1.0)
         lost = (np.arccos(t) - t * np.sqrt(1.0 - t * t)).sum(axis=1)
         radius = r * np.sqrt(np.pi / np.maximum(np.pi - lost, 0.25 * np.pi))
-    return np.where(np.min(cut, axis=1) >= r, float(r), radius)
+    return np.where(np.min(cut, axis=1, initial=np.inf) >= r, float(r), radius)
