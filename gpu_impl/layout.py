@@ -94,8 +94,6 @@ TRIANGLE_SOLID = np.uint32(0x40000000)
 # or its flat neighbours' (evalkit/core/scene/edges.py: splat_cuts)
 TRIANGLE_CUT = np.uint32(0x08000000)
 TRIANGLE_MATERIAL = np.uint32(0x07FFFFFF)  # Triangle.material_flags: the material index
-# A triangle's edge with no neighbour in its plane (scene.glsl: splat_shapes)
-NO_NEIGHBOUR = np.uint32(0xFFFFFFFF)
 # Light.position.w; "emitter_sample" is a point drawn on an emissive triangle for next-event
 # estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its
 # normal; "light_path_vertex" is a vertex a light path left on a surface (strategies/bidirectional.py),
@@ -137,7 +135,6 @@ SHADER_CONSTANTS = {
     "TRIANGLE_CUT": TRIANGLE_CUT,
     "MAX_SPLAT_CUTS": MAX_SPLAT_CUTS,
     "TRIANGLE_SOLID": TRIANGLE_SOLID,
-    "NO_NEIGHBOUR": NO_NEIGHBOUR,
     "FACING_BIT": FACING_BIT,
     "FACING_IMAGE_NEAREST": FACING_IMAGE_UNITS[0],
     "FACING_IMAGE_NEXT": FACING_IMAGE_UNITS[1],
@@ -165,9 +162,10 @@ SHADER_CONSTANTS = {
 MATERIAL = np.dtype([("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "<u4", 4)])  # scene.glsl: Material
 TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.glsl: Triangle
 VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
-SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4"), ("radius", "<f4")])  # bundle.glsl: SplatPoint
-# scene.glsl: splat_shapes, a triangle's entry (far corners, first cut line's entry) or a cut line's
-SPLAT_SHAPE_ENTRY = np.dtype(("<u4", 4))
+# bundle.glsl: SplatPoint
+SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4"), ("radius", "<f4"), ("cut_lines", "<u4")])
+# scene.glsl: splat_shapes, a triangle's first cut line's word or a third of a line
+SPLAT_SHAPE_WORD = np.dtype("<u4")
 # bundle.glsl: BundleFrame, in a uniform block: three vec4, so std140 lays it out as std430 would.
 BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])
 LIGHT = np.dtype(
@@ -223,7 +221,7 @@ RECORDS = {
     "Triangle": (TRIANGLE, "TRIANGLES"),
     "Vertex": (VERTEX, "VERTICES"),
     "SplatPoint": (SPLAT_POINT, "POINTS"),
-    "SplatShapeEntry": (SPLAT_SHAPE_ENTRY, "SPLAT_SHAPES"),
+    "SplatShapeWord": (SPLAT_SHAPE_WORD, "SPLAT_SHAPES"),
     "Light": (LIGHT, "LIGHTS"),
     "LightPathStart": (LIGHT_PATH_START, "LIGHT_PATH_STARTS"),
     "LightPathVertex": (LIGHT_PATH_VERTEX, "LIGHT_PATH_VERTICES"),

@@ -6,14 +6,13 @@ import numpy as np
 
 from evalkit.core.bundleset import FRAME_PADDING
 from evalkit.core.scene import Scene
-from evalkit.core.scene.edges import flat_neighbours, solid_triangles, splat_cuts
+from evalkit.core.scene.edges import solid_triangles, splat_cuts
 from gpu_impl.context import GLContext
 from gpu_impl.layout import (
     BINDINGS,
     MATERIAL,
     MATERIAL_TEXTURED,
     MATERIAL_TWOSIDED,
-    NO_NEIGHBOUR,
     TRIANGLE,
     TRIANGLE_CUT,
     TRIANGLE_SMOOTH,
@@ -118,21 +117,15 @@ class GpuScene:
 
     def splat_shapes(self) -> np.ndarray:
         """Per triangle, how many lines cut its splats (`evalkit.core.scene.edges.splat_cuts`: its
-        sharp edges and its flat neighbours'; TRIANGLE_CUT in the triangle records) and which
-        neighbours in its plane their grown parts may reach into (`flat_neighbours`), in the
-        SPLAT_SHAPES buffer that shaders/scene.glsl's splat_shape reads. Found, and
-        uploaded, the first time splats ask. Rigid poses keep them."""
+        sharp edges and its flat neighbours'; TRIANGLE_CUT in the triangle records), the lines in
+        the SPLAT_SHAPES buffer that shaders/scene.glsl's splat_shape reads. Found, and uploaded,
+        the first time splats ask. Rigid poses keep them."""
         if self._cuts is None:
             a = self.arrays
             first, lines = splat_cuts(a.positions, a.faces, a.tri_normal)
-            across = flat_neighbours(a.positions, a.faces, a.tri_normal)
-            u, e = np.divmod(across, 3)  # the neighbour and its edge; its far corner is past the edge
-            entries = np.zeros((len(a.faces) + 1 + len(lines), 4), dtype=np.uint32)
-            entries[: len(a.faces), :3] = np.where(across < 0, NO_NEIGHBOUR, a.faces[u, (e + 2) % 3])
-            entries[len(a.faces), :3] = NO_NEIGHBOUR
-            entries[: len(a.faces) + 1, 3] = len(a.faces) + 1 + first  # each triangle's first line's entry
-            entries[len(a.faces) + 1 :, :3] = lines.astype(np.float32).view(np.uint32)
-            self.buffers["SPLAT_SHAPES"] = self.gl.buffer(entries.tobytes())
+            # Each triangle's first line's word, then three words a line.
+            words = np.concatenate([len(a.faces) + 1 + 3 * first, lines.astype(np.float32).view(np.uint32).reshape(-1)])
+            self.buffers["SPLAT_SHAPES"] = self.gl.buffer(words.astype(np.uint32).tobytes())
             self._cuts = np.diff(first)
             self.buffers["TRIANGLES"].write(self._triangles(a))
         return self._cuts

@@ -21,7 +21,7 @@ def test_every_shader_compiles(gl):
 
 # The records of gpu_impl/layout.py by RECORD_GROUP of shaders/record_strides.glsl, in its order.
 RECORD_GROUPS = {
-    0: ["Material", "Triangle", "Vertex", "SplatPoint", "SplatShapeEntry"],
+    0: ["Material", "Triangle", "Vertex", "SplatPoint", "SplatShapeWord"],
     1: ["Light", "ShadowView"],
     2: ["Path", "PathSums"],
     3: ["Node", "NodeNext", "NodeKey", "SplatLines"],

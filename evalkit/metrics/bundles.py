@@ -46,7 +46,6 @@ from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.display import fields_html
 from evalkit.core.scene.edges import (
     cut_distances,
-    flat_neighbours,
     plane_barycentrics,
     sharp_splat_radii,
     splat_cuts,
@@ -428,12 +427,11 @@ def bundle_lookup(
 
 class _SplatShapes:
     """The splats of an imperfect set as the shaders cut and grow them, per node j: the lines that
-    cut its triangle's splats (shaders/scene.glsl: SplatShape), its radius (sharp_splat_radius) and
-    the surface its grown part may cover (inside_splat). A set built before splats ended at sharp
-    edges (no ``crease_degrees`` in its params) has no lines; one built before cut splats grew (no
-    ``splats_keep_area``) keeps every radius at splat_radius; one built before splats reached
-    into flat neighbours (no ``flat_degrees``) is cut by its own triangle's sharp edges alone, and
-    its grown part keeps to its triangle."""
+    cut its triangle's splats (shaders/scene.glsl: SplatShape) and its radius (sharp_splat_radius).
+    A set built before splats ended at sharp edges (no ``crease_degrees`` in its params) has no
+    lines; one built before cut splats grew (no ``splats_keep_area``) keeps every radius at
+    splat_radius; one built before its triangle's flat neighbours' sharp edges cut it too (no
+    ``flat_degrees``) is cut by its own triangle's alone."""
 
     def __init__(self, bundles: BundleSet, arrays):
         self.radius = float(bundles.params["splat_radius"])
@@ -441,24 +439,12 @@ class _SplatShapes:
         self.centres = bundles.splat_centre
         self.arrays = arrays
         crease = bundles.params.get("crease_degrees")
-        neighbours = "flat_degrees" in bundles.params
         if crease is not None:
+            neighbours = "flat_degrees" in bundles.params
             self.first, self.lines = splat_cuts(arrays.positions, arrays.faces, arrays.tri_normal, crease, neighbours)
         else:
             self.first, self.lines = np.zeros(len(arrays.faces) + 1, np.int64), np.zeros((0, 3))
         self.grows = bool(bundles.params.get("splats_keep_area", False))
-        across = (
-            flat_neighbours(arrays.positions, arrays.faces, arrays.tri_normal)
-            if neighbours
-            else np.full((len(arrays.faces), 3), -1)
-        )
-        u, e = np.divmod(across, 3)  # the neighbour and its edge; its far corner is past the edge
-        self.far = np.where(across < 0, -1, arrays.faces[u, (e + 2) % 3])
-
-    def cut(self, j: int) -> bool:
-        """Whether lines cut node j's splat."""
-        t = self.triangles[j]
-        return bool(self.first[t + 1] > self.first[t])
 
     def distances(self, j: int, b: np.ndarray) -> np.ndarray:
         """Barycentrics b's distances from the lines that cut node j's splat (inf past the last)."""
@@ -472,41 +458,25 @@ class _SplatShapes:
     def splat_radius(self, j: int) -> float:
         """Node j's splat's radius, worked out when a lookup meets it (nodes are millions; the
         lookups meet thousands)."""
-        if not (self.grows and self.cut(j)):
+        t = self.triangles[j]
+        if not (self.grows and self.first[t + 1] > self.first[t]):
             return self.radius
         distances = self.distances(j, self.barycentrics(j, self.centres[j]))
         return float(sharp_splat_radii(self.radius, distances[None])[0])
 
     def inside(self, j: int, y: np.ndarray, beyond_disk: bool) -> bool:
         """Whether point y of node j's splat's plane, within its radius, lies in the splat: on the
-        inner side of every line that cuts it and, beyond the disk it grew from, on its surface
-        (`on_surface`), up to round-off as scene.glsl's inside_splat allows."""
-        if not self.cut(j):
-            return True
-        b = self.barycentrics(j, y)
+        inner side of every line that cuts it and, beyond the disk it grew from, inside its
+        triangle, up to round-off as scene.glsl's inside_splat allows."""
         t = self.triangles[j]
         lines = self.lines[self.first[t] : self.first[t + 1]]
-        tolerance = 1e-4 * np.abs(lines[:, :2]).max(axis=1, initial=0.0)
+        if not len(lines):
+            return True
+        b = self.barycentrics(j, y)
+        tolerance = 1e-4 * np.abs(lines[:, :2]).max(axis=1)
         if np.any(self.distances(j, b)[: len(lines)] < -tolerance):
             return False
-        return not beyond_disk or self.on_surface(j, b)
-
-    def on_surface(self, j: int, b: np.ndarray) -> bool:
-        """Whether barycentrics b of node j's triangle's plane lie on the surface a grown part may
-        cover: the triangle, or across edge e a neighbour in its plane (corners e, e + 1 and its far
-        corner), up to 1e-4 of the barycentrics (scene.glsl: inside_splat)."""
-        within = np.array([b[1], 1 - b[0] - b[1], b[0]])  # the weight opposite edge e
-        if np.all(within >= -1e-4):
-            return True
-        far = self.far[self.triangles[j]]
-        corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-        for e in np.flatnonzero((within < 0) & (far >= 0)):
-            a = corners[e]
-            f = self.barycentrics(j, self.arrays.positions[far[e]])
-            w = np.linalg.solve(np.stack([corners[(e + 1) % 3] - a, f - a], axis=1), b - a)
-            if w.min() >= -1e-4 and w.sum() <= 1 + 1e-4:
-                return True
-        return False
+        return not beyond_disk or min(b[0], b[1], 1 - b[0] - b[1]) >= -1e-4
 
 
 def _own_surface_test(splats: _SplatShapes | None, plane):

@@ -29,14 +29,15 @@ layout(std140, binding = BINDING_FRAMES) uniform Frames { BundleFrame frames[MAX
 
 #if NODE_REFERENCE == NODE_SPLAT_POINT
 // A surface point of imperfect bundles: its triangle and barycentrics (b1, b2) as two unorm16, so
-// the point follows its triangle when the geometry moves, and its splat's radius: splat_radius,
-// grown where its triangle's sharp edges cut the disk (scene.glsl: sharp_splat_radius), worked out
-// once where the point is made. Points k N .. (k + 1) N - 1 are direction k's (splat_points.glsl
-// makes them).
+// the point follows its triangle when the geometry moves, its splat's radius: splat_radius, grown
+// where lines cut the disk (scene.glsl: sharp_splat_radius), and which of its triangle's cut lines
+// lie within that radius (scene.glsl: near_cut_lines), worked out once where the point is made.
+// Points k N .. (k + 1) N - 1 are direction k's (splat_points.glsl makes them).
 struct SplatPoint {
     uint triangle;
     uint barycentrics;
     float radius;
+    uint cut_lines;
 };
 uniform uint points_per_direction;  // N
 uniform float splat_radius;         // in scene units
@@ -51,7 +52,7 @@ vec2 point_barycentrics(uint point) {
 
 // A splat point on its source triangle (scene.glsl): the triangle, its vertex indices and edges
 // e1, e2 from its first corner, the point's barycentrics b and the point p0 + b.x e1 + b.y e2, the
-// splat's centre, and its radius. Every pass that places a splat takes it from here, so they
+// splat's centre, its radius and the cut lines within it. Every pass that places a splat takes it from here, so they
 // agree bitwise.
 struct SplatSource {
     uint triangle;
@@ -61,6 +62,7 @@ struct SplatSource {
     vec2 b;
     vec3 centre;
     float radius;
+    uint cut_lines;
 };
 
 SplatSource splat_source(uint point) {
@@ -73,6 +75,7 @@ SplatSource splat_source(uint point) {
     s.b = point_barycentrics(point);
     s.centre = p0 + s.b.x * s.e1 + s.b.y * s.e2;
     s.radius = points[point].radius;
+    s.cut_lines = points[point].cut_lines;
     return s;
 }
 #endif

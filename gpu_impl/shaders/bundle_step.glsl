@@ -37,10 +37,11 @@ bool on_node_surface(uint ref, vec3 y) {
     vec3 to_centre = y - s.centre;
     float d2 = dot(to_centre, to_centre);
     if (d2 > s.radius * s.radius * (1.0 + 1e-4)) return false;
-    if (!triangle_cut(s.triangle)) return true;
+    if (s.cut_lines == 0u) return true;
     vec3 p0 = vertex_position(s.vertices.x);
+    SplatShape shape = splat_shape(s.triangle, s.cut_lines);
     bool beyond_disk = d2 > splat_radius * splat_radius * (1.0 + 1e-4);
-    return inside_splat(splat_shape(s.triangle, p0, s.e1, s.e2), plane_barycentrics(p0, s.e1, s.e2, y), beyond_disk);
+    return inside_splat(shape, plane_barycentrics(p0, s.e1, s.e2, y), beyond_disk);
 #else
     uvec3 v = triangle_vertices(ref);
     vec3 p0 = vertex_position(v.x);

@@ -38,10 +38,9 @@ flat out vec3 v_centre;    // the disk's centre relative to the vertex
 flat out vec3 v_normal;    // its plane's normal
 flat out vec3 v_axis;      // the map's axis (the vertex's normal)
 flat out float v_far;      // 1 / the map's farthest distance
-flat out uint v_cut;       // whether lines cut the splat, and its shape (scene.glsl: SplatShape)
-flat out vec3 v_cuts[MAX_SPLAT_CUTS];
-flat out uint v_flat_edges;
-flat out mat3x2 v_far_corners;
+flat out uint v_cut;  // the splat's shape (scene.glsl: SplatShape), member by member
+flat out mat3 v_lines_a, v_lines_b;
+flat out vec3 v_slack_a, v_slack_b;
 flat out float v_radius;   // the disk's radius, grown where lines cut it (scene.glsl: sharp_splat_radius)
 flat out vec2 v_b;         // the point's barycentrics
 flat out mat2x3 v_dual;    // an offset in the plane dotted with these: its barycentrics' change
@@ -64,15 +63,19 @@ void main() {
     v_tile = vec4(view.tile.xy, view.tile.xy + view.tile.z);
     v_centre = d;
     v_normal = normalize(cross(e1, e2));
-    v_cut = triangle_cut(triangle) ? 1u : 0u;
+    // The radius from the lines within its cap, then the shape of the splat of that radius.
+    uint lines = near_cut_lines(triangle, b, 2.0 * splat_radius);
     v_radius = splat_radius;
-    if (v_cut != 0u) {
-        SplatShape shape = splat_shape(triangle, p0, e1, e2);
-        v_cuts = shape.cut;
-        v_flat_edges = shape.flat_edges;
-        v_far_corners = shape.far;
-        v_radius = sharp_splat_radius(splat_radius, shape, b);
+    if (lines != 0u) {
+        v_radius = sharp_splat_radius(splat_radius, splat_shape(triangle, lines), b);
+        lines = near_cut_lines(triangle, b, v_radius);
     }
+    SplatShape shape = splat_shape(triangle, lines);
+    v_cut = shape.cut ? 1u : 0u;
+    v_lines_a = shape.lines_a;
+    v_lines_b = shape.lines_b;
+    v_slack_a = shape.slack_a;
+    v_slack_b = shape.slack_b;
     v_b = b;
     float a11 = dot(e1, e1), a12 = dot(e1, e2), a22 = dot(e2, e2), det = a11 * a22 - a12 * a12;
     v_dual = mat2x3((a22 * e1 - a12 * e2) / det, (a11 * e2 - a12 * e1) / det);
@@ -103,9 +106,8 @@ flat in vec3 v_normal;
 flat in vec3 v_axis;
 flat in float v_far;
 flat in uint v_cut;
-flat in vec3 v_cuts[MAX_SPLAT_CUTS];
-flat in uint v_flat_edges;
-flat in mat3x2 v_far_corners;
+flat in mat3 v_lines_a, v_lines_b;
+flat in vec3 v_slack_a, v_slack_b;
 flat in float v_radius;
 flat in vec2 v_b;
 flat in mat2x3 v_dual;
@@ -125,7 +127,8 @@ void main() {
     float d2 = dot(offset, offset);
     if (d2 > v_radius * v_radius) discard;
     vec2 b = v_b + vec2(dot(offset, v_dual[0]), dot(offset, v_dual[1]));
-    if (v_cut != 0u && !inside_splat(SplatShape(v_cuts, v_flat_edges, v_far_corners), b, d2 > splat_radius * splat_radius)) discard;
+    if (v_cut != 0u && !inside_splat(SplatShape(true, v_lines_a, v_lines_b, v_slack_a, v_slack_b), b, d2 > splat_radius * splat_radius))
+        discard;
     out_distance = vec2(t, NO_SURFACE);
     gl_FragDepth = clamp(t * v_far, 0.0, 1.0);
 }

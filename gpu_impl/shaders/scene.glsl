@@ -91,97 +91,102 @@ vec2 plane_barycentrics(vec3 p0, vec3 e1, vec3 e2, vec3 p) {
 // imperfect shadow maps) read each triangle's flat neighbours and cut lines; the others leave
 // their buffers out (a compute pass may use at most 16 storage blocks).
 #if defined SPLAT_SHAPES
-// One array of 16-byte entries (gpu_impl/scene_buffers.py: splat_shapes), for a pass may use at
-// most 16 storage blocks. Entry t, for each triangle and one past the last: x, y, z the far corner
-// of the triangle across edge e (corner e to e + 1) if the two lie in one plane, else NO_NEIGHBOUR
-// (evalkit/core/scene/edges.py: flat_neighbours); w the entry of its first cut line, up to the
-// next triangle's w. A cut line's entry holds the bits of (l1, l2, l0): l1 b1 + l2 b2 + l0 is the
-// distance of the point at barycentrics b from the line, positive on the surface's side
-// (splat_cuts).
-layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uvec4 splat_shapes[]; };
+// One array of 32-bit words (gpu_impl/scene_buffers.py: splat_shapes): word t, for each triangle
+// and one past the last, where its cut lines start, up to the next triangle's; from there three
+// words a line, the bits of (l1, l2, l0): l1 b1 + l2 b2 + l0 is the distance of the point at
+// barycentrics b from the line, positive on the surface's side (evalkit/core/scene/edges.py:
+// splat_cuts).
+layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uint splat_shapes[]; };
 
-// What bounds a splat (imperfect bundles', imperfect shadow maps'), worked out once per splat:
-// - The lines that cut it: the sharp edges of its triangle and of the triangle's flat neighbours.
-//   Reaching over a convex crease or a boundary, a flat disk would stand out into empty space,
-//   and lines passing there would find a surface that is not there (docs/MEASURED_FACTS.md,
-//   "Splats end at sharp edges"). Column i: (l1, l2, l0), past the last line one no point is
-//   beyond.
-// - The edges across which a neighbour lies in the plane (bit e) and those neighbours' far corners
-//   in the triangle's barycentrics (column e): where the part grown at the cuts may reach.
+vec3 cut_line(uint word) {
+    return uintBitsToFloat(uvec3(splat_shapes[word], splat_shapes[word + 1u], splat_shapes[word + 2u]));
+}
+
+// The lines that cut a splat (imperfect bundles', imperfect shadow maps'): of the sharp edges of
+// its triangle and of the triangle's flat neighbours, those nearer its centre than its radius (the
+// others cannot cut it, and most splats meet none: `cut` false, and they skip every test;
+// bundle.glsl's SplatPoint keeps which). Reaching over a convex crease or a boundary, a flat disk
+// would stand out into empty space, and lines passing there would find a surface that is not
+// there (docs/MEASURED_FACTS.md, "Splats end at sharp edges"); reaching past a neighbour's, it
+// stands out as well. The MAX_SPLAT_CUTS = 6 lines are the columns of two matrices, (l1, l2, l0)
+// each, so that vec3(b, 1) * lines gives three distances at once, with a slack for round-off (1e-4
+// of the line's change per unit of barycentrics) beside them; a column no line fills is (0, 0,
+// 3.4e38), which no point is beyond. On a CPU rasterizer a loop over an array of lines cost the
+// compute splatter half as much again.
+#if MAX_SPLAT_CUTS != 6
+#error "SplatShape holds 6 lines (evalkit/core/scene/edges.py: MAX_SPLAT_CUTS)"
+#endif
 struct SplatShape {
-    vec3 cut[MAX_SPLAT_CUTS];
-    uint flat_edges;
-    mat3x2 far;
+    bool cut;
+    mat3 lines_a, lines_b;
+    vec3 slack_a, slack_b;
 };
 
-SplatShape splat_shape(uint t, vec3 p0, vec3 e1, vec3 e2) {
-    SplatShape shape;
-    uvec4 entry = splat_shapes[t];
-    uint count = splat_shapes[t + 1u].w - entry.w;
-    for (uint i = 0u; i < uint(MAX_SPLAT_CUTS); i++) {
-        shape.cut[i] = i < count ? uintBitsToFloat(splat_shapes[entry.w + i].xyz) : vec3(0.0, 0.0, 3.4e38);
+// Which of triangle t's cut lines (bit i for its line i) lie nearer barycentrics b than `radius`:
+// those that can cut a splat of that radius centred there.
+uint near_cut_lines(uint t, vec2 b, float radius) {
+    if (!triangle_cut(t)) return 0u;
+    uint first = splat_shapes[t], count = (splat_shapes[t + 1u] - first) / 3u, lines = 0u;
+    for (uint i = 0u; i < count; i++) {
+        if (dot(cut_line(first + 3u * i), vec3(b, 1.0)) < 1.001 * radius) lines |= 1u << i;
     }
-    shape.flat_edges = 0u;
-    shape.far = mat3x2(0.0);
-    for (uint e = 0u; e < 3u; e++) {
-        uint far = entry[e];
-        if (far == NO_NEIGHBOUR) continue;
-        shape.flat_edges |= 1u << e;
-        shape.far[e] = plane_barycentrics(p0, e1, e2, vertex_position(far));
+    return lines;
+}
+
+// The shape of a splat of triangle t cut by the triangle's cut lines `lines` (near_cut_lines). A
+// splat no line cuts reads nothing.
+SplatShape splat_shape(uint t, uint lines) {
+    SplatShape shape = SplatShape(lines != 0u, mat3(0.0), mat3(0.0), vec3(0.0), vec3(0.0));
+    if (lines == 0u) return shape;
+    uint first = splat_shapes[t];
+    for (int i = 0; i < 6; i++) {
+        vec3 l = (lines & (1u << uint(i))) != 0u ? cut_line(first + 3u * uint(i)) : vec3(0.0, 0.0, 3.4e38);
+        float slack = 1e-4 * max(abs(l.x), abs(l.y));
+        if (i < 3) {
+            shape.lines_a[i] = l;
+            shape.slack_a[i] = slack;
+        } else {
+            shape.lines_b[i - 3] = l;
+            shape.slack_b[i - 3] = slack;
+        }
     }
     return shape;
 }
 
 // The radius of a splat of radius r, centred at barycentrics b, that keeps the area pi r^2 of its
-// disk where its shape's lines cut it. A point stands for its share of the surface; cut down to
-// half a disk at an edge, the splats would cover a line's crossing near the edge half as often as
-// elsewhere, and light would leak along every crease (docs/MEASURED_FACTS.md, "Cut splats keep
-// their area"). The disk grows along the edge instead: radius R keeps pi R^2 less a segment of
-// R^2 (acos t - t sqrt(1 - t^2)), t = d / R, for each line at distance d < R (a few fixed-point
-// steps; the kept area changes slowly with R). Overlapping segments (at a corner) are counted
-// twice, which the cap of 2 r (a quarter disk's area) bounds.
+// disk where its shape's lines (those within the cap, 2 r) cut it. A point stands for its share of
+// the surface; cut down to half a disk at an edge, the splats would cover a line's crossing near
+// the edge half as often as elsewhere, and light would leak along every crease
+// (docs/MEASURED_FACTS.md, "Cut splats keep their area"). The disk grows along the edge instead:
+// radius R keeps pi R^2 less a segment of R^2 (acos t - t sqrt(1 - t^2)), t = d / R, for each line
+// at distance d < R (a few fixed-point steps; the kept area changes slowly with R). Overlapping
+// segments (at a corner) are counted twice, which the cap of 2 r (a quarter disk's area) bounds.
 float sharp_splat_radius(float r, SplatShape shape, vec2 b) {
-    float cut[MAX_SPLAT_CUTS];
-    float nearest = 3.4e38;
-    for (int i = 0; i < MAX_SPLAT_CUTS; i++) {
-        cut[i] = max(dot(shape.cut[i], vec3(b, 1.0)), 0.0);
-        nearest = min(nearest, cut[i]);
-    }
-    if (nearest >= r) return r;
+    vec3 cut_a = max(vec3(b, 1.0) * shape.lines_a, 0.0), cut_b = max(vec3(b, 1.0) * shape.lines_b, 0.0);
+    if (min(min(cut_a.x, cut_a.y), min(cut_a.z, min(min(cut_b.x, cut_b.y), cut_b.z))) >= r) return r;
     float R = r;
     for (int step = 0; step < 4; step++) {
-        float lost = 0.0;
-        for (int i = 0; i < MAX_SPLAT_CUTS; i++) {
-            float t = clamp(cut[i] / R, 0.0, 1.0);
-            lost += acos(t) - t * sqrt(1.0 - t * t);
-        }
-        R = r * sqrt(PI / max(PI - lost, 0.25 * PI));
+        vec3 t_a = clamp(cut_a / R, 0.0, 1.0), t_b = clamp(cut_b / R, 0.0, 1.0);
+        vec3 lost = acos(t_a) - t_a * sqrt(1.0 - t_a * t_a) + acos(t_b) - t_b * sqrt(1.0 - t_b * t_b);
+        R = r * sqrt(PI / max(PI - lost.x - lost.y - lost.z, 0.25 * PI));
     }
     return R;
 }
 
+// Whether a point of a splat's plane at barycentrics b, within the splat's radius, lies inside
+// every line that cuts it, up to round-off.
+bool inside_cuts(SplatShape shape, vec2 b) {
+    vec3 v = vec3(b, 1.0);
+    return all(greaterThanEqual(v * shape.lines_a, -shape.slack_a)) && all(greaterThanEqual(v * shape.lines_b, -shape.slack_b));
+}
+
 // Whether a point of a splat's plane at barycentrics b, within the splat's radius, lies in the
-// splat: on the inner side of every line that cuts it (up to round-off: 1e-4 of the line's rate
-// of change per unit of barycentrics) and, where it lies beyond the disk's radius before it grew
-// (beyond_disk), on the surface the splat stands for: inside the triangle or inside one of its
-// flat neighbours. The part grown at the cuts adds coverage of the surface itself; it never
-// reaches over a smooth edge onto a curved neighbour's offset surface.
+// splat: inside its cuts and, where it lies beyond the disk's radius before it grew
+// (beyond_disk), inside its triangle. The part grown at the cuts stays on the triangle, so it adds
+// coverage of the surface itself and never reaches over a smooth edge onto a curved neighbour's
+// offset surface.
 bool inside_splat(SplatShape shape, vec2 b, bool beyond_disk) {
-    for (int i = 0; i < MAX_SPLAT_CUTS; i++) {
-        vec3 l = shape.cut[i];
-        if (dot(l, vec3(b, 1.0)) < -1e-4 * max(abs(l.x), abs(l.y))) return false;
-    }
-    vec3 within = vec3(b.y, 1.0 - b.x - b.y, b.x);  // the weight opposite edge e: negative beyond it
-    if (!beyond_disk || min(min(within.x, within.y), within.z) >= -1e-4) return true;
-    const vec2 corners[3] = vec2[3](vec2(0.0), vec2(1.0, 0.0), vec2(0.0, 1.0));
-    for (int e = 0; e < 3; e++) {
-        if (within[e] >= 0.0 || (shape.flat_edges & (1u << uint(e))) == 0u) continue;
-        // b in the neighbour (corner e, corner e + 1, far corner): its weights of the last two.
-        vec2 a = corners[e];
-        vec2 w = inverse(mat2(corners[(e + 1) % 3] - a, shape.far[e] - a)) * (b - a);
-        if (min(w.x, w.y) >= -1e-4 && w.x + w.y <= 1.0 + 1e-4) return true;
-    }
-    return false;
+    return inside_cuts(shape, b) && (!beyond_disk || min(min(b.x, b.y), 1.0 - b.x - b.y) >= -1e-4);
 }
 #endif
 

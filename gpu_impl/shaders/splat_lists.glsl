@@ -25,7 +25,7 @@
 // are solved for their span of columns. The depth at a line is the splat plane's (depth_plane),
 // the same as the raster splatter's. A line beyond one of the lines that cut the splat (its
 // triangle's sharp edges and its flat neighbours') is not in the splat, nor one off the triangle
-// and its flat neighbours beyond the disk's radius before it grew at those lines (scene.glsl:
+// beyond the disk's radius before it grew at those lines (scene.glsl:
 // inside_splat); its barycentrics are the centre's plus its offset in pixels mapped
 // back through the triangle's edges as the bundle sees them.
 
@@ -69,7 +69,7 @@ uniform bool nearest_only;
 // q. A neighbour smaller than this splat (this one grown more at sharp edges) must also reach the
 // line: (q - e)' M (q - e) <= E_j, its own ellipse's size, or dot(q, 2 M e) >= q' M q + e' M e - E_j.
 // Nearer and reaching, it covers the line: within its disk where this splat's line is within this
-// one's, on the triangle or its flat neighbours where it is beyond. The two splats work it out with different rounding,
+// one's, on the triangle where it is beyond. The two splats work it out with different rounding,
 // so a splat defers only by a clear MARGIN of the ellipse's size: near a tie both keep the line
 // (a redundant node, which the merge removes), never neither.
 #define NEIGHBOURS 4
@@ -129,10 +129,20 @@ uint splat(uint id) {
     uint first_point = uint(k) * points_per_direction, end_point = first_point + points_per_direction;
     // The triangle's edges in pixels: a neighbour's offset is linear in its barycentrics' offset.
     mat2 edges = pixels * mat2(dot(e1, f.u.xyz), dot(e1, f.v.xyz), dot(e2, f.u.xyz), dot(e2, f.v.xyz));
-    bool cut = triangle_cut(t);
-    SplatShape shape;
-    if (cut) shape = splat_shape(t, vertex_position(s.vertices.x), e1, e2);
-    mat2 to_barycentrics = cut ? inverse(edges) : mat2(0.0);
+    // The splat's shape (scene.glsl: SplatShape), its lines as functions of a line's offset q in
+    // pixels: vec3(q, 1) * cuts gives each one's distance plus its slack (scene.glsl: inside_cuts).
+    bool cut = s.cut_lines != 0u;
+    mat2 to_barycentrics = mat2(0.0);
+    mat3 cuts_a = mat3(0.0), cuts_b = mat3(0.0);
+    if (cut) {
+        SplatShape shape = splat_shape(t, s.cut_lines);
+        to_barycentrics = inverse(edges);
+        for (int i = 0; i < 3; i++) {
+            vec3 la = shape.lines_a[i], lb = shape.lines_b[i];
+            cuts_a[i] = vec3(transpose(to_barycentrics) * la.xy, dot(la, vec3(b, 1.0)) + shape.slack_a[i]);
+            cuts_b[i] = vec3(transpose(to_barycentrics) * lb.xy, dot(lb, vec3(b, 1.0)) + shape.slack_b[i]);
+        }
+    }
     for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
         uint j = id + uint(slot < NEIGHBOURS ? slot - NEIGHBOURS : slot - NEIGHBOURS + 1);
         bool here = nearest_only && j >= first_point && j < end_point && points[j].triangle == t;
@@ -147,19 +157,12 @@ uint splat(uint id) {
         smaller = smaller || (here && rj < rp);
     }
     // Where the lines can be: the ellipse's box and, for a splat grown at sharp edges, what
-    // covers the disk before it grew, the triangle and its flat neighbours, whose lines alone the
-    // growth adds.
+    // covers both the disk before it grew and the triangle, whose lines alone the growth adds.
     vec2 lo = vec2(-1e9), hi = vec2(1e9);
     if (s.radius > splat_radius) {
         vec2 v0 = edges * -b, v1 = edges * (vec2(1.0, 0.0) - b), v2 = edges * (vec2(0.0, 1.0) - b);
         lo = c + min(vec2(-disk_pixels), min(min(v0, v1), v2));
         hi = c + max(vec2(disk_pixels), max(max(v0, v1), v2));
-        for (uint e = 0u; e < 3u; e++) {
-            if ((shape.flat_edges & (1u << e)) == 0u) continue;
-            vec2 v = edges * (shape.far[e] - b);
-            lo = min(lo, c + v);
-            hi = max(hi, c + v);
-        }
     }
     // Rows: |dy| <= rp sqrt(1 - n_v^2), the ellipse's half-height.
     precise float half_height = rp * sqrt(max(0.0, 1.0 - nv * nv));
@@ -185,9 +188,11 @@ uint splat(uint id) {
         for (int x = x0; x <= x1; x++) {
             if (cut) {
                 precise vec2 q = vec2(float(x) - c.x, dy);
-                precise vec2 line_barycentrics = b + to_barycentrics * q;
+                vec3 v = vec3(q, 1.0);
+                if (!all(greaterThanEqual(v * cuts_a, vec3(0.0))) || !all(greaterThanEqual(v * cuts_b, vec3(0.0)))) continue;
                 bool beyond_disk = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y > E_disk;
-                if (!inside_splat(shape, line_barycentrics, beyond_disk)) continue;
+                precise vec2 on = b + to_barycentrics * q;  // beyond the disk, the line must be on the triangle
+                if (beyond_disk && min(min(on.x, on.y), 1.0 - on.x - on.y) < -1e-4) continue;
             }
             covered++;
             if (neighbours) {

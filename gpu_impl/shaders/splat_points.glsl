@@ -43,16 +43,17 @@ void main() {
     float sq = sqrt(unit_float(r.y)), w = unit_float(r.z);
     vec2 b = vec2(sq * (1.0 - w), sq * w);
 #endif
-    // The radius from the barycentrics as stored, which every pass reads.
+    // The radius and the cut lines within it, from the barycentrics as stored, which every pass
+    // reads: the lines within the cap of 2 r decide the radius.
     uint stored = packUnorm2x16(b);
+    vec2 b_stored = unpackUnorm2x16(stored);
     float point_radius = splat_radius;
-    if (triangle_cut(triangle)) {
-        uvec3 v = triangle_vertices(triangle);
-        vec3 p0 = vertex_position(v.x);
-        SplatShape shape = splat_shape(triangle, p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0);
-        point_radius = sharp_splat_radius(splat_radius, shape, unpackUnorm2x16(stored));
+    uint lines = near_cut_lines(triangle, b_stored, 2.0 * splat_radius);
+    if (lines != 0u) {
+        point_radius = sharp_splat_radius(splat_radius, splat_shape(triangle, lines), b_stored);
+        lines = near_cut_lines(triangle, b_stored, point_radius);
     }
-    points[id] = SplatPoint(triangle, stored, point_radius);
+    points[id] = SplatPoint(triangle, stored, point_radius, lines);
 }
 
 #endif
