@@ -191,23 +191,24 @@ def test_sharp_edges_are_convex_creases_and_boundaries():
 
 
 def test_flat_neighbours_lie_in_the_triangles_plane():
-    """Where a splat grown at a sharp edge may reach (evalkit.core.scene.edges.flat_neighbours):
-    across a quad's diagonal its other half's far corner, across a face's inner edges of a
-    subdivided box the neighbours on the same face, never across the box's edges, nor between
-    triangles facing opposite ways."""
+    """Whose sharp edges cut a triangle's splats too (evalkit.core.scene.edges.flat_neighbours):
+    across a quad's diagonal its other half, across a face's inner edges of a subdivided box the
+    neighbours on the same face, never across the box's edges, nor between triangles facing
+    opposite ways."""
     across = flat_neighbours(QUAD, QUAD_FACES, _normals(QUAD, QUAD_FACES))
     # The diagonal is edge 2 of the first triangle and edge 0 of the second.
-    assert np.array_equal(across, [[-1, -1, 3 * 1 + 0], [3 * 0 + 2, -1, -1]])
+    assert np.array_equal(across, [[-1, -1, 1], [0, -1, -1]])
 
     p, f = box(np.zeros(3), np.ones(3), subdivisions=2)
     across = flat_neighbours(p, f, _normals(p, f))
     sharp = sharp_edges(p, f, _normals(p, f))
     assert np.array_equal(across >= 0, ~sharp)  # every inner edge of a face, and nothing else
     t, e = np.nonzero(across >= 0)
-    u, e_u = np.divmod(across[t, e], 3)
-    # The same edge, run the other way, in a triangle of the same plane.
-    assert np.array_equal(f[t, e], f[u, (e_u + 1) % 3]) and np.array_equal(f[t, (e + 1) % 3], f[u, e_u])
-    assert np.abs(np.einsum("ij,ij->i", p[f[u, (e_u + 2) % 3]] - p[f[t, 0]], _normals(p, f)[t])).max() < 1e-12
+    u = across[t, e]
+    # A triangle of the same plane that holds the edge's two ends.
+    assert all(f[t[i], e[i]] in f[u[i]] and f[t[i], (e[i] + 1) % 3] in f[u[i]] for i in range(len(t)))
+    offsets = p[f[u]] - p[f[t, 0]][:, None, :]  # the neighbour's corners from the triangle's first
+    assert np.abs(np.einsum("ijk,ik->ij", offsets, _normals(p, f)[t])).max() < 1e-12
 
     flipped = np.array([[0, 1, 2], [0, 3, 2]])  # the second faces down
     assert (flat_neighbours(QUAD, flipped, _normals(QUAD, flipped)) < 0).all()

@@ -2,9 +2,9 @@
 points on the surfaces, each a disk of radius ``splat_scale * sqrt(A / (pi N))`` (or
 ``splat_radius``) in its source triangle's plane, and the nodes are where bundle lines cross the
 disks. A splat ends at its triangle's sharp edges (convex creases and boundaries:
-`evalkit.core.scene.edges.sharp_edges`), where a disk would stand out into empty space, and grows
-there, on its own triangle and the neighbours in its plane, until it keeps its disk's area
-(shaders/scene.glsl: sharp_splat_radius, inside_splat).
+`evalkit.core.scene.edges.sharp_edges`) and at those of the triangle's neighbours in its plane
+(`splat_cuts`), where a disk would stand out into empty space, and grows there, on its own triangle,
+until it keeps its disk's area (shaders/scene.glsl: sharp_splat_radius, inside_splat).
 
 - ``points``: N points per direction (shaders/splat_points.glsl), stratified along a space-filling
   curve or independent (``sampler``), each with its splat's radius.
@@ -182,7 +182,7 @@ class SplatTracer(BundleTracer):
             "merged": self.merge,
             "crease_degrees": CREASE_DEGREES,
             "splats_keep_area": True,  # cut splats grow (shaders/scene.glsl: sharp_splat_radius)
-            "flat_degrees": FLAT_DEGREES,  # into neighbours in their plane (scene.glsl: inside_splat)
+            "flat_degrees": FLAT_DEGREES,  # cut by flat neighbours' sharp edges too (edges.splat_cuts)
         }
 
     def read_points(self) -> np.ndarray:

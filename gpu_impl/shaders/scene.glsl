@@ -105,7 +105,7 @@ vec3 cut_line(uint word) {
 // The lines that cut a splat (imperfect bundles', imperfect shadow maps'): of the sharp edges of
 // its triangle and of the triangle's flat neighbours, those nearer its centre than its radius (the
 // others cannot cut it, and most splats meet none: `cut` false, and they skip every test;
-// bundle.glsl's SplatPoint keeps which). Reaching over a convex crease or a boundary, a flat disk
+// bundle.glsl's SplatPoint keeps which: lines_within). Reaching over a convex crease or a boundary, a flat disk
 // would stand out into empty space, and lines passing there would find a surface that is not
 // there (docs/MEASURED_FACTS.md, "Splats end at sharp edges"); reaching past a neighbour's, it
 // stands out as well. The MAX_SPLAT_CUTS = 6 lines are the columns of two matrices, (l1, l2, l0)
@@ -122,21 +122,16 @@ struct SplatShape {
     vec3 slack_a, slack_b;
 };
 
-// Which of triangle t's cut lines (bit i for its line i) lie nearer barycentrics b than `radius`:
-// those that can cut a splat of that radius centred there.
-uint near_cut_lines(uint t, vec2 b, float radius) {
-    if (!triangle_cut(t)) return 0u;
-    uint first = splat_shapes[t], count = (splat_shapes[t + 1u] - first) / 3u, lines = 0u;
-    for (uint i = 0u; i < count; i++) {
-        if (dot(cut_line(first + 3u * i), vec3(b, 1.0)) < 1.001 * radius) lines |= 1u << i;
-    }
-    return lines;
+// All of triangle t's cut lines, bit i for its line i.
+uint triangle_cut_lines(uint t) {
+    return triangle_cut(t) ? (1u << ((splat_shapes[t + 1u] - splat_shapes[t]) / 3u)) - 1u : 0u;
 }
 
-// The shape of a splat of triangle t cut by the triangle's cut lines `lines` (near_cut_lines). A
-// splat no line cuts reads nothing.
+// The shape of a splat of triangle t cut by the triangle's cut lines `lines` (bit i for its line
+// i). A splat no line cuts reads nothing.
 SplatShape splat_shape(uint t, uint lines) {
-    SplatShape shape = SplatShape(lines != 0u, mat3(0.0), mat3(0.0), vec3(0.0), vec3(0.0));
+    const vec3 none = vec3(0.0, 0.0, 3.4e38);
+    SplatShape shape = SplatShape(lines != 0u, mat3(none, none, none), mat3(none, none, none), vec3(0.0), vec3(0.0));
     if (lines == 0u) return shape;
     uint first = splat_shapes[t];
     for (int i = 0; i < 6; i++) {
@@ -171,6 +166,14 @@ float sharp_splat_radius(float r, SplatShape shape, vec2 b) {
         R = r * sqrt(PI / max(PI - lost.x - lost.y - lost.z, 0.25 * PI));
     }
     return R;
+}
+
+// Which of a shape's lines (bit i for column i) lie nearer barycentrics b than `radius`: those
+// that can cut a splat of that radius centred there.
+uint lines_within(SplatShape shape, vec2 b, float radius) {
+    bvec3 a = lessThan(vec3(b, 1.0) * shape.lines_a, vec3(1.001 * radius));
+    bvec3 c = lessThan(vec3(b, 1.0) * shape.lines_b, vec3(1.001 * radius));
+    return (a.x ? 1u : 0u) | (a.y ? 2u : 0u) | (a.z ? 4u : 0u) | (c.x ? 8u : 0u) | (c.y ? 16u : 0u) | (c.z ? 32u : 0u);
 }
 
 // Whether a point of a splat's plane at barycentrics b, within the splat's radius, lies inside

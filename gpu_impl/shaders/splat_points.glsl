@@ -44,16 +44,12 @@ void main() {
     vec2 b = vec2(sq * (1.0 - w), sq * w);
 #endif
     // The radius and the cut lines within it, from the barycentrics as stored, which every pass
-    // reads: the lines within the cap of 2 r decide the radius.
+    // reads.
     uint stored = packUnorm2x16(b);
     vec2 b_stored = unpackUnorm2x16(stored);
-    float point_radius = splat_radius;
-    uint lines = near_cut_lines(triangle, b_stored, 2.0 * splat_radius);
-    if (lines != 0u) {
-        point_radius = sharp_splat_radius(splat_radius, splat_shape(triangle, lines), b_stored);
-        lines = near_cut_lines(triangle, b_stored, point_radius);
-    }
-    points[id] = SplatPoint(triangle, stored, point_radius, lines);
+    SplatShape shape = splat_shape(triangle, triangle_cut_lines(triangle));
+    float point_radius = sharp_splat_radius(splat_radius, shape, b_stored);
+    points[id] = SplatPoint(triangle, stored, point_radius, shape.cut ? lines_within(shape, b_stored, point_radius) : 0u);
 }
 
 #endif

@@ -13,9 +13,9 @@ import numpy as np
 # smooth surface (docs/MEASURED_FACTS.md, "Splats end at sharp edges"): tessellated curved
 # surfaces part by less (atrium's columns by 7.5 degrees, a 16-sided cylinder by 22.5).
 CREASE_DEGREES = 30.0
-# Two triangles across an edge whose normals part by less than this lie in one plane to a splat:
-# the part of a splat grown at a sharp edge may reach from one into the other (flat_neighbours).
-# Over a splat's radius r it stands off the other by at most r sin(0.5 degrees) < r / 100.
+# Two triangles across an edge whose normals part by less than this lie in one plane to a splat,
+# whose sharp edges cut the splats of both (flat_neighbours, splat_cuts): over a splat's radius r
+# one stands off the other's plane by at most r sin(0.5 degrees) < r / 100.
 FLAT_DEGREES = 0.5
 # The most lines that cut one triangle's splats (splat_cuts): k sharp edges of its own and two of
 # each of its 3 - k flat neighbours.
@@ -107,19 +107,17 @@ def sharp_edges(
 
 
 def flat_neighbours(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(T, 3) int64: per triangle and edge e (corner e to e + 1), the same edge as the triangle
-    across it numbers it, 3 u + e_u, when the two lie in one plane (normals within `FLAT_DEGREES`,
-    facing the same way), else -1; its far corner is faces[u, (e_u + 2) % 3]. A splat grown at a
-    sharp edge may reach into such a neighbour, whose surface continues its own
-    (shaders/scene.glsl: inside_splat), and ends at its sharp edges too (`splat_cuts`)."""
+    """(T, 3) int64: per triangle and edge e (corner e to e + 1), the triangle across it when the
+    two lie in one plane (normals within `FLAT_DEGREES`, facing the same way), else -1: its surface
+    continues the triangle's, and its sharp edges cut the triangle's splats too (`splat_cuts`)."""
     across = np.full((len(faces), 3), -1, dtype=np.int64)
     if not len(faces):
         return across
     kept, _, _, (t0, e0), (t1, e1), n0, n1, consistent = _edge_pairs(positions, faces, normals)
     flat = consistent & (np.einsum("ij,ij->i", n0, n1) > math.cos(math.radians(FLAT_DEGREES)))
-    i0, i1, e0, e1 = kept[t0[flat]], kept[t1[flat]], e0[flat], e1[flat]
-    across[i0, e0] = 3 * i1 + e1
-    across[i1, e1] = 3 * i0 + e0
+    i0, i1 = kept[t0[flat]], kept[t1[flat]]
+    across[i0, e0[flat]] = i1
+    across[i1, e1[flat]] = i0
     return across
 
 
@@ -143,7 +141,7 @@ def splat_cuts(
     left out, and a line that repeats one already listed (an outline along several triangles) is
     listed once. At most `MAX_SPLAT_CUTS` lines cut a triangle's splats: k of its own edges and two
     of each of the 3 - k neighbours'. ``neighbours=False``: the triangle's own sharp edges only (as
-    splats were cut before they reached into flat neighbours)."""
+    splats were cut before their neighbours' edges cut them too)."""
     sharp = sharp_edges(positions, faces, normals, crease_degrees)
     across = flat_neighbours(positions, faces, normals) if neighbours else np.full((len(faces), 3), -1)
     corners = positions[faces]  # (T, 3, 3)
@@ -152,7 +150,7 @@ def splat_cuts(
     t, e = np.nonzero(sharp)
     t_list, u_list, e_list = [t], [t], [e]
     t, slot = np.nonzero(across >= 0)
-    u = across[t, slot] // 3
+    u = across[t, slot]
     for e in range(3):
         cut = sharp[u, e]
         t_list.append(t[cut])
