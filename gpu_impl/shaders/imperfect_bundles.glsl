@@ -24,7 +24,9 @@ out vec2 v_barycentrics;  // in the source triangle's plane, where the splat's c
 flat out vec3 v_depth_plane;  // depth at bundle pixel (i, j): dot(v_depth_plane, (1, i, j))
 flat out uint v_ref;          // the point | FACING_BIT
 flat out int v_direction;
-flat out uvec2 v_cut;  // the triangle and its lines that cut the splat (scene.glsl: splat_shape)
+flat out uint v_cut;  // the splat's shape (scene.glsl: SplatShape), member by member
+flat out mat3 v_lines_a, v_lines_b;
+flat out vec3 v_slack_a, v_slack_b;
 flat out float v_disk_limit;  // |v_disk|^2 beyond which a splat grown at sharp edges keeps to its surface
 
 void main() {
@@ -41,7 +43,12 @@ void main() {
     v_disk = 2.0 * vec2(cos(angle), sin(angle));
     vec3 p = center + s.radius * (v_disk.x * tangent + v_disk.y * bitangent);
     v_barycentrics = plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, p);
-    v_cut = uvec2(s.triangle, s.cut_lines);
+    SplatShape shape = splat_shape(s.triangle, s.cut_lines);
+    v_cut = shape.cut ? 1u : 0u;
+    v_lines_a = shape.lines_a;
+    v_lines_b = shape.lines_b;
+    v_slack_a = shape.slack_a;
+    v_slack_b = shape.slack_b;
     v_disk_limit = (splat_radius / s.radius) * (splat_radius / s.radius);
 
     int k = int(splat / points_per_direction);
@@ -60,14 +67,16 @@ in vec2 v_barycentrics;
 flat in vec3 v_depth_plane;
 flat in uint v_ref;
 flat in int v_direction;
-flat in uvec2 v_cut;
+flat in uint v_cut;
+flat in mat3 v_lines_a, v_lines_b;
+flat in vec3 v_slack_a, v_slack_b;
 flat in float v_disk_limit;
 
 void main() {
 #if !defined NULL_FRAGMENT
     if (dot(v_disk, v_disk) > 1.0) return;  // the circular cut-out
-    if (v_cut.y != 0u && !inside_splat(splat_shape(v_cut.x, v_cut.y), v_barycentrics, dot(v_disk, v_disk) > v_disk_limit))
-        return;
+    SplatShape shape = SplatShape(true, v_lines_a, v_lines_b, v_slack_a, v_slack_b);
+    if (v_cut != 0u && !inside_splat(shape, v_barycentrics, dot(v_disk, v_disk) > v_disk_limit)) return;
     ivec2 pixel = fragment_pixel(v_direction);
     if (pixel.x < 0) return;
     append_node(pixel_list(v_direction, pixel), dot(v_depth_plane, vec3(1.0, vec2(pixel))), v_ref);

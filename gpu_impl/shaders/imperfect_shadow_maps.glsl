@@ -38,7 +38,9 @@ flat out vec3 v_centre;    // the disk's centre relative to the vertex
 flat out vec3 v_normal;    // its plane's normal
 flat out vec3 v_axis;      // the map's axis (the vertex's normal)
 flat out float v_far;      // 1 / the map's farthest distance
-flat out uvec2 v_cut;      // the triangle and its lines that cut the splat (scene.glsl: splat_shape)
+flat out uint v_cut;       // the splat's shape (scene.glsl: SplatShape), member by member
+flat out mat3 v_lines_a, v_lines_b;
+flat out vec3 v_slack_a, v_slack_b;
 flat out float v_radius;   // the disk's radius, grown where lines cut it (scene.glsl: sharp_splat_radius)
 flat out vec2 v_b;         // the point's barycentrics
 flat out mat2x3 v_dual;    // an offset in the plane dotted with these: its barycentrics' change
@@ -63,9 +65,15 @@ void main() {
     v_normal = normalize(cross(e1, e2));
     SplatShape shape = splat_shape(triangle, triangle_cut_lines(triangle));
     v_radius = sharp_splat_radius(splat_radius, shape, b);
-    // The few fragments of cut splats read their lines again rather than every point handing on
-    // six lines, which cost the maps half as much time again on a CPU rasterizer.
-    v_cut = uvec2(triangle, shape.cut ? lines_within(shape, b, v_radius) : 0u);
+    // The shape of the splat of that radius: the lines within it. Handed on to every fragment; a
+    // map's few points have disks wider than most triangles, and fragments reading their lines
+    // again cost the maps more than the inputs do.
+    if (shape.cut) shape = splat_shape(triangle, lines_within(shape, b, v_radius));
+    v_cut = shape.cut ? 1u : 0u;
+    v_lines_a = shape.lines_a;
+    v_lines_b = shape.lines_b;
+    v_slack_a = shape.slack_a;
+    v_slack_b = shape.slack_b;
     v_b = b;
     float a11 = dot(e1, e1), a12 = dot(e1, e2), a22 = dot(e2, e2), det = a11 * a22 - a12 * a12;
     v_dual = mat2x3((a22 * e1 - a12 * e2) / det, (a11 * e2 - a12 * e1) / det);
@@ -95,7 +103,9 @@ flat in vec3 v_centre;
 flat in vec3 v_normal;
 flat in vec3 v_axis;
 flat in float v_far;
-flat in uvec2 v_cut;
+flat in uint v_cut;
+flat in mat3 v_lines_a, v_lines_b;
+flat in vec3 v_slack_a, v_slack_b;
 flat in float v_radius;
 flat in vec2 v_b;
 flat in mat2x3 v_dual;
@@ -115,7 +125,8 @@ void main() {
     float d2 = dot(offset, offset);
     if (d2 > v_radius * v_radius) discard;
     vec2 b = v_b + vec2(dot(offset, v_dual[0]), dot(offset, v_dual[1]));
-    if (v_cut.y != 0u && !inside_splat(splat_shape(v_cut.x, v_cut.y), b, d2 > splat_radius * splat_radius))
+    SplatShape shape = SplatShape(true, v_lines_a, v_lines_b, v_slack_a, v_slack_b);
+    if (v_cut != 0u && !inside_splat(shape, b, d2 > splat_radius * splat_radius))
         discard;
     out_distance = vec2(t, NO_SURFACE);
     gl_FragDepth = clamp(t * v_far, 0.0, 1.0);
