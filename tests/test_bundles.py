@@ -526,7 +526,7 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
         (
             # 16,777,216 points of 12 + 16 bytes (SPLAT_POINT, SPLAT_LINES), two 4-byte words per list
             ["--points", "65536", "--node-budget", "10MiB"],
-            "need 480.06 MiB for 16,777,216 splat points, their lines and the list offsets, "
+            "need 544.06 MiB for 16,777,216 splat points, their lines and the list offsets, "
             "over the node budget of 10.00 MiB",
         ),
     ],
