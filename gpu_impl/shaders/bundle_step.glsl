@@ -29,8 +29,8 @@
 uniform float self_hit_bias;  // in bundle pixels, see below
 
 // Whether point y, on the plane of a node's surface, lies on that surface: inside its triangle
-// (perfect bundles), or within its splat's disk and shape (imperfect; scene.glsl: inside_splat, which SPLAT_SHAPES brings), up
-// to round-off.
+// (perfect bundles), or within its splat's disk and shape (imperfect; scene.glsl: inside_splat,
+// which SPLAT_SHAPES brings), up to round-off.
 bool on_node_surface(uint ref, vec3 y) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
     SplatSource s = splat_source(ref);

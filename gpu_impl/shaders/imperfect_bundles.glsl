@@ -27,7 +27,7 @@ flat out int v_direction;
 flat out uint v_cut;  // the splat's shape (scene.glsl: SplatShape), member by member
 flat out mat3 v_lines_a, v_lines_b;
 flat out vec3 v_slack_a, v_slack_b;
-flat out float v_disk_limit;  // |v_disk|^2 beyond which a splat grown at sharp edges keeps to its surface
+flat out float v_disk_limit;  // |v_disk|^2 beyond which a splat grown at sharp edges keeps to its triangle
 
 void main() {
     uint splat = uint(gl_VertexID) / 3u;

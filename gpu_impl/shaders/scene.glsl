@@ -88,8 +88,8 @@ vec2 plane_barycentrics(vec3 p0, vec3 e1, vec3 e2, vec3 p) {
 }
 
 // SPLAT_SHAPES: the passes that cut splats (imperfect bundles' points, builders and steps,
-// imperfect shadow maps) read each triangle's flat neighbours and cut lines; the others leave
-// their buffers out (a compute pass may use at most 16 storage blocks).
+// imperfect shadow maps) read each triangle's cut lines; the others leave their buffer out (a
+// compute pass may use at most 16 storage blocks).
 #if defined SPLAT_SHAPES
 // One array of 32-bit words (gpu_impl/scene_buffers.py: splat_shapes): word t, for each triangle
 // and one past the last, where its cut lines start, up to the next triangle's; from there three
@@ -105,14 +105,14 @@ vec3 cut_line(uint word) {
 // The lines that cut a splat (imperfect bundles', imperfect shadow maps'): of the sharp edges of
 // its triangle and of the triangle's flat neighbours, those nearer its centre than its radius (the
 // others cannot cut it, and most splats meet none: `cut` false, and they skip every test;
-// bundle.glsl's SplatPoint keeps which: lines_within). Reaching over a convex crease or a boundary, a flat disk
-// would stand out into empty space, and lines passing there would find a surface that is not
-// there (docs/MEASURED_FACTS.md, "Splats end at sharp edges"); reaching past a neighbour's, it
-// stands out as well. The MAX_SPLAT_CUTS = 6 lines are the columns of two matrices, (l1, l2, l0)
-// each, so that vec3(b, 1) * lines gives three distances at once, with a slack for round-off (1e-4
-// of the line's change per unit of barycentrics) beside them; a column no line fills is (0, 0,
-// 3.4e38), which no point is beyond. On a CPU rasterizer a loop over an array of lines cost the
-// compute splatter half as much again.
+// bundle.glsl's SplatPoint keeps which, lines_within). Reaching over a convex crease or a
+// boundary, a flat disk would stand out into empty space, and lines passing there would find a
+// surface that is not there (docs/MEASURED_FACTS.md, "Splats end at sharp edges"); reaching past
+// a neighbour's, it stands out as well ("Cut by their neighbours' edges too"). The MAX_SPLAT_CUTS
+// = 6 lines are the columns of two matrices, (l1, l2, l0) each, so that vec3(b, 1) * lines gives
+// three distances at once, with a slack for round-off (1e-4 of the line's change per unit of
+// barycentrics) beside them: no loop over an array, which a CPU rasterizer keeps in memory. A
+// column no line fills is (0, 0, 3.4e38), which no point is beyond.
 #if MAX_SPLAT_CUTS != 6
 #error "SplatShape holds 6 lines (evalkit/core/scene/edges.py: MAX_SPLAT_CUTS)"
 #endif
@@ -135,7 +135,7 @@ SplatShape splat_shape(uint t, uint lines) {
     if (lines == 0u) return shape;
     uint first = splat_shapes[t];
     for (int i = 0; i < 6; i++) {
-        vec3 l = (lines & (1u << uint(i))) != 0u ? cut_line(first + 3u * uint(i)) : vec3(0.0, 0.0, 3.4e38);
+        vec3 l = (lines & (1u << uint(i))) != 0u ? cut_line(first + 3u * uint(i)) : none;
         float slack = 1e-4 * max(abs(l.x), abs(l.y));
         if (i < 3) {
             shape.lines_a[i] = l;
@@ -149,7 +149,7 @@ SplatShape splat_shape(uint t, uint lines) {
 }
 
 // The radius of a splat of radius r, centred at barycentrics b, that keeps the area pi r^2 of its
-// disk where its shape's lines (those within the cap, 2 r) cut it. A point stands for its share of
+// disk where its shape's lines cut it (a line farther than the radius takes nothing). A point stands for its share of
 // the surface; cut down to half a disk at an edge, the splats would cover a line's crossing near
 // the edge half as often as elsewhere, and light would leak along every crease
 // (docs/MEASURED_FACTS.md, "Cut splats keep their area"). The disk grows along the edge instead:

@@ -25,9 +25,9 @@
 // are solved for their span of columns. The depth at a line is the splat plane's (depth_plane),
 // the same as the raster splatter's. A line beyond one of the lines that cut the splat (its
 // triangle's sharp edges and its flat neighbours') is not in the splat, nor one off the triangle
-// beyond the disk's radius before it grew at those lines (scene.glsl:
-// inside_splat); its barycentrics are the centre's plus its offset in pixels mapped
-// back through the triangle's edges as the bundle sees them.
+// beyond the disk's radius before it grew at those lines (scene.glsl: inside_splat); the lines
+// are linear in the line's offset in pixels, and its barycentrics are the centre's plus that
+// offset mapped back through the triangle's edges as the bundle sees them.
 
 #extension GL_ARB_gpu_shader_int64 : require
 #define NODE_REFERENCE NODE_SPLAT_POINT
@@ -189,9 +189,11 @@ uint splat(uint id) {
             if (cut) {
                 precise vec2 q = vec2(float(x) - c.x, dy);
                 vec3 v = vec3(q, 1.0);
-                if (!all(greaterThanEqual(v * cuts_a, vec3(0.0))) || !all(greaterThanEqual(v * cuts_b, vec3(0.0)))) continue;
+                if (!all(greaterThanEqual(v * cuts_a, vec3(0.0))) || !all(greaterThanEqual(v * cuts_b, vec3(0.0))))
+                    continue;
+                // Beyond the disk, the line must cross the triangle.
                 bool beyond_disk = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y > E_disk;
-                precise vec2 on = b + to_barycentrics * q;  // beyond the disk, the line must be on the triangle
+                precise vec2 on = b + to_barycentrics * q;
                 if (beyond_disk && min(min(on.x, on.y), 1.0 - on.x - on.y) < -1e-4) continue;
             }
             covered++;

@@ -160,7 +160,8 @@ def splat_cuts(
     a = corners[u, e]
     along = corners[u, (e + 1) % 3] - a
     inward = np.cross(normals[t], along)
-    inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a sliver's NaN line cuts nothing: left out below
+        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
     # Turned towards the edge's own triangle: its third corner lies on the surface's side.
     side = np.sign(np.einsum("ij,ij->i", corners[u, (e + 2) % 3] - a, inward))
     inward *= np.where(side < 0, -1.0, 1.0)[:, None]
@@ -172,7 +173,8 @@ def splat_cuts(
         ],
         axis=1,
     )
-    # Distances of the triangle's own corners: a line that cuts the triangle is a notch's.
+    # Distances of the triangle's own corners: a line that cuts the triangle is a notch's (and a
+    # NaN line, of a triangle without a normal, fails the test too).
     at_corners = lines[:, 2:3] + np.stack([np.zeros(len(t)), lines[:, 0], lines[:, 1]], axis=1)
     size = np.linalg.norm(np.stack([e1[t], e2[t]], axis=1), axis=2).max(axis=1)
     keep = at_corners.min(axis=1) >= -1e-6 * size
