@@ -36,7 +36,7 @@ BINDINGS = {
     "INDICES": 4,
     "AREA_CDF": 5,
     "CDF_GUIDE": 30,
-    # what cuts each triangle's splats and where they may grow (scene_buffers.py: splat_shapes)
+    # the lines that cut each triangle's splats (scene_buffers.py: splat_shapes)
     "SPLAT_SHAPES": 12,
     # bundles: frames, splat points, build counters (bundles.py)
     "FRAMES": 6,
