@@ -30,7 +30,7 @@ from evalkit.core.settings import DEPTH_TOLERANCE, PRESETS, RenderSettings, decl
 from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
 from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png
-from evalkit.metrics.bundles import compare_bundles, resolution_advice
+from evalkit.metrics.bundles import compare_bundles, resolution_advice, scene_surfaces
 from evalkit.metrics.confidence import mean_ratio, pool_renders, z_test
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
 from evalkit.study.executors import run_study
@@ -167,6 +167,27 @@ def _gl_bundles(scene, directions, settings):
     return bundles, detail, f"gpu ms {passes} ({stats['gpu_timing']}); wall {stats['wall_ms']:.1f} ms"
 
 
+def _bundle_surfaces(args, test: BundleSet, exact: BundleSet):
+    """The smooth surfaces of the scene the bundles were built from (what tells a leak from an
+    offset), or None with a warning when that scene cannot be read as it was."""
+    spec = args.scene or test.params.get("scene_source")
+    why = None
+    if spec is None:
+        why = f"{args.test} does not record where its scene came from; pass --scene"
+    else:
+        try:
+            scene = load_scene(spec)
+        except InputError as e:
+            why = f"{e}; pass --scene"
+        else:
+            if scene.content_hash() not in (test.params.get("scene_hash"), exact.params.get("scene_hash")):
+                why = f"{spec} is not the scene {args.test} was built from (its content hash differs)"
+    if why:
+        print(f"evalkit: warning: holes not told apart (leaks, offsets, coincident): {why}", file=sys.stderr)
+        return None
+    return scene_surfaces(scene)
+
+
 def _compare_bundles(args) -> int:
     test, exact = BundleSet.load(args.test), BundleSet.load(args.exact)
     if exact.method != "exact":
@@ -175,8 +196,9 @@ def _compare_bundles(args) -> int:
             "it is used as the reference anyway",
             file=sys.stderr,
         )
+    surfaces = _bundle_surfaces(args, test, exact) if test.has_splats else None
     try:
-        r = compare_bundles(test, exact, depth_tolerance=args.depth_tolerance)
+        r = compare_bundles(test, exact, depth_tolerance=args.depth_tolerance, surfaces=surfaces)
     except ValueError as e:
         raise InputError(args.test, f"cannot be compared with {args.exact}: {e}") from None
     per = r["per_direction"]
@@ -199,6 +221,11 @@ def _compare_bundles(args) -> int:
         f"agreement   {r['agreement']:.4%} of exact nodes matched; "
         f"{r['spurious_per_crossing']:.4f} spurious nodes per exact crossing"
     )
+    if r["leak_rate"] is not None:
+        print(
+            f"holes       {r['leak_rate']:.4%} leaks (no node of the surface within a splat's reach), "
+            f"{r['offset_rate']:.4%} offsets, {r['coincident_rate']:.4%} coincident"
+        )
     if args.json:
         print(json.dumps(r))
     return 0
@@ -751,6 +778,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("test", metavar="TEST.npz")
     p.add_argument("exact", metavar="EXACT.npz")
+    p.add_argument(
+        "--scene",
+        help="the scene the bundles were built from (default: the one TEST.npz records), whose surfaces "
+        "tell a splat's leaks from its offsets",
+    )
     p.add_argument(
         "--depth-tolerance",
         type=_positive_float,

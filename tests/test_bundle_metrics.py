@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from test_bundles import QUAD, QUAD_FACES, build, scene_of
 
-from evalkit.core.bundleset import DirectionSet
+from evalkit.core.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet
 from evalkit.core.scene import Material, Mesh, load_scene
 from evalkit.core.settings import RenderSettings
 from evalkit.metrics.bundles import (
@@ -293,3 +293,91 @@ def test_the_shaders_lookups_are_the_emulations_vertex_by_vertex(gl, method):
     # perfect, in 3 runs of 25,000 vertices at R = 256.
     disagree = (shader_left != left) | (shader_hit & ~hit) | (hit & shader_hit & apart)
     assert disagree.sum() <= 2, disagree.sum()
+
+
+def one_line_sets(exact_nodes, test_nodes):
+    """An exact set and a splat set with nodes on list 0 of the same one bundle (a frame of radius
+    1, splats of radius 0.1): (depth, normal, triangle) each, normals given in a frame whose z axis
+    is the bundle direction, so that (0, 0, 1) is head-on."""
+    ds = DirectionSet.make(1, seed=0)
+    d = ds.directions[0]
+    frame = np.stack([ds.axis_u[0], ds.axis_v[0], d])
+
+    def bundle_set(method, nodes, **splats):
+        depth, normal, triangle = (np.array(x) for x in zip(*nodes)) if nodes else (np.zeros(0),) * 3
+        m = len(depth)
+        return BundleSet(
+            method,
+            ds,
+            np.zeros(3),
+            1.0,
+            2,
+            np.array([0, m, m, m, m]),
+            np.float32(depth),
+            np.float32(normal.reshape(m, 3) @ frame),
+            np.full((m, 3), 0.5, np.float32),
+            np.zeros((m, 3), np.float32),
+            np.int32(np.full(m, SPLAT_PRIM_ID) if splats else triangle),
+            np.zeros(m, np.int32),
+            params={"splat_radius": 0.1} if splats else {},
+            **({"splat_triangle": np.int32(triangle), "splat_centre": np.zeros((m, 3))} if splats else {}),
+        )
+
+    return bundle_set("imperfect", test_nodes, splats=True), bundle_set("exact", exact_nodes)
+
+
+HEAD_ON, TILTED, DOWN = (0.0, 0.0, 1.0), (np.sin(0.7), 0.0, np.cos(0.7)), (0.0, 0.0, -1.0)
+
+
+@pytest.mark.parametrize(
+    "case, exact_nodes, test_nodes, kinds",
+    [
+        # A curved surface's splat, tilted by 40 degrees, 0.05 behind the crossing: within the
+        # splat radius 0.1, beyond the depth tolerance.
+        ("same smooth surface within reach", [(1.0, HEAD_ON, 0)], [(1.05, TILTED, 1)], (0, 1, 0)),
+        ("another surface within reach", [(1.0, HEAD_ON, 0)], [(1.05, TILTED, 2)], (1, 0, 0)),
+        ("another surface in the crossing's plane", [(1.0, HEAD_ON, 0)], [(1.05, HEAD_ON, 2)], (0, 1, 0)),
+        ("same surface beyond reach", [(1.0, HEAD_ON, 0)], [(1.2, HEAD_ON, 1)], (1, 0, 0)),
+        ("no node", [(1.0, HEAD_ON, 0)], [], (1, 0, 0)),
+        # Two surfaces at one depth: in one plane, one node is theirs; facing apart (a box standing
+        # on a floor), each needs its own.
+        ("one plane, two surfaces", [(1.0, HEAD_ON, 0), (1.0, HEAD_ON, 2)], [(1.0, HEAD_ON, 2)], (0, 0, 1)),
+        ("facing apart", [(1.0, HEAD_ON, 0), (1.0, DOWN, 2)], [(1.0, HEAD_ON, 0)], (1, 0, 0)),
+    ],
+)
+def test_holes_are_leaks_offsets_or_coincident_by_the_surface_near_them(case, exact_nodes, test_nodes, kinds):
+    """Triangles 0 and 1 are one smooth surface, triangle 2 another. A hole is an offset only where
+    a leftover splat node of its own surface (or plane) lies within reach; coincident where a
+    matched node lies in its plane."""
+    test, exact = one_line_sets(exact_nodes, test_nodes)
+    r = compare_bundles(test, exact, surfaces=np.array([0, 0, 1]))
+    assert (r["leaks"], r["offsets"], r["coincident"]) == kinds and r["holes"] == 1, case
+    assert r["leak_rate"] + r["offset_rate"] + r["coincident_rate"] == r["hole_rate"] > 0
+    # Without the scene's surfaces nothing tells them apart: none is counted.
+    unknown = compare_bundles(test, exact)
+    assert unknown["leaks"] is None and unknown["coincident_rate"] is None and unknown["holes"] == 1
+
+
+def test_smooth_surfaces_join_gentle_bends_and_part_at_creases():
+    """A 24-sided prism's sides bend by 15 degrees at each edge, less than a crease: one surface.
+    A 6-sided prism's bend by 60: six. The caps meet the sides at right angles: one surface each."""
+    from evalkit.core.scene.edges import smooth_surfaces
+
+    def prism(n):
+        a = 2 * np.pi * np.arange(n) / n
+        ring = np.column_stack([np.cos(a), np.sin(a)])
+        positions = np.concatenate([np.column_stack([ring, np.zeros(n)]), np.column_stack([ring, np.ones(n)])])
+        i = np.arange(n)
+        j = (i + 1) % n
+        sides = np.concatenate([np.column_stack([i, j, j + n]), np.column_stack([i, j + n, i + n])])
+        fan = np.column_stack([np.zeros(n - 2, int), i[1:-1], i[2:]])
+        caps = np.concatenate([fan[:, [0, 2, 1]], n + fan])  # facing down, then up
+        faces = np.concatenate([sides, caps])
+        p = positions[faces]
+        normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        return positions, faces, normal / np.linalg.norm(normal, axis=1, keepdims=True)
+
+    s = smooth_surfaces(*prism(24))
+    assert len(np.unique(s[:48])) == 1 and len(np.unique(s)) == 3
+    s = smooth_surfaces(*prism(6))
+    assert len(np.unique(s[:12])) == 6 and len(np.unique(s)) == 8

@@ -242,6 +242,17 @@ def test_cli_exact_bundles_and_compare_bundles(tmp_path):
     assert bad.returncode == 2 and "not on the same lines" in bad.stderr and bad.stderr.count("\n") == 1
     missing = run_evalkit("compare-bundles", str(tmp_path / "nope.npz"), str(tmp_path / "exact.npz"))
     assert missing.returncode == 2 and "nope.npz: no such file" in missing.stderr
+    # Splats: the scene the file records tells leaks from offsets; another scene is refused.
+    splats = str(tmp_path / "imperfect.npz")
+    assert run_evalkit("bundles", *common, "--method", "imperfect", "--out", splats).returncode == 0
+    r = run_evalkit("compare-bundles", splats, str(tmp_path / "exact.npz"), "--json")
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    assert r.returncode == 0 and "leaks" in r.stdout and not r.stderr, r.stderr
+    assert result["leak_rate"] + result["offset_rate"] + result["coincident_rate"] == pytest.approx(result["hole_rate"])
+    r = run_evalkit("compare-bundles", splats, str(tmp_path / "exact.npz"), "--scene", "furnace", "--json")
+    assert r.returncode == 0 and json.loads(r.stdout.strip().splitlines()[-1])["leak_rate"] is None
+    assert "holes not told apart (leaks, offsets, coincident): furnace is not the scene" in r.stderr
+    assert r.stderr.count("\n") == 1
 
 
 def test_cached_exact_bundles_on_other_lines_are_made_again(tmp_path):

@@ -12,7 +12,7 @@ from conftest import trace
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
-from evalkit.metrics.bundles import compare_bundles
+from evalkit.metrics.bundles import compare_bundles, scene_surfaces
 from evalkit.metrics.hole_model import analyse, fit, recommend, validate
 from references.embree import ExactTracer
 
@@ -67,7 +67,7 @@ def test_measured_holes_fall_and_redundant_nodes_rise_with_the_splat_scale(gl):
             sampler="random",
             merge=False,
         )
-        r = compare_bundles(bundles, exact)
+        r = compare_bundles(bundles, exact, surfaces=scene_surfaces(scene))
         rows.append(
             {
                 "scene": "cornell-box",

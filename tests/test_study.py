@@ -140,7 +140,7 @@ def test_a_study_writes_one_row_per_run_with_parameters_metrics_timings_and_vers
     for r in bundles:
         assert r["indirect_mean_ratio_lo"] < r["indirect_mean_ratio"] < r["indirect_mean_ratio_hi"]
         assert 0 <= r["indirect_z_outside"] <= 1
-        assert r["leak_rate"] + r["offset_rate"] == pytest.approx(r["hole_rate"])
+        assert r["leak_rate"] + r["offset_rate"] + r["coincident_rate"] == pytest.approx(r["hole_rate"])
     # Different seeds give different images.
     perfect = [r for r in rows if r["method"] == "perfect"]
     assert perfect[0]["indirect_relmse"] != perfect[1]["indirect_relmse"]

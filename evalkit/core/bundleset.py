@@ -121,6 +121,7 @@ def bundle_params(scene, method: str, directions: DirectionSet, resolution: int)
     return {
         "evalkit": importlib.metadata.version("raybundle-evalkit"),
         "scene": scene.name,
+        "scene_source": scene.source,  # what `load_scene` reads it from
         "scene_hash": scene.content_hash(),
         "method": method,
         "directions": directions.count,

@@ -13,21 +13,31 @@ when that node is within the depth tolerance. Then:
   twice in one pixel, as overlapping splats do);
 - the **depth error** of a matched test node is its distance to the nearest exact node.
 
-A hole is either of two things, and they mean different things for the light:
+A hole is one of three things, and they mean different things for the light:
 
 - an **offset**: a test node of the same surface lies near the crossing, beyond the tolerance but
   within a splat's reach. A splat is a disk of radius r in its own triangle's plane; on a curved
   or creased surface it stands off the surface by up to r along the surface normal, r / |cos t|
   along a line at angle t to the normal (`OFFSET_REACH_COS` bounds the slope). A node of the
-  same facing (the sign of its normal along the line), left over by the matching (spurious or
-  redundant), within that reach of the crossing is the surface, offset: a path still meets it.
-  Perfect bundles have no reach beyond the tolerance: every hole of theirs is a leak.
+  same surface, left over by the matching (spurious or redundant), within that reach of the
+  crossing is the surface, offset: a path still meets it. The same surface is the same smooth
+  surface (`smooth_surfaces`: triangles joined across edges that bend by less than a crease; a
+  column is one, a thin slab's two sides are two) or the same plane (`COPLANAR_COS`). A node of
+  another surface (a wall's splat near the floor) does not make a hole an offset: the line still
+  passes through the surface there. Telling them apart needs the scene's triangles
+  (``surfaces``); without them the three kinds are not counted. Perfect bundles have no reach
+  beyond the tolerance: every hole of theirs is a leak.
 - a **leak**: no such node, so a line crosses the surface and finds no node for it: light leaks
   through. Leaks are what the splat size and point count must remove (the hole model fits them).
+- a **coincident** hole: in a cluster of surfaces in one plane at one depth (a wall's top under the
+  edge of a floor slab), the test node matched there lies in that plane. Merging keeps one node
+  per crossing, and to a line the two are one surface: it has its node. The holes a cluster has
+  beyond the planes left without a node are coincident.
 
-So test nodes = matched + redundant + spurious, and exact nodes = matched + holes. Node agreement
-is matched / exact nodes. The spurious rate is per test node; spurious nodes per exact crossing
-compares lists of different density (imperfect bundles with and without merging) on one scale.
+So test nodes = matched + redundant + spurious, exact nodes = matched + holes, and holes = leaks +
+offsets + coincident holes. Node agreement is matched / exact nodes. The spurious rate is per test
+node; spurious nodes per exact crossing compares lists of different density (imperfect bundles with
+and without merging) on one scale.
 The tolerance is relative to the frame radius, so the numbers do not change with the scene's scale.
 
 The rates are also broken down by direction and by **slope**: |cos| between the bundle direction
@@ -40,14 +50,18 @@ lookup returns (the rule of shaders/eye_paths.glsl) against an exact Embree ray 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.display import fields_html
 from evalkit.core.scene.edges import (
+    FLAT_DEGREES,
     cut_distances,
     plane_barycentrics,
     sharp_splat_radii,
+    smooth_surfaces,
     splat_cuts,
 )
 from evalkit.core.settings import DEPTH_TOLERANCE, RenderSettings
@@ -61,6 +75,10 @@ SLOPE_BINS = (0.0, 0.1, 0.25, 0.5, 0.75, 1.0)
 # The least |cos| between a line and a surface the offset reach counts with: at grazing angles a
 # splat's reach along the line is capped at ten radii.
 OFFSET_REACH_COS = 0.1
+# Pieces of one plane that share no edge (a strip laid on a floor, tiles) are separate smooth
+# surfaces (`smooth_surfaces`), but a splat of one that covers the other's crossing is that plane:
+# nodes whose normals part by less than this are of one surface too.
+COPLANAR_COS = math.cos(math.radians(FLAT_DEGREES))
 
 
 def frame_mismatch(test: BundleSet, exact: BundleSet) -> str | None:
@@ -94,10 +112,23 @@ class BundleComparison(dict):
         return fields_html("Bundle comparison", fields)
 
 
-def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = DEPTH_TOLERANCE) -> BundleComparison:
+def scene_surfaces(scene) -> np.ndarray:
+    """`compare_bundles`' ``surfaces`` for a scene: each triangle's smooth surface."""
+    arrays = scene.arrays()
+    return smooth_surfaces(arrays.positions, arrays.faces, arrays.tri_normal)
+
+
+def compare_bundles(
+    test: BundleSet,
+    exact: BundleSet,
+    depth_tolerance: float = DEPTH_TOLERANCE,
+    surfaces: np.ndarray | None = None,
+) -> BundleComparison:
     """Hole, spurious and redundant nodes and depth errors of ``test`` against ``exact``, in
     aggregate and per direction (see the module docstring). ``depth_tolerance`` is in units of the
-    frame radius. Raises ValueError when the two sets do not share their lines."""
+    frame radius. ``surfaces``: per scene triangle, its smooth surface (`smooth_surfaces`), which
+    tells an imperfect set's leaks, offsets and coincident holes apart; without it they are None.
+    Raises ValueError when the two sets do not share their lines."""
     problem = frame_mismatch(test, exact)
     if problem:
         raise ValueError(f"the bundle sets are not on the same lines: {problem}")
@@ -172,8 +203,17 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
     n_exact, n_test = len(e_key), len(t_key)
     holes, spurious, redundant = int(hole_per_cluster.sum()), int(spurious_node.sum()), int(redundant_node.sum())
     splat_radius = test.params.get("splat_radius")
-    leaks, offsets, offset_depth = _leaks_and_offsets(
-        test, exact, tau, splat_radius, cluster, starts, hole_per_cluster, spurious_node | redundant_node
+    leaks, offsets, coincident, offset_depth = _hole_kinds(
+        test,
+        exact,
+        tau,
+        splat_radius,
+        surfaces,
+        cluster,
+        hole_per_cluster,
+        matched_test,
+        cluster[assigned[matched_test]],
+        spurious_node | redundant_node,
     )
     return BundleComparison(
         {
@@ -198,8 +238,10 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
             "same_prim_rate": float(same_prim.mean()) if len(same_prim) else 1.0,
             "leaks": leaks,
             "offsets": offsets,
-            "leak_rate": leaks / max(n_exact, 1),
-            "offset_rate": offsets / max(n_exact, 1),
+            "coincident": coincident,
+            "leak_rate": None if leaks is None else leaks / max(n_exact, 1),
+            "offset_rate": None if offsets is None else offsets / max(n_exact, 1),
+            "coincident_rate": None if coincident is None else coincident / max(n_exact, 1),
             # How far offset surfaces lie from the exact crossing along the line, in frame radii and
             # (imperfect bundles) splat radii: quantiles over the offsets.
             "offset_depth": {
@@ -237,43 +279,67 @@ def compare_bundles(test: BundleSet, exact: BundleSet, depth_tolerance: float = 
     )
 
 
-def _leaks_and_offsets(test, exact, tau, splat_radius, cluster, starts, hole_per_cluster, unmatched):
-    """(leaks, offsets, the offsets' depth gaps) of the holes: per cluster with holes, the test
-    nodes left over by the matching (``unmatched``), facing the same way, within the reach of the
-    cluster's crossing (see the module docstring)."""
+def _hole_kinds(
+    test, exact, tau, splat_radius, surfaces, cluster, hole_per_cluster, matched, matched_cluster, leftover
+):
+    """(leaks, offsets, coincident holes, the offsets' depth gaps) of the holes (see the module
+    docstring): ``matched`` test nodes and their clusters, ``leftover`` the nodes left over. The
+    three counts are None for splats without ``surfaces``."""
+    holes = int(hole_per_cluster.sum())
     holed = np.nonzero(hole_per_cluster > 0)[0]
     if not len(holed) or splat_radius is None:
-        return int(hole_per_cluster.sum()), 0, np.zeros(0)
+        return holes, 0, 0, np.zeros(0)
+    if surfaces is None:
+        return None, None, None, np.zeros(0)
+    e_node = np.nonzero(np.isin(cluster, holed))[0]  # every exact node of a holed cluster
+    e_cluster = cluster[e_node]
+    e_normal = exact.normal[e_node].astype(np.float64)
+    # A cluster of coincident surfaces: the nodes whose plane a matched test node lies in have it,
+    # and its real holes are the planes left without one (at most its holes).
+    real = hole_per_cluster.copy()
+    missing = np.ones(len(e_node), bool)
+    size = np.bincount(e_cluster, minlength=len(hole_per_cluster))
+    order = np.argsort(matched_cluster, kind="stable")
+    by_cluster, matched = matched_cluster[order], matched[order]
+    for c in holed[size[holed] > 1]:  # few: most crossings are alone on their line
+        nodes = slice(np.searchsorted(e_cluster, c), np.searchsorted(e_cluster, c, "right"))
+        found = test.normal[matched[np.searchsorted(by_cluster, c) : np.searchsorted(by_cluster, c, "right")]]
+        normals = e_normal[nodes]
+        missing[nodes] = ~(normals @ found.T.astype(np.float64) >= COPLANAR_COS).any(axis=1)
+        planes, left = 0, normals[missing[nodes]]
+        while len(left):
+            planes, left = planes + 1, left[left @ left[0] < COPLANAR_COS]
+        real[c] = min(real[c], planes)
+    coincident = holes - int(real.sum())
+    e_node, e_cluster, e_normal = e_node[missing], e_cluster[missing], e_normal[missing]
+
     R2 = exact.resolution**2
     dirs = exact.directions.directions
-    first = np.nonzero(starts)[0][holed]  # each holed cluster's first exact node
-    e_list = exact.node_lists()[first]
-    e_depth = exact.depth[first].astype(np.float64)
-    e_dot = np.einsum("ij,ij->i", exact.normal[first].astype(np.float64), dirs[e_list // R2])
-    reach = np.maximum(splat_radius / np.maximum(np.abs(e_dot), OFFSET_REACH_COS), tau)
-    t_all = test.node_lists()
-    t_dot = np.einsum("ij,ij->i", test.normal.astype(np.float64), dirs[t_all // R2])
-    gaps = np.full(len(holed), np.inf)
-    for facing in (True, False):  # nodes facing along the line, then against it
-        pick = unmatched & ((t_dot > 0) == facing)
-        mine = (e_dot > 0) == facing
-        t_list, t_depth = t_all[pick], test.depth[pick].astype(np.float64)
-        # One sorted key per node, lists kept further apart than any reach.
-        span = np.ptp(np.concatenate([t_depth, e_depth, [0.0]])) + 4 * reach.max() + 1.0
-        low = min(t_depth.min(initial=0.0), e_depth.min(initial=0.0))
-        t_key = t_list * span + (t_depth - low)
-        e_key = e_list[mine] * span + (e_depth[mine] - low)
-        pos = np.searchsorted(t_key, e_key)
-        best = np.full(len(e_key), np.inf)
-        for candidate in (pos - 1, pos):
-            ok = (candidate >= 0) & (candidate < len(t_key))
-            c = np.where(ok, candidate, 0)
-            gap = np.where(ok, np.abs(t_key[c] - e_key), np.inf) if len(t_key) else np.full(len(e_key), np.inf)
-            best = np.minimum(best, gap)
-        gaps[mine] = best
-    covered = gaps <= reach
-    offsets = int(np.minimum(hole_per_cluster[holed][covered], 1).sum())
-    return int(hole_per_cluster.sum()) - offsets, offsets, gaps[covered]
+    e_list = exact.node_lists()[e_node]
+    e_depth = exact.depth[e_node].astype(np.float64)
+    e_cos = np.abs(np.einsum("ij,ij->i", e_normal, dirs[e_list // R2]))
+    reach = np.maximum(splat_radius / np.maximum(e_cos, OFFSET_REACH_COS), tau)
+    t_node = np.nonzero(leftover)[0]
+    t_list, t_depth = test.node_lists()[t_node], test.depth[t_node].astype(np.float64)
+    # One sorted key per node (lists are sorted, and by depth within), lists kept further apart
+    # than any reach.
+    low = min(t_depth.min(initial=0.0), e_depth.min(initial=0.0))
+    span = max(t_depth.max(initial=0.0), e_depth.max(initial=0.0)) - low + 4 * reach.max(initial=0.0) + 1.0
+    t_key, e_key = t_list * span + (t_depth - low), e_list * span + (e_depth - low)
+    lo, hi = np.searchsorted(t_key, e_key - reach, "left"), np.searchsorted(t_key, e_key + reach, "right")
+    # Every (exact node, test node within its reach) pair: few, as a reach spans a few nodes.
+    count = hi - lo
+    pair_e = np.repeat(np.arange(len(e_node)), count)
+    pair_t = lo[pair_e] + np.arange(len(pair_e)) - np.repeat(np.cumsum(count) - count, count)
+    e_surface = surfaces[exact.prim_id[e_node[pair_e]]]
+    t_surface = surfaces[test.node_triangle()[t_node[pair_t]]]
+    coplanar = np.einsum("ij,ij->i", e_normal[pair_e], test.normal[t_node[pair_t]]) >= COPLANAR_COS
+    same = (e_surface == t_surface) | coplanar
+    gap = np.full(len(hole_per_cluster), np.inf)  # per cluster: the nearest same-surface node's depth gap
+    np.minimum.at(gap, e_cluster[pair_e[same]], np.abs(t_key[pair_t[same]] - e_key[pair_e[same]]))
+    covered = np.isfinite(gap[holed]) & (real[holed] > 0)
+    offsets = int(np.minimum(real[holed][covered], 1).sum())
+    return int(real.sum()) - offsets, offsets, coincident, gap[holed][covered]
 
 
 # -- next hits from eye vertices ----------------------------------------------------------------

@@ -21,7 +21,7 @@ from evalkit.core.bundleset import DirectionSet
 from evalkit.core.errors import LimitError
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene, load_scene
-from evalkit.metrics.bundles import compare_bundles, eye_vertices, next_hit_errors
+from evalkit.metrics.bundles import compare_bundles, eye_vertices, next_hit_errors, scene_surfaces
 from evalkit.metrics.confidence import mean_ratio, z_test
 from evalkit.metrics.images import compare_images
 from evalkit.study.artefacts import exact_bundles, exact_tracer, film_size, reference_for
@@ -159,7 +159,7 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
         stats = tracer.build(directions)
         bundles = tracer.read()
         splat_radius = tracer.params().get("splat_radius")
-    r = compare_bundles(bundles, exact)
+    r = compare_bundles(bundles, exact, surfaces=scene_surfaces(scene))
     embree = exact_tracer(scene)
     vertices = eye_vertices(scene, embree, int(measure["eye_vertices"]), seed=int(run["seed"]))
     hit = next_hit_errors(bundles, embree, vertices, seed=int(run["seed"]))
@@ -173,6 +173,7 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
             "hole_rate",
             "leak_rate",
             "offset_rate",
+            "coincident_rate",
             "spurious_rate",
             "spurious_per_crossing",
             "redundant_rate",

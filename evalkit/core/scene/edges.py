@@ -121,6 +121,31 @@ def flat_neighbours(positions: np.ndarray, faces: np.ndarray, normals: np.ndarra
     return across
 
 
+def smooth_surfaces(
+    positions: np.ndarray, faces: np.ndarray, normals: np.ndarray, crease_degrees: float = CREASE_DEGREES
+) -> np.ndarray:
+    """(T,) int64: per triangle, the smooth surface it belongs to, the triangles joined across
+    edges shared by two whose normals part by less than ``crease_degrees``, convex or concave: a
+    column's facets are one surface, a floor and the wall it meets at a right angle two, and so
+    are a thin slab's two sides. A triangle that welding collapses is a surface of its own. This is
+    what a hole in imperfect bundles is measured against (evalkit/metrics/bundles.py: an offset is
+    a splat of the crossing's own surface)."""
+    from scipy.sparse import coo_matrix  # deferred: as in solid_triangles
+    from scipy.sparse.csgraph import connected_components  # deferred: as above
+
+    surface = np.arange(len(faces), dtype=np.int64)
+    if not len(faces):
+        return surface
+    kept, _, _, (t0, _), (t1, _), n0, n1, _ = _edge_pairs(positions, faces, normals)
+    smooth = np.einsum("ij,ij->i", n0, n1) >= math.cos(math.radians(crease_degrees))
+    graph = coo_matrix((np.ones(int(smooth.sum())), (t0[smooth], t1[smooth])), shape=(len(kept), len(kept)))
+    count, component = connected_components(graph, directed=False)
+    collapsed = np.setdiff1d(surface, kept)
+    surface[kept] = component
+    surface[collapsed] = count + np.arange(len(collapsed))
+    return surface
+
+
 def splat_cuts(
     positions: np.ndarray,
     faces: np.ndarray,
