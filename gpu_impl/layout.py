@@ -38,6 +38,9 @@ BINDINGS = {
     "CDF_GUIDE": 30,
     # the lines that cut each triangle's splats (scene_buffers.py: splat_shapes)
     "SPLAT_SHAPES": 12,
+    # the imperfect bundles' own point CDF and its guide (scene_buffers.py: surface_area_cdf)
+    "SPLAT_CDF": 18,
+    "SPLAT_CDF_GUIDE": 19,
     # bundles: frames, splat points, build counters (bundles.py)
     "FRAMES": 6,
     "POINTS": 7,

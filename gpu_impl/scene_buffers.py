@@ -6,7 +6,7 @@ import numpy as np
 
 from evalkit.core.bundleset import FRAME_PADDING
 from evalkit.core.scene import Scene
-from evalkit.core.scene.edges import solid_triangles, splat_cuts
+from evalkit.core.scene.edges import smooth_surfaces, solid_triangles, splat_cuts
 from gpu_impl.context import GLContext
 from gpu_impl.layout import (
     BINDINGS,
@@ -25,6 +25,14 @@ from gpu_impl.layout import (
 # the frame radius) a cluster's box is widened.
 CLUSTER_TRIANGLES = 128
 CLUSTER_PADDING = 1e-5
+# The imperfect bundles' points: every smooth surface gets at least this many points' share of the
+# CDF per direction, and the boost takes at most this share of the points from larger surfaces
+# (surface_weights). A surface smaller than a point's share of the area got a point in only some
+# directions; a line through it found nothing in the rest: on atrium (K=16, R=128, N=16384, s=2.5)
+# 55 % of the leaks lay on surfaces of less than one point's share, 2.3 % of the crossings
+# (docs/MEASURED_FACTS.md, "Small surfaces get points of their own").
+SURFACE_LEAST_POINTS = 2
+SURFACE_POINTS_SHARE = 0.1
 
 
 class GpuScene:
@@ -48,6 +56,7 @@ class GpuScene:
         self.triangle_count = len(a.faces)
         self._solid = None  # `solids`, found when a pass first needs them
         self._cuts = None  # `splat_shapes`, found when splats first need them
+        self._surfaces = None  # `surfaces`, found when splat points first need them
         self._cluster_bounds = None  # `cluster_bounds`, found when a pass first culls
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
@@ -73,21 +82,12 @@ class GpuScene:
             else np.zeros(3, np.float32)
         )
 
-        # The inclusive area CDF for area-weighted point sampling (shaders/splat_points.glsl), over
-        # the triangles in the order of a space-filling curve through their centroids, so that
-        # stratifying the CDF stratifies the surface however the mesh orders its triangles. Summed
-        # in float64; its last entry is exactly 1 so every u in [0, 1) finds a triangle. A triangle
-        # under float32's resolution of the CDF (about 6e-8 of the total area) is sampled in
-        # proportion to rounding, not area.
-        order = morton_order(a.positions[a.faces].mean(axis=1))
-        cdf = np.zeros(len(order), dtype=[("cdf", "<f4"), ("triangle", "<u4")])
-        cdf["cdf"] = np.cumsum(a.tri_area[order]) / a.tri_area.sum()
-        cdf["cdf"][-1] = 1.0
-        cdf["triangle"] = order
-        # A guide to the CDF: for u in [b / G, (b + 1) / G), the answer lies between entries
-        # guide[b] and guide[b + 1], so a search takes a step or two instead of log2(T).
-        buckets = 1 << min(20, max(1, int(np.ceil(np.log2(len(order))))))
-        guide = np.searchsorted(cdf["cdf"], np.arange(buckets + 1) / buckets, side="right").clip(0, len(order) - 1)
+        # The area CDF for area-weighted point sampling (shaders/area_sampling.glsl) over the
+        # triangles in the order of a space-filling curve through their centroids, so that
+        # stratifying the CDF stratifies the surface however the mesh orders its triangles. The
+        # imperfect shadow maps' points draw from it; the imperfect bundles' from their own
+        # (`surface_area_cdf`).
+        cdf, guide = area_cdf(a.tri_area, morton_order(a.positions[a.faces].mean(axis=1)))
 
         # The raster passes draw each triangle with a provoking vertex (its last) of its own, which
         # hands them the triangle's index as a flat attribute (shaders/perfect_bundles.glsl): on a
@@ -103,7 +103,7 @@ class GpuScene:
             "MATERIALS": gl.buffer(materials.tobytes()),
             "TEXELS": gl.buffer(texels.tobytes()),
             "AREA_CDF": gl.buffer(cdf.tobytes()),
-            "CDF_GUIDE": gl.buffer(guide.astype(np.uint32).tobytes()),
+            "CDF_GUIDE": gl.buffer(guide.tobytes()),
         }
 
     def solids(self) -> np.ndarray:
@@ -114,6 +114,15 @@ class GpuScene:
             self._solid = solid_triangles(self.arrays.positions, self.arrays.faces)
             self.buffers["TRIANGLES"].write(self._triangles(self.arrays))
         return self._solid
+
+    def surfaces(self) -> np.ndarray:
+        """Per triangle, its smooth surface (`smooth_surfaces`): what the imperfect bundles' point
+        CDF gives each a share of (`surface_area_cdf`). Found the first time splats ask; rigid
+        poses keep it."""
+        if self._surfaces is None:
+            a = self.arrays
+            self._surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal)
+        return self._surfaces
 
     def splat_shapes(self) -> np.ndarray:
         """Per triangle, how many lines cut its splats (`evalkit.core.scene.edges.splat_cuts`: its
@@ -220,6 +229,73 @@ class GpuScene:
 
     def __exit__(self, *exc) -> None:
         self.release()
+
+
+def area_cdf(weights: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The inclusive CDF of the triangles' sampling ``weights`` (T,) in ``order``, as records of
+    (cdf float32, triangle uint32), and a guide to it (uint32): for u in [b / G, (b + 1) / G) the
+    answer lies between entries guide[b] and guide[b + 1], so a search takes a step or two instead
+    of log2(T). Summed in float64; the last entry is exactly 1 so every u in [0, 1) finds a
+    triangle. A triangle under float32's resolution of the CDF (about 6e-8 of the total) is
+    sampled in proportion to rounding, not weight."""
+    cdf = np.zeros(len(order), dtype=[("cdf", "<f4"), ("triangle", "<u4")])
+    cdf["cdf"] = np.cumsum(weights[order]) / weights.sum()
+    cdf["cdf"][-1] = 1.0
+    cdf["triangle"] = order
+    buckets = 1 << min(20, max(1, int(np.ceil(np.log2(len(order))))))
+    guide = np.searchsorted(cdf["cdf"], np.arange(buckets + 1) / buckets, side="right").clip(0, len(order) - 1)
+    return cdf, guide.astype(np.uint32)
+
+
+def surface_weights(areas: np.ndarray, surfaces: np.ndarray, points: int) -> np.ndarray:
+    """Per triangle, its weight in the imperfect bundles' point CDF: its area, scaled up on the
+    smooth surfaces (``surfaces``, `evalkit.core.scene.edges.smooth_surfaces`) too small for
+    `SURFACE_LEAST_POINTS` of ``points`` per direction, so that each gets that share of the CDF.
+    The boost takes at most `SURFACE_POINTS_SHARE` of the points from the rest (when the scene has
+    more small surfaces than that pays for, each gets the same smaller share)."""
+    area = np.bincount(surfaces, weights=areas)
+    total = area.sum()
+
+    def boosted(least):  # the total weight when every surface has at least `least`
+        return np.maximum(area, least).sum()
+
+    # The least share f solves f = k boosted(f) / N; boosted grows slower than f, so iterating
+    # from below converges (a few steps: the boost is small where it matters).
+    least = SURFACE_LEAST_POINTS * total / points
+    for _ in range(32):
+        least = SURFACE_LEAST_POINTS * boosted(least) / points
+    if boosted(least) > total / (1 - SURFACE_POINTS_SHARE):  # capped: the least that spends the share
+        low, high = 0.0, least
+        for _ in range(60):
+            mid = 0.5 * (low + high)
+            low, high = (mid, high) if boosted(mid) <= total / (1 - SURFACE_POINTS_SHARE) else (low, mid)
+        least = low
+    scale = np.maximum(area, least) / np.maximum(area, 1e-300)
+    return areas * scale[surfaces]
+
+
+def surface_area_cdf(arrays, surfaces: np.ndarray, points: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """The imperfect bundles' point CDF (`area_cdf`) for ``points`` per direction: weights from
+    `surface_weights`, each smooth surface's triangles in one run (along the Morton curve within
+    it, the surfaces along the curve through their centroids), so that stratified points give a
+    surface with 2 / N of the CDF a point in every direction (a run of 1 / N misses one direction
+    in six on average: its two strata's points can both fall outside it). Also the weights' total
+    over the area's: how much denser the points are than area alone would make them, which the
+    splat radius' unit takes in."""
+    weights = surface_weights(arrays.tri_area, surfaces, points)
+    centroids = arrays.positions[arrays.faces].mean(axis=1)
+    area = np.bincount(surfaces, weights=arrays.tri_area)
+    surface_centroids = (
+        np.stack([np.bincount(surfaces, weights=centroids[:, i] * arrays.tri_area) for i in range(3)], axis=1)
+        / np.maximum(area, 1e-300)[:, None]
+    )
+    surface_rank = np.empty(len(area), np.int64)
+    surface_rank[morton_order(surface_centroids)] = np.arange(len(area))
+    curve_rank = np.empty(len(centroids), np.int64)
+    curve_rank[morton_order(centroids)] = np.arange(len(centroids))
+    order = np.lexsort((curve_rank, surface_rank[surfaces])).astype(np.uint32)
+    cdf, guide = area_cdf(weights, order)
+    return cdf, guide, float(weights.sum() / arrays.tri_area.sum())
 
 
 def morton_order(points: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ from evalkit.core.scene.edges import (
     plane_barycentrics,
     sharp_edges,
     sharp_splat_radii,
+    smooth_surfaces,
     splat_cuts,
 )
 from evalkit.core.scene.tessellate import box
@@ -26,7 +27,13 @@ from gpu_impl.bundles import NodeBudgetExceeded
 from gpu_impl.context import GLContext
 from gpu_impl.layout import MAX_DIRECTIONS
 from gpu_impl.methods.imperfect import splat_centres
-from gpu_impl.scene_buffers import GpuScene
+from gpu_impl.scene_buffers import (
+    SURFACE_LEAST_POINTS,
+    SURFACE_POINTS_SHARE,
+    GpuScene,
+    surface_area_cdf,
+    surface_weights,
+)
 
 # Matching tolerance for perfect bundles: float32 depth of a point within the bounding sphere.
 PERFECT_DEPTH_TOLERANCE = 1e-5
@@ -112,6 +119,58 @@ def test_splat_nodes_lie_on_their_splats(gl):
     assert beyond.sum() > 50  # most lines go to a nearer splat that need not grow
     b = plane_barycentrics(p[beyond], p0[beyond], p1[beyond], p2[beyond])
     assert min(b.min(), (1 - b.sum(axis=1)).min()) > -1e-4
+
+
+def floor_and_small_boxes(count=6, side=0.1):
+    """A 10 x 10 floor with ``count`` cubes of ``side`` standing on it: 6 count small flat surfaces
+    (a cube's faces meet at right angles) and one large one."""
+    floor = Mesh("floor", (QUAD - [0.5, 0.5, 0]) * [10, 10, 1], QUAD_FACES, 0)
+    corners = [np.array([i - 3, 0, 0.0]) for i in range(count)]
+    cubes = [Mesh(f"cube{i}", *box(c, c + side), 0) for i, c in enumerate(corners)]
+    return scene_of([floor, *cubes], [Material("grey")])
+
+
+def test_every_small_surface_gets_its_least_share_of_the_points():
+    areas = np.array([50.0, 50.0, 0.01, 0.01, 0.02, 0.005])
+    surfaces = np.array([0, 0, 1, 2, 3, 3])
+    weights = surface_weights(areas, surfaces, 1000)
+    share = np.bincount(surfaces, weights=weights) / weights.sum()
+    assert np.allclose(share[1:], SURFACE_LEAST_POINTS / 1000)
+    # The large surface keeps its area; within a surface the weights follow the area.
+    assert np.array_equal(weights[:2], areas[:2]) and weights[4] == pytest.approx(4 * weights[5])
+    # 500 small surfaces cannot each have 2 of 1000 points: they share what the cap allows.
+    many = np.concatenate([[100.0], np.full(500, 0.001)])
+    weights = surface_weights(many, np.arange(501), 1000)
+    assert 1 - many.sum() / weights.sum() == pytest.approx(SURFACE_POINTS_SHARE, rel=1e-6)
+    assert np.allclose(weights[1:], weights[1])
+
+
+def test_a_surfaces_triangles_lie_in_one_run_of_the_point_cdf():
+    a = floor_and_small_boxes().arrays()
+    surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal)
+    cdf, guide, density = surface_area_cdf(a, surfaces, 512)
+    runs = surfaces[cdf["triangle"]]
+    assert np.count_nonzero(np.diff(runs)) == len(np.unique(surfaces)) - 1 == 36
+    assert np.all(np.diff(cdf["cdf"]) >= 0) and cdf["cdf"][-1] == 1.0 and 1.0 < density < 1 / (1 - SURFACE_POINTS_SHARE)
+
+
+@pytest.mark.parametrize("sampler", ["stratified", "random"])
+def test_every_small_surface_has_a_point_in_every_direction(gl, sampler):
+    """36 cube faces of 0.01 (a tenth of a point's share of the area at N = 1024) each have two
+    points' share of the CDF. Stratified points give each a point in every one of 64 directions;
+    independent ones leave a face without one in exp(-2) = 13.5 % of them (before: 90 %)."""
+    scene = floor_and_small_boxes()
+    with GpuScene(gl, scene) as gpu_scene:
+        surfaces = gpu_scene.surfaces()
+        with make_tracer(gl, gpu_scene, "imperfect", directions=64, resolution=16, points=1024, sampler=sampler) as t:
+            t.build(DirectionSet.make(64, seed=2))
+            points = t.read_points().reshape(64, 1024)
+    small = np.unique(surfaces[surfaces != surfaces[0]])
+    has_point = np.array([np.isin(small, surfaces[p["triangle"]]) for p in points])
+    if sampler == "stratified":
+        assert has_point.all()
+    else:
+        assert abs((1 - has_point.mean()) - math.exp(-2)) < 0.03, 1 - has_point.mean()
 
 
 @pytest.mark.parametrize("subdivisions", [1, 12])

@@ -7,7 +7,9 @@ disks. A splat ends at its triangle's sharp edges (convex creases and boundaries
 until it keeps its disk's area (shaders/scene.glsl: sharp_splat_radius, inside_splat).
 
 - ``points``: N points per direction (shaders/splat_points.glsl), stratified along a space-filling
-  curve or independent (``sampler``), each with its splat's radius.
+  curve or independent (``sampler``), each with its splat's radius. They are drawn by area, but
+  every smooth surface has at least `SURFACE_LEAST_POINTS` points' share
+  (gpu_impl/scene_buffers.py: surface_area_cdf), and A is the area so weighted.
 - ``lists``, compute splatter (the default): every splat counts the lines it covers, a prefix sum
   makes exact-size slot ranges, round-trip 1 reads their total, and every splat writes its nodes
   (shaders/splat_lists.glsl): no linked list, no re-run. The count pass leaves each splat's lines
@@ -32,6 +34,7 @@ from evalkit.core.scene.edges import CREASE_DEGREES, FLAT_DEGREES
 from evalkit.core.settings import DEPTH_TOLERANCE, setting
 from gpu_impl.bundles import BundleTracer, LinkedListTracer
 from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT
+from gpu_impl.scene_buffers import SURFACE_LEAST_POINTS, surface_area_cdf
 from gpu_impl.units import BundleMethod, TuneTerms
 
 SPLATTERS = ("compute", "raster")
@@ -91,14 +94,20 @@ class SplatTracer(BundleTracer):
             raise LimitError(
                 f"K={settings.directions}, N={self.N} exceed the 32-bit point indices", ("directions", "points")
             )
-        # The radius at which N disks cover the scene's area once: the unit of splat_scale.
-        unit = math.sqrt(gpu_scene.arrays.tri_area.sum() / (math.pi * self.N))
+        # The points' CDF: area, with a share for every small surface (scene_buffers.py:
+        # surface_area_cdf). The radius at which N disks cover the scene's area once where the
+        # points lie by area alone (they are denser by `point_density` than area makes them):
+        # the unit of splat_scale.
+        cdf, guide, self.point_density = surface_area_cdf(gpu_scene.arrays, gpu_scene.surfaces(), self.N)
+        unit = math.sqrt(self.point_density * gpu_scene.arrays.tri_area.sum() / (math.pi * self.N))
         self.splat_radius = own.splat_radius if own.splat_radius is not None else own.splat_scale * unit
         self.splat_scale = self.splat_radius / unit
         if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
             raise ValueError(f"the splat radius must be positive and finite, got {self.splat_radius}")
         super().__init__(gl, gpu_scene, settings, **hooks)
         gpu_scene.splat_shapes()  # where splats end and grow (shaders/scene.glsl: SplatShape)
+        self.buffers["SPLAT_CDF"] = self.gl.buffer(cdf.tobytes())
+        self.buffers["SPLAT_CDF_GUIDE"] = self.gl.buffer(guide.tobytes())
         self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N))  # triangle 0 for a warm-up draw
 
     points_are = "splat points"
@@ -183,6 +192,9 @@ class SplatTracer(BundleTracer):
             "crease_degrees": CREASE_DEGREES,
             "splats_keep_area": True,  # cut splats grow (shaders/scene.glsl: sharp_splat_radius)
             "flat_degrees": FLAT_DEGREES,  # cut by flat neighbours' sharp edges too (edges.splat_cuts)
+            # every smooth surface has this many points' share (scene_buffers.py: surface_weights)
+            "surface_least_points": SURFACE_LEAST_POINTS,
+            "point_density": self.point_density,
         }
 
     def read_points(self) -> np.ndarray:

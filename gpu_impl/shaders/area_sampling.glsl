@@ -10,8 +10,15 @@
 
 // Per curve position: the inclusive area CDF (float bits, last = 1) and the triangle there; and a
 // guide to it: the answer for u lies between entries cdf_guide[b] and cdf_guide[b + 1], b = u G.
+// SPLAT_CDF: the imperfect bundles' own, where every smooth surface has at least two points' share
+// and its triangles lie in one run (gpu_impl/scene_buffers.py: surface_area_cdf); else the scene's.
+#if defined SPLAT_CDF
+layout(std430, binding = BINDING_SPLAT_CDF) readonly buffer AreaCdf { uvec2 area_cdf[]; };
+layout(std430, binding = BINDING_SPLAT_CDF_GUIDE) readonly buffer CdfGuide { uint cdf_guide[]; };
+#else
 layout(std430, binding = BINDING_AREA_CDF) readonly buffer AreaCdf { uvec2 area_cdf[]; };
 layout(std430, binding = BINDING_CDF_GUIDE) readonly buffer CdfGuide { uint cdf_guide[]; };
+#endif
 
 float cdf_at(uint i) {
     return uintBitsToFloat(area_cdf[i].x);

@@ -1,8 +1,10 @@
 // The surface points of imperfect bundles: N per direction, a different seeded set for each
 // direction and frame (as imperfect shadow maps use a different point set per map). A point is a
 // triangle and barycentrics, so it follows its triangle if the geometry moves. Triangles are chosen
-// in proportion to their area by inverting the area CDF (its entries in the order the scene upload
-// gives them: triangles sorted along a space-filling curve, gpu_impl/scene_buffers.py).
+// in proportion to their area by inverting the bundles' own area CDF, where a smooth surface too
+// small for two points' share of the area gets that share, its triangles in one run along a
+// space-filling curve (gpu_impl/scene_buffers.py: surface_area_cdf): a surface smaller than a
+// splat otherwise has no point in some directions, and lines through it find nothing.
 //
 // SAMPLER picks how (gpu_impl/layout.py: SAMPLERS):
 // - SAMPLER_RANDOM: independent uniform points (a Poisson process over the surface, the textbook
@@ -13,6 +15,7 @@
 #define NODE_REFERENCE NODE_SPLAT_POINT
 #define SPLAT_SHAPES
 #define SPLAT_POINTS_WRITE
+#define SPLAT_CDF
 #include "common.glsl"
 #include "scene.glsl"
 #include "bundle.glsl"

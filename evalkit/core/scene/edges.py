@@ -140,9 +140,10 @@ def smooth_surfaces(
     smooth = np.einsum("ij,ij->i", n0, n1) >= math.cos(math.radians(crease_degrees))
     graph = coo_matrix((np.ones(int(smooth.sum())), (t0[smooth], t1[smooth])), shape=(len(kept), len(kept)))
     count, component = connected_components(graph, directed=False)
-    collapsed = np.setdiff1d(surface, kept)
+    collapsed = np.ones(len(faces), bool)
+    collapsed[kept] = False
     surface[kept] = component
-    surface[collapsed] = count + np.arange(len(collapsed))
+    surface[collapsed] = count + np.arange(int(collapsed.sum()))
     return surface
 
 
