@@ -517,7 +517,7 @@ def _hole_model_section(study: Study, rows: list[dict], out: Path) -> str:
             holes = [max(r["leak_rate"], 1 / r["exact_nodes"]) for r in mine]
             scales = [r["splat_scale"] for r in mine]
             line = ax.plot(scales, holes, "o", label=f"leaks, N={f['points']}")[0]
-            # Beside them the holes, leaks and offsets together.
+            # Beside them the holes: leaks, offsets and coincident holes together.
             ax.plot(
                 scales, [r["hole_rate"] for r in mine], "x", color=line.get_color(), label=f"holes, N={f['points']}"
             )
