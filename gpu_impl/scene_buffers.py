@@ -254,22 +254,19 @@ def surface_weights(areas: np.ndarray, surfaces: np.ndarray, points: int) -> np.
     The boost takes at most `SURFACE_POINTS_SHARE` of the points from the rest (when the scene has
     more small surfaces than that pays for, each gets the same smaller share)."""
     area = np.bincount(surfaces, weights=areas)
-    total = area.sum()
-
-    def boosted(least):  # the total weight when every surface has at least `least`
-        return np.maximum(area, least).sum()
-
-    # The least share f solves f = k boosted(f) / N; boosted grows slower than f, so iterating
-    # from below converges (a few steps: the boost is small where it matters).
-    least = SURFACE_LEAST_POINTS * total / points
-    for _ in range(32):
-        least = SURFACE_LEAST_POINTS * boosted(least) / points
-    if boosted(least) > total / (1 - SURFACE_POINTS_SHARE):  # capped: the least that spends the share
-        low, high = 0.0, least
-        for _ in range(60):
-            mid = 0.5 * (low + high)
-            low, high = (mid, high) if boosted(mid) <= total / (1 - SURFACE_POINTS_SHARE) else (low, mid)
-        least = low
+    total, k = area.sum(), SURFACE_LEAST_POINTS
+    # With the b smallest surfaces raised to the least weight f, the total weight is rest_b + b f
+    # (rest_b: the others' area). f solves f = k (rest_b + b f) / N for the b whose surfaces it
+    # lies above and the others below; or, where that spends more than the share, rest_b + b f =
+    # total / (1 - share). Both sides grow with f, so the least of the consistent answers holds.
+    smallest = np.sort(area)
+    b = np.arange(len(smallest) + 1)
+    rest = total - np.concatenate([[0.0], np.cumsum(smallest)])
+    below, above = np.concatenate([[0.0], smallest]), np.concatenate([smallest, [np.inf]])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shared = np.where(points > k * b, k * rest / (points - k * b), np.inf)
+        capped = np.where(b > 0, (total / (1 - SURFACE_POINTS_SHARE) - rest) / b, np.inf)
+    least = min(f[(f >= below) & (f <= above)].min(initial=np.inf) for f in (shared, capped))
     scale = np.maximum(area, least) / np.maximum(area, 1e-300)
     return areas * scale[surfaces]
 

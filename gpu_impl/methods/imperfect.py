@@ -95,9 +95,9 @@ class SplatTracer(BundleTracer):
                 f"K={settings.directions}, N={self.N} exceed the 32-bit point indices", ("directions", "points")
             )
         # The points' CDF: area, with a share for every small surface (scene_buffers.py:
-        # surface_area_cdf). The radius at which N disks cover the scene's area once where the
-        # points lie by area alone (they are denser by `point_density` than area makes them):
-        # the unit of splat_scale.
+        # surface_area_cdf), which makes the points `point_density` times as many as the area
+        # alone would. The unit of splat_scale: the radius at which N disks cover the weighted
+        # area once, as they do the surfaces that kept their area's share.
         cdf, guide, self.point_density = surface_area_cdf(gpu_scene.arrays, gpu_scene.surfaces(), self.N)
         unit = math.sqrt(self.point_density * gpu_scene.arrays.tri_area.sum() / (math.pi * self.N))
         self.splat_radius = own.splat_radius if own.splat_radius is not None else own.splat_scale * unit
