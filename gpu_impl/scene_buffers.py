@@ -6,7 +6,7 @@ import numpy as np
 
 from evalkit.core.bundleset import FRAME_PADDING
 from evalkit.core.scene import Scene
-from evalkit.core.scene.edges import smooth_surfaces, solid_triangles, splat_cuts
+from evalkit.core.scene.edges import edge_pairs, smooth_surfaces, solid_triangles, splat_cuts
 from gpu_impl.context import GLContext
 from gpu_impl.layout import (
     BINDINGS,
@@ -115,23 +115,33 @@ class GpuScene:
             self.buffers["TRIANGLES"].write(self._triangles(self.arrays))
         return self._solid
 
-    def surfaces(self) -> np.ndarray:
+    def splat_facts(self) -> None:
+        """Find what imperfect bundles need of the edges, the splats' cut lines (`splat_shapes`)
+        and the smooth surfaces (`surfaces`), with the edge pairs found once for both."""
+        if self._cuts is None or self._surfaces is None:
+            a = self.arrays
+            pairs = edge_pairs(a.positions, a.faces, a.tri_normal) if len(a.faces) else None
+            self.splat_shapes(pairs)
+            self.surfaces(pairs)
+
+    def surfaces(self, pairs=None) -> np.ndarray:
         """Per triangle, its smooth surface (`smooth_surfaces`): what the imperfect bundles' point
         CDF gives each a share of (`surface_area_cdf`). Found the first time splats ask; rigid
-        poses keep it."""
+        poses keep it. ``pairs``: the edge pairs, if found already."""
         if self._surfaces is None:
             a = self.arrays
-            self._surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal)
+            self._surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal, pairs=pairs)
         return self._surfaces
 
-    def splat_shapes(self) -> np.ndarray:
+    def splat_shapes(self, pairs=None) -> np.ndarray:
         """Per triangle, how many lines cut its splats (`evalkit.core.scene.edges.splat_cuts`: its
         sharp edges and its flat neighbours'; TRIANGLE_CUT in the triangle records), the lines in
         the SPLAT_SHAPES buffer that shaders/scene.glsl's splat_shape reads. Found, and uploaded,
-        the first time splats ask. Rigid poses keep them."""
+        the first time splats ask. Rigid poses keep them. ``pairs``: the edge pairs, if found
+        already."""
         if self._cuts is None:
             a = self.arrays
-            first, lines = splat_cuts(a.positions, a.faces, a.tri_normal)
+            first, lines = splat_cuts(a.positions, a.faces, a.tri_normal, pairs=pairs)
             # Each triangle's first line's word, then three words a line.
             words = np.concatenate([len(a.faces) + 1 + 3 * first, lines.astype(np.float32).view(np.uint32).reshape(-1)])
             self.buffers["SPLAT_SHAPES"] = self.gl.buffer(words.astype(np.uint32).tobytes())

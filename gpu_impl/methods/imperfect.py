@@ -98,6 +98,7 @@ class SplatTracer(BundleTracer):
         # surface_area_cdf), which makes the points `point_density` times as many as the area
         # alone would. The unit of splat_scale: the radius at which N disks cover the weighted
         # area once, as they do the surfaces that kept their area's share.
+        gpu_scene.splat_facts()  # where splats end and grow (shaders/scene.glsl: SplatShape), the surfaces
         cdf, guide, self.point_density = surface_area_cdf(gpu_scene.arrays, gpu_scene.surfaces(), self.N)
         unit = math.sqrt(self.point_density * gpu_scene.arrays.tri_area.sum() / (math.pi * self.N))
         self.splat_radius = own.splat_radius if own.splat_radius is not None else own.splat_scale * unit
@@ -105,7 +106,6 @@ class SplatTracer(BundleTracer):
         if not (self.splat_radius > 0 and math.isfinite(self.splat_radius)):
             raise ValueError(f"the splat radius must be positive and finite, got {self.splat_radius}")
         super().__init__(gl, gpu_scene, settings, **hooks)
-        gpu_scene.splat_shapes()  # where splats end and grow (shaders/scene.glsl: SplatShape)
         self.buffers["SPLAT_CDF"] = self.gl.buffer(cdf.tobytes())
         self.buffers["SPLAT_CDF_GUIDE"] = self.gl.buffer(guide.tobytes())
         self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N))  # triangle 0 for a warm-up draw
