@@ -86,8 +86,9 @@ class GpuScene:
         # triangles in the order of a space-filling curve through their centroids, so that
         # stratifying the CDF stratifies the surface however the mesh orders its triangles. The
         # imperfect shadow maps' points draw from it; the imperfect bundles' from their own
-        # (`surface_area_cdf`).
-        cdf, guide = area_cdf(a.tri_area, morton_order(a.positions[a.faces].mean(axis=1)))
+        # (`surface_area_cdf`), which keeps each surface's triangles in this order.
+        self.curve_order = morton_order(a.positions[a.faces].mean(axis=1))
+        cdf, guide = area_cdf(a.tri_area, self.curve_order)
 
         # The raster passes draw each triangle with a provoking vertex (its last) of its own, which
         # hands them the triangle's index as a flat attribute (shaders/perfect_bundles.glsl): on a
@@ -281,10 +282,13 @@ def surface_weights(areas: np.ndarray, surfaces: np.ndarray, points: int) -> np.
     return areas * scale[surfaces]
 
 
-def surface_area_cdf(arrays, surfaces: np.ndarray, points: int) -> tuple[np.ndarray, np.ndarray, float]:
+def surface_area_cdf(
+    arrays, surfaces: np.ndarray, points: int, curve_order: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
     """The imperfect bundles' point CDF (`area_cdf`) for ``points`` per direction: weights from
-    `surface_weights`, each smooth surface's triangles in one run (along the Morton curve within
-    it, the surfaces along the curve through their centroids), so that stratified points give a
+    `surface_weights`, each smooth surface's triangles in one run (in ``curve_order``, the
+    triangles along the Morton curve, within it; the surfaces along the curve through their
+    centroids), so that stratified points give a
     surface with 2 / N of the CDF a point in every direction (a run of 1 / N misses one direction
     in six on average: its two strata's points can both fall outside it). Also the weights' total
     over the area's: how much denser the points are than area alone would make them, which the
@@ -299,7 +303,7 @@ def surface_area_cdf(arrays, surfaces: np.ndarray, points: int) -> tuple[np.ndar
     surface_rank = np.empty(len(area), np.int64)
     surface_rank[morton_order(surface_centroids)] = np.arange(len(area))
     curve_rank = np.empty(len(centroids), np.int64)
-    curve_rank[morton_order(centroids)] = np.arange(len(centroids))
+    curve_rank[curve_order] = np.arange(len(centroids))
     order = np.lexsort((curve_rank, surface_rank[surfaces])).astype(np.uint32)
     cdf, guide = area_cdf(weights, order)
     return cdf, guide, float(weights.sum() / arrays.tri_area.sum())

@@ -31,6 +31,7 @@ from gpu_impl.scene_buffers import (
     SURFACE_LEAST_POINTS,
     SURFACE_POINTS_SHARE,
     GpuScene,
+    morton_order,
     surface_area_cdf,
     surface_weights,
 )
@@ -148,7 +149,7 @@ def test_every_small_surface_gets_its_least_share_of_the_points():
 def test_a_surfaces_triangles_lie_in_one_run_of_the_point_cdf():
     a = floor_and_small_boxes().arrays()
     surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal)
-    cdf, guide, density = surface_area_cdf(a, surfaces, 512)
+    cdf, guide, density = surface_area_cdf(a, surfaces, 512, morton_order(a.positions[a.faces].mean(axis=1)))
     runs = surfaces[cdf["triangle"]]
     assert np.count_nonzero(np.diff(runs)) == len(np.unique(surfaces)) - 1 == 36
     assert np.all(np.diff(cdf["cdf"]) >= 0) and cdf["cdf"][-1] == 1.0 and 1.0 < density < 1 / (1 - SURFACE_POINTS_SHARE)

@@ -291,7 +291,7 @@ def _hole_kinds(
         return holes, 0, 0, np.zeros(0)
     if surfaces is None:
         return None, None, None, np.zeros(0)
-    e_node = np.nonzero(np.isin(cluster, holed))[0]  # every exact node of a holed cluster
+    e_node = np.nonzero(hole_per_cluster[cluster] > 0)[0]  # every exact node of a holed cluster
     e_cluster = cluster[e_node]
     e_normal = exact.normal[e_node].astype(np.float64)
     # A cluster of coincident surfaces: the nodes whose plane a matched test node lies in have it,

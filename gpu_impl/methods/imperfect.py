@@ -99,7 +99,9 @@ class SplatTracer(BundleTracer):
         # alone would. The unit of splat_scale: the radius at which N disks cover the weighted
         # area once, as they do the surfaces that kept their area's share.
         gpu_scene.splat_facts()  # where splats end and grow (shaders/scene.glsl: SplatShape), the surfaces
-        cdf, guide, self.point_density = surface_area_cdf(gpu_scene.arrays, gpu_scene.surfaces(), self.N)
+        cdf, guide, self.point_density = surface_area_cdf(
+            gpu_scene.arrays, gpu_scene.surfaces(), self.N, gpu_scene.curve_order
+        )
         unit = math.sqrt(self.point_density * gpu_scene.arrays.tri_area.sum() / (math.pi * self.N))
         self.splat_radius = own.splat_radius if own.splat_radius is not None else own.splat_scale * unit
         self.splat_scale = self.splat_radius / unit
