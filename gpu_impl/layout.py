@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evalkit.core.scene.edges import MAX_SPLAT_CUTS
+from evalkit.core.scene.edges import MAX_SPLAT_CUTS, OWN_SPLAT_COS
 
 # The workgroup size of every 1-D compute pass, and the most workgroups along one dispatch axis.
 LOCAL_SIZE = 256
@@ -36,7 +36,7 @@ BINDINGS = {
     "INDICES": 4,
     "AREA_CDF": 5,
     "CDF_GUIDE": 30,
-    # the lines that cut each triangle's splats (scene_buffers.py: splat_shapes)
+    # the lines that cut each triangle's splats, and its smooth surface (scene_buffers.py: splat_facts)
     "SPLAT_SHAPES": 12,
     # the imperfect bundles' own point CDF and its guide (scene_buffers.py: surface_area_cdf)
     "SPLAT_CDF": 18,
@@ -125,6 +125,7 @@ FACING_IMAGE_UNITS = (1, 2)
 # Path.bundle (paths.glsl) past the bundle indices: the path has ended, or is at its camera vertex.
 PATH_ENDED = np.uint32(0xFFFFFFFF)
 PATH_FROM_CAMERA = np.uint32(0xFFFFFFFE)
+PATH_BACK = np.uint32(0x80000000)  # Path.triangle: the path is on the triangle's back
 # The most directions a frame may have: the frames (bundle.glsl: BundleFrame, 48 bytes) are one
 # uniform block, and llvmpipe and NVIDIA's driver allow 64 KiB of one (GL_MAX_UNIFORM_BLOCK_SIZE).
 MAX_DIRECTIONS = 65536 // 48
@@ -137,12 +138,14 @@ SHADER_CONSTANTS = {
     "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL,
     "TRIANGLE_CUT": TRIANGLE_CUT,
     "MAX_SPLAT_CUTS": MAX_SPLAT_CUTS,
+    "OWN_SPLAT_COS": OWN_SPLAT_COS,
     "TRIANGLE_SOLID": TRIANGLE_SOLID,
     "FACING_BIT": FACING_BIT,
     "FACING_IMAGE_NEAREST": FACING_IMAGE_UNITS[0],
     "FACING_IMAGE_NEXT": FACING_IMAGE_UNITS[1],
     "PATH_ENDED": PATH_ENDED,
     "PATH_FROM_CAMERA": PATH_FROM_CAMERA,
+    "PATH_BACK": PATH_BACK,
     **{f"LIGHT_{kind.upper()}": value for kind, value in LIGHT_KINDS.items()},
     **{
         f"ENVIRONMENT_{'NONE' if kind is None else ('MAP' if kind == 'envmap' else kind.upper())}": value
@@ -167,7 +170,7 @@ TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.
 VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
 # bundle.glsl: SplatPoint
 SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4"), ("radius", "<f4"), ("cut_lines", "<u4")])
-# scene.glsl: splat_shapes, a triangle's first cut line's word or a third of a line
+# scene.glsl: splat_shapes, a triangle's first cut line's word, its surface, or a third of a line
 SPLAT_SHAPE_WORD = np.dtype("<u4")
 # bundle.glsl: BundleFrame, in a uniform block: three vec4, so std140 lays it out as std430 would.
 BUNDLE_FRAME = np.dtype([("u", "<f4", 4), ("v", "<f4", 4), ("d", "<f4", 4)])
@@ -203,7 +206,7 @@ PATH = np.dtype(
         ("throughput", "<f4", 3),
         ("bundle", "<u4"),
         ("albedo", "<f4", 3),
-        ("geometric", "<u4"),
+        ("triangle", "<u4"),
     ]
 )  # paths.glsl: Path
 PATH_SUMS = np.dtype([("direct", "<f4", 4), ("indirect", "<f4", 4)])  # paths.glsl: PathSums

@@ -55,8 +55,7 @@ class GpuScene:
         self.radius = radius * FRAME_PADDING
         self.triangle_count = len(a.faces)
         self._solid = None  # `solids`, found when a pass first needs them
-        self._cuts = None  # `splat_shapes`, found when splats first need them
-        self._surfaces = None  # `surfaces`, found when splat points first need them
+        self._cuts = self._surfaces = None  # `splat_facts`, found when splats first need them
         self._cluster_bounds = None  # `cluster_bounds`, found when a pass first culls
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
@@ -117,37 +116,36 @@ class GpuScene:
         return self._solid
 
     def splat_facts(self) -> None:
-        """Find what imperfect bundles need of the edges, the splats' cut lines (`splat_shapes`)
-        and the smooth surfaces (`surfaces`), with the edge pairs found once for both."""
-        if self._cuts is None or self._surfaces is None:
-            a = self.arrays
-            pairs = edge_pairs(a.positions, a.faces, a.tri_normal) if len(a.faces) else None
-            self.splat_shapes(pairs)
-            self.surfaces(pairs)
-
-    def surfaces(self, pairs=None) -> np.ndarray:
-        """Per triangle, its smooth surface (`smooth_surfaces`): what the imperfect bundles' point
-        CDF gives each a share of (`surface_area_cdf`). Found the first time splats ask; rigid
-        poses keep it. ``pairs``: the edge pairs, if found already."""
-        if self._surfaces is None:
-            a = self.arrays
-            self._surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal, pairs=pairs)
-        return self._surfaces
-
-    def splat_shapes(self, pairs=None) -> np.ndarray:
-        """Per triangle, how many lines cut its splats (`evalkit.core.scene.edges.splat_cuts`: its
-        sharp edges and its flat neighbours'; TRIANGLE_CUT in the triangle records), the lines in
-        the SPLAT_SHAPES buffer that shaders/scene.glsl's splat_shape reads. Found, and uploaded,
-        the first time splats ask. Rigid poses keep them. ``pairs``: the edge pairs, if found
-        already."""
+        """Find, and upload, what splats need of each triangle: the lines that cut its splats
+        (`evalkit.core.scene.edges.splat_cuts`: its sharp edges and its flat neighbours';
+        TRIANGLE_CUT in the triangle records) and its smooth surface (`smooth_surfaces`), with the
+        edge pairs found once for both. One SPLAT_SHAPES buffer holds them (shaders/scene.glsl:
+        splat_shape, triangle_surface). Found the first time splats ask; rigid poses keep them."""
         if self._cuts is None:
             a = self.arrays
+            pairs = edge_pairs(a.positions, a.faces, a.tri_normal) if len(a.faces) else None
             first, lines = splat_cuts(a.positions, a.faces, a.tri_normal, pairs=pairs)
-            # Each triangle's first line's word, then three words a line.
-            words = np.concatenate([len(a.faces) + 1 + 3 * first, lines.astype(np.float32).view(np.uint32).reshape(-1)])
-            self.buffers["SPLAT_SHAPES"] = self.gl.buffer(words.astype(np.uint32).tobytes())
+            self._surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal, pairs=pairs)
+            # Words 2t and 2t + 1: where triangle t's cut lines start, its surface; word 2T: where
+            # the last one's end. Then three words a line.
+            head = np.empty(2 * len(a.faces) + 1, np.uint32)
+            head[0::2] = len(head) + 3 * first
+            head[1::2] = self._surfaces
+            words = np.concatenate([head, lines.astype(np.float32).view(np.uint32).reshape(-1)])
+            self.buffers["SPLAT_SHAPES"] = self.gl.buffer(words.tobytes())
             self._cuts = np.diff(first)
             self.buffers["TRIANGLES"].write(self._triangles(a))
+
+    def surfaces(self) -> np.ndarray:
+        """Per triangle, its smooth surface (`smooth_surfaces`): what the imperfect bundles' point
+        CDF gives each a share of (`surface_area_cdf`), and what tells a lookup's splats of the
+        vertex's own surface (shaders/bundle_step.glsl: own_surface)."""
+        self.splat_facts()
+        return self._surfaces
+
+    def splat_shapes(self) -> np.ndarray:
+        """Per triangle, how many lines cut its splats (`splat_facts`)."""
+        self.splat_facts()
         return self._cuts
 
     def cluster_bounds(self) -> tuple[np.ndarray, np.ndarray]:

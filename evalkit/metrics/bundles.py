@@ -50,6 +50,7 @@ lookup returns (the rule of shaders/eye_paths.glsl) against an exact Embree ray 
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -58,6 +59,7 @@ from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.display import fields_html
 from evalkit.core.scene.edges import (
     FLAT_DEGREES,
+    OWN_SPLAT_COS,
     cut_distances,
     plane_barycentrics,
     sharp_splat_radii,
@@ -356,7 +358,8 @@ NEXT_HIT_MIN_COS = 1e-3
 def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = None, height: int | None = None) -> dict:
     """Surface points where eye paths look up bundles: the camera's first hits through uniformly
     random film positions, and as many second vertices, one cosine-distributed bounce further.
-    Returns position, normal (shading, facing the arriving ray) and geometric normal, (M, 3)."""
+    Returns position, normal (shading, facing the arriving ray) and geometric normal, (M, 3), and
+    the triangle each lies on (M,)."""
     rng = np.random.default_rng(seed)
     w, h = scene.camera.film_size(width, height)
     cam = scene.camera.frame(np.zeros(3), w, h)
@@ -365,13 +368,13 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
     local = np.stack([(0.5 - film[:, 0]) * 2 * tx, (0.5 - film[:, 1]) * 2 * ty, np.ones(count)], axis=1)
     origins = np.broadcast_to(cam["origin"], (count, 3))
     rays = local @ cam["to_world"].T
-    points, normals, geometric = [], [], []
+    points, normals, geometric, triangles = [], [], [], []
     for _ in range(2):
         hits = tracer.next_hit(origins, rays)
         ok = hits.prim_id >= 0
         facing = np.where(np.einsum("ij,ij->i", hits.geometric_normal, rays) > 0, -1.0, 1.0)[:, None]
         ng, ns = (hits.geometric_normal * facing)[ok], (hits.normal * facing)[ok]
-        points.append(hits.point[ok]), normals.append(ns), geometric.append(ng)
+        points.append(hits.point[ok]), normals.append(ns), geometric.append(ng), triangles.append(hits.prim_id[ok])
         # The next vertex: a cosine-distributed bounce about the geometric normal.
         t1 = np.cross(ng, np.where(np.abs(ng[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]]))
         t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
@@ -384,6 +387,7 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
         "position": np.concatenate(points),
         "normal": np.concatenate(normals),
         "geometric": np.concatenate(geometric),
+        "triangle": np.concatenate(triangles),
     }
 
 
@@ -395,10 +399,13 @@ def bundle_lookup(
     geometric: np.ndarray,
     k: np.ndarray,
     self_hit_bias: float = DEFAULT_SELF_HIT_BIAS,
+    triangle: np.ndarray | None = None,
 ) -> dict:
     """The renderer's next-vertex lookup (shaders/eye_paths.glsl) on a `BundleSet`, in float64.
 
-    ``arrays`` is the scene's `SceneArrays` (the triangles' corners and planes). Per vertex: the
+    ``arrays`` is the scene's `SceneArrays` (the triangles' corners and planes); ``triangle``, each
+    vertex's triangle (-1 or None: on none), which tells splats of its own surface behind it
+    (shaders/bundle_step.glsl: own_surface). Per vertex: the
     direction taken (d_k or -d_k, in the shading hemisphere), whether it leaves the geometric
     surface, the node landed on (index into the set's nodes, -1: none), the landing point, and
     whether it lies on the node's surface (the ray's own point on it) or is a node where it lies:
@@ -428,7 +435,8 @@ def bundle_lookup(
     plane = arrays.tri_normal[bundles.node_triangle()]
     splats = _SplatShapes(bundles, arrays) if bundles.has_splats else None
     on_surface = _on_surface_test(bundles, arrays, splats)
-    own_surface = _own_surface_test(splats, plane)
+    own_surface = _own_surface_test(splats, plane, h)
+    triangle = np.full(len(k), -1) if triangle is None else np.asarray(triangle)
     smaller_than_pixel = _smaller_than_pixel(bundles, arrays)
     bias = self_hit_bias * h
     node = np.full(len(k), -1, np.int64)
@@ -465,7 +473,7 @@ def bundle_lookup(
             while lo <= j < hi:
                 gap = np.dot(plane[j], origin + depths[j] * d[i] - x)
                 along = np.dot(plane[j], o)
-                if gap * along > 0 and not own_surface(j, x, geometric[i]):
+                if gap * along > 0 and not own_surface(j, x, geometric[i], triangle[i]):
                     t = gap / along
                     on = on_surface(j, x + t * o)
                     if (hit < 0 or t < hit_t * (1 - 1e-5)) and on:
@@ -512,6 +520,11 @@ class _SplatShapes:
             self.first, self.lines = np.zeros(len(arrays.faces) + 1, np.int64), np.zeros((0, 3))
         self.grows = bool(bundles.params.get("splats_keep_area", False))
 
+    @functools.cached_property
+    def surfaces(self) -> np.ndarray:
+        """Per triangle, its smooth surface: found when a lookup from a vertex on a triangle asks."""
+        return smooth_surfaces(self.arrays.positions, self.arrays.faces, self.arrays.tri_normal)
+
     def distances(self, j: int, b: np.ndarray) -> np.ndarray:
         """Barycentrics b's distances from the lines that cut node j's splat (inf past the last)."""
         return cut_distances(self.first, self.lines, self.triangles[j : j + 1], b[None])[0]
@@ -545,19 +558,25 @@ class _SplatShapes:
         return not beyond_disk or min(b[0], b[1], 1 - b[0] - b[1]) >= -1e-4
 
 
-def _own_surface_test(splats: _SplatShapes | None, plane):
-    """Whether node j is a splat of the surface vertex x lies on: x within the splat's cylinder of
-    its radius (across and along its normal), facing the same way."""
+def _own_surface_test(splats: _SplatShapes | None, plane, h: float):
+    """Whether the lines around vertex x (geometric normal ng, towards the side the ray leaves, on
+    triangle t, -1: none) skip node j (shaders/bundle_step.glsl: own_surface): x within the
+    splat's cylinder of its radius, across and along its normal, facing the same way (normals
+    within 60 degrees, `OWN_SPLAT_COS`); or a splat of
+    t's smooth surface whose centre lies behind x's tangent plane, within 2 (r + h) of x."""
     if splats is None:
-        return lambda j, x, ng: False
+        return lambda j, x, ng, t: False
 
-    def covers(j, x, ng):
+    def skipped(j, x, ng, t):
         r = splats.splat_radius(j)
         q = x - splats.centres[j]
         along = q @ plane[j]
-        return plane[j] @ ng > 0 and abs(along) <= r and q @ q - along * along <= r * r
+        if plane[j] @ ng > OWN_SPLAT_COS and abs(along) <= r and q @ q - along * along <= r * r:
+            return True
+        behind = t >= 0 and q @ ng >= 0 and q @ q <= (2 * (r + h)) ** 2
+        return bool(behind and splats.surfaces[splats.triangles[j]] == splats.surfaces[t])
 
-    return covers
+    return skipped
 
 
 def _smaller_than_pixel(bundles: BundleSet, arrays):
@@ -608,7 +627,14 @@ def next_hit_errors(
     K = bundles.directions.count
     k = rng.integers(0, K, len(vertices["position"]))
     look = bundle_lookup(
-        bundles, tracer.arrays, vertices["position"], vertices["normal"], vertices["geometric"], k, self_hit_bias
+        bundles,
+        tracer.arrays,
+        vertices["position"],
+        vertices["normal"],
+        vertices["geometric"],
+        k,
+        self_hit_bias,
+        vertices.get("triangle"),
     )
     use = np.nonzero(look["leaves"])[0]
     k, omega = k[use], look["omega"][use]

@@ -52,23 +52,6 @@ uint ref_triangle(uint ref) {
 #endif
 }
 
-// Whether a node is a splat of the surface the vertex x (geometric normal ng) lies on: x lies in
-// the splat's cylinder (its radius across and along its normal) and the two face the same way. A
-// splat stands in for its surface a radius around its centre; in its own triangle's plane it
-// stands off a curved surface (r^2 / 2 rho at curvature radius rho) and would shadow the vertex
-// it represents. Surfaces of one facing closer than a splat radius are one surface to splats.
-bool own_surface(uint ref, vec3 x, vec3 ng) {
-#if NODE_REFERENCE == NODE_SPLAT_POINT
-    vec3 n = triangle_normal(ref_triangle(ref));
-    SplatSource s = splat_source(ref);
-    vec3 q = x - s.centre;
-    float along = dot(q, n);
-    return dot(n, ng) > 0.0 && abs(along) <= s.radius && dot(q, q) - along * along <= s.radius * s.radius;
-#else
-    return false;
-#endif
-}
-
 // Whether a node's surface is smaller than a bundle pixel (h, the lines' spacing): a triangle whose
 // longest edge, or a splat whose diameter, is shorter. Lines a pixel apart cannot tell a ray's miss
 // of such a triangle or splat from a miss of the surface it is part of (bundle_step.glsl).

@@ -83,7 +83,9 @@ void main() {
     float cos_theta = abs(c);
     vec3 throughput = path.throughput * (2.0 * cos_theta) * path.albedo;
 
-    BundleStep step = bundle_step(k, forward, path.position, decode_normal(path.geometric));
+    uint vertex_triangle = path.triangle & ~PATH_BACK;
+    vec3 ng = triangle_normal(vertex_triangle) * ((path.triangle & PATH_BACK) != 0u ? -1.0 : 1.0);
+    BundleStep step = bundle_step(k, forward, path.position, ng, vertex_triangle);
     bool leaves = step.leaves;
     uint hit = step.hit;
     BundleHit node = step.node;
@@ -168,7 +170,7 @@ void main() {
 #endif
             path.position = node.position;
             path.normal = encode_normal(nn);
-            path.geometric = encode_normal(dot(node_geometric, omega) < 0.0 ? node_geometric : -node_geometric);
+            path.triangle = dot(node_geometric, omega) < 0.0 ? node.triangle : node.triangle | PATH_BACK;
             path.albedo = node.albedo;
         }
     }

@@ -63,11 +63,12 @@ uniform uint frame;
 struct Surface {
     bool found;
     vec3 position, normal, geometric, albedo;  // normals on the side the path arrives at
+    uint triangle;
 };
 
 // The first surface along the ray from origin along omega, from light l's shadow map.
 Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
-    Surface s = Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+    Surface s = Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0), NO_TRIANGLE);
     ShadowView view = shadow_views[shadow_view_of(light, origin + omega)];
     vec4 clip = view.to_clip * vec4(origin + omega, 1.0);
     if (clip.w <= 0.0) return s;
@@ -98,19 +99,21 @@ Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
     s.normal = n;
     s.geometric = dot(g, omega) < 0.0 ? g : -g;
     s.albedo = material_albedo(m, surface_uv(v, b1, b2));
+    s.triangle = t;
     return s;
 }
 
 // Where a step over the bundles along omega lands: nothing where it leaves the scene, or meets the
 // back of a one-sided surface (which absorbs it).
 Surface landed(BundleStep step, vec3 omega) {
-    if (!step.leaves || step.hit == NO_NODE) return Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+    Surface none = Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0), NO_TRIANGLE);
+    if (!step.leaves || step.hit == NO_NODE) return none;
     vec3 n = step.node.normal, g = step.geometric;
     if (dot(n, omega) >= 0.0) {
-        if (!material_twosided(triangle_material(step.node.triangle))) return Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+        if (!material_twosided(triangle_material(step.node.triangle))) return none;
         n = -n;
     }
-    return Surface(true, step.node.position, n, dot(g, omega) < 0.0 ? g : -g, step.node.albedo);
+    return Surface(true, step.node.position, n, dot(g, omega) < 0.0 ? g : -g, step.node.albedo, step.node.triangle);
 }
 
 // A unit vector around axis a at cos_theta from it and azimuth phi.
@@ -153,7 +156,8 @@ void main() {
         BundleFrame f = frames[k];
         bool forward = dot(f.d.xyz, n) >= 0.0;
         vec3 omega = forward ? f.d.xyz : -f.d.xyz;
-        y = landed(bundle_step(k, forward, x, start.geometric.xyz), omega);
+        // The start records no triangle of the scene's: its own surface's splats behind it stay.
+        y = landed(bundle_step(k, forward, x, start.geometric.xyz, NO_TRIANGLE), omega);
         if (!y.found) return;
         vec3 edge = y.position - x;
         float t2 = dot(edge, edge), cos_start = abs(dot(n, omega)), cos_y = abs(dot(y.normal, omega));
@@ -170,7 +174,7 @@ void main() {
         int k = spread;
         bool forward = (pcg4d(uvec4(id, 0xFFFFFFFFu, seed, frame)).z & 1u) == 0u;
         vec3 omega = forward ? frames[k].d.xyz : -frames[k].d.xyz;
-        y = landed(bundle_step(k, forward, disk_origin(omega, start.square_point.xy), omega), omega);
+        y = landed(bundle_step(k, forward, disk_origin(omega, start.square_point.xy), omega, NO_TRIANGLE), omega);
         if (!y.found) return;
         alpha = environment(-omega) / b_start;
         // L_{n-1} = a_n^2 / (b_n b_{n-1})^2: the eye path reaches the environment along -omega
@@ -222,7 +226,7 @@ void main() {
         float cos_y = abs(c);
         alpha *= 2.0 * cos_y * y.albedo;
         if (all(equal(alpha, vec3(0.0)))) return;
-        Surface next = landed(bundle_step(k, forward, y.position, y.geometric), omega);
+        Surface next = landed(bundle_step(k, forward, y.position, y.geometric, y.triangle), omega);
         if (!next.found) return;
         vec3 edge = next.position - y.position;
         float t2 = dot(edge, edge), cos_next = abs(dot(next.normal, omega));

@@ -23,7 +23,7 @@ struct Path {
     vec3 throughput;
     uint bundle;      // the bundle it arrived along; PATH_FROM_CAMERA at vertex 0, PATH_ENDED once it has ended
     vec3 albedo;      // of the current vertex
-    uint geometric;   // its geometric normal (encode_normal), on the same side
+    uint triangle;    // its triangle, PATH_BACK set where the path is on the side its geometric normal points away from
 };
 // Per path, the radiance summed over frames: bounce 0, and bounces 1..B.
 struct PathSums {

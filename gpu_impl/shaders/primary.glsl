@@ -63,9 +63,8 @@ void main() {
             // Connections from the first eye vertex to light path vertices are indirect light.
             if (gathers) sums[id].indirect.rgb += share * albedo * INV_PI * connections(camera_origin + depth * dir, n, 0, 0.0);
 #endif
-            vec3 g = triangle_normal(t);
             path = Path(camera_origin + depth * dir, encode_normal(n), vec3(1.0), PATH_FROM_CAMERA, albedo,
-                        encode_normal(dot(g, dir) < 0.0 ? g : -g));
+                        dot(triangle_normal(t), dir) < 0.0 ? t : t | PATH_BACK);
             atomicAdd(alive_paths, 1u);
         }
         // else: the back of a one-sided surface, black as in Mitsuba; the path ends.

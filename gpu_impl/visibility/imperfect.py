@@ -67,7 +67,7 @@ class ImperfectShadowMaps:
 
     def __init__(self, gl, gpu_scene, settings: ImperfectSettings):
         self.gl, self.gpu_scene = gl, gpu_scene
-        gpu_scene.splat_shapes()  # where splats end and grow (shaders/scene.glsl: SplatShape)
+        gpu_scene.splat_facts()  # where splats end and grow (shaders/scene.glsl: SplatShape)
         self.map_size, self.points_per_map = settings.ism_size, settings.ism_points
         area = sum(float(m.triangle_areas().sum()) for m in gpu_scene.scene.meshes)
         self.splat_radius = settings.ism_splat_scale * math.sqrt(area / (math.pi * self.points_per_map))

@@ -20,6 +20,12 @@ FLAT_DEGREES = 0.5
 # The most lines that cut one triangle's splats (splat_cuts): k sharp edges of its own and two of
 # each of its 3 - k flat neighbours.
 MAX_SPLAT_CUTS = 6
+# A splat whose cylinder holds a path's vertex stands for the vertex's own surface where the two
+# normals part by less than 60 degrees (shaders/bundle_step.glsl: own_surface). A wall's splat
+# beside a ceiling vertex is perpendicular to it: with "more than 90 degrees apart" instead, float
+# round-off of the two normals let it pass at concave corners, and lookups left cornell-box there
+# (docs/MEASURED_FACTS.md, "Splats of the vertex's own surface behind its tangent plane").
+OWN_SPLAT_COS = 0.5
 
 
 def _edges(positions: np.ndarray, faces: np.ndarray):
