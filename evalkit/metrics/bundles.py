@@ -61,6 +61,7 @@ from evalkit.core.scene.edges import (
     FLAT_DEGREES,
     OWN_SPLAT_COS,
     cut_distances,
+    edge_pairs,
     plane_barycentrics,
     sharp_splat_radii,
     smooth_surfaces,
@@ -513,9 +514,13 @@ class _SplatShapes:
         self.centres = bundles.splat_centre
         self.arrays = arrays
         crease = bundles.params.get("crease_degrees")
+        # The edge pairs, found once for the cut lines and the surfaces.
+        self.pairs = edge_pairs(arrays.positions, arrays.faces, arrays.tri_normal) if len(arrays.faces) else None
         if crease is not None:
             neighbours = "flat_degrees" in bundles.params
-            self.first, self.lines = splat_cuts(arrays.positions, arrays.faces, arrays.tri_normal, crease, neighbours)
+            self.first, self.lines = splat_cuts(
+                arrays.positions, arrays.faces, arrays.tri_normal, crease, neighbours, self.pairs
+            )
         else:
             self.first, self.lines = np.zeros(len(arrays.faces) + 1, np.int64), np.zeros((0, 3))
         self.grows = bool(bundles.params.get("splats_keep_area", False))
@@ -523,7 +528,7 @@ class _SplatShapes:
     @functools.cached_property
     def surfaces(self) -> np.ndarray:
         """Per triangle, its smooth surface: found when a lookup from a vertex on a triangle asks."""
-        return smooth_surfaces(self.arrays.positions, self.arrays.faces, self.arrays.tri_normal)
+        return smooth_surfaces(self.arrays.positions, self.arrays.faces, self.arrays.tri_normal, pairs=self.pairs)
 
     def distances(self, j: int, b: np.ndarray) -> np.ndarray:
         """Barycentrics b's distances from the lines that cut node j's splat (inf past the last)."""

@@ -98,7 +98,7 @@ class SplatTracer(BundleTracer):
         # surface_area_cdf), which makes the points `point_density` times as many as the area
         # alone would. The unit of splat_scale: the radius at which N disks cover the weighted
         # area once, as they do the surfaces that kept their area's share.
-        gpu_scene.splat_facts()  # where splats end and grow (shaders/scene.glsl: SplatShape), the surfaces
+        # The surfaces come with where splats end and grow (GpuScene.splat_facts: SPLAT_SHAPES).
         cdf, guide, self.point_density = surface_area_cdf(
             gpu_scene.arrays, gpu_scene.surfaces(), self.N, gpu_scene.curve_order
         )
