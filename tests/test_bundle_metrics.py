@@ -93,10 +93,12 @@ def test_a_wall_s_splats_stay_walls_beside_a_floor_vertex(gl):
     """A splat whose cylinder holds the vertex is its own surface's only where the two face the
     same way (`OWN_SPLAT_COS`, 60 degrees). A wall's splat beside a floor vertex is perpendicular
     to it; with "not opposed" instead, round-off in the normals of a turned room let half of them
-    pass, and lookups from its floor by the wall left the closed room. Measured (this test's
-    vertices, three draws): the lookups that left where the ray meets the room, 4.6 to 5.5 % with
-    the old rule, 2.3 to 2.9 % now, exact and perfect bundles 0.03 %. What is left are lines that
-    pass outside the room beside the vertex, where the floor's splats reach past the wall."""
+    pass, and lookups from its floor by the wall left the closed room. Lines that pass outside the
+    room beside the vertex, where the floor's splats reach past the wall, do not vote: they lie
+    behind the front of the wall another line meets (shaders/bundle_step.glsl). Measured (this
+    test's vertices, three draws): the lookups that left where the ray meets the room, 4.6 to 5.5 %
+    with the old facing rule, 2.3 to 2.9 % with those lines voting, 0.27 to 0.45 % now; exact and
+    perfect bundles 0.03 to 0.05 %."""
     turn = Rotation.from_rotvec(0.3 * np.array([1.0, 2.0, 3.0]) / np.sqrt(14)).as_matrix()
     p, f = box(np.full(3, -1.0), np.full(3, 1.0), inward=True)
     room = scene_of([Mesh("room", p @ turn.T, f, 0)], [Material("grey")])
@@ -109,7 +111,7 @@ def test_a_wall_s_splats_stay_walls_beside_a_floor_vertex(gl):
     vertices = {"position": position, "normal": up, "geometric": up, "triangle": triangle}
     r = next_hit_errors(build(gl, room, "imperfect", K=16, R=64, seed=2, points=16384), tracer, vertices, seed=1)
     assert (triangle >= 0).all() and r["lookups"] == 4000
-    assert r["false_miss_rate"] < 0.04, r["false_miss_rate"]
+    assert r["false_miss_rate"] < 0.01, r["false_miss_rate"]
 
 
 def test_lookups_land_where_the_ray_meets_the_surface(gl, rng):
@@ -155,7 +157,8 @@ def test_lookups_between_small_parts_leave_the_scene_as_often_as_their_rays():
 def test_lookups_in_a_closed_box_rarely_leave_it_and_more_rarely_as_r_grows():
     """Inside the furnace every ray meets a wall. A lookup leaves only where the lines' vote goes
     wrong by a concave edge; a line that passes under the vertex's surface and meets nothing (under
-    the floor, behind the wall) does not vote."""
+    the floor, behind the wall) does not vote, nor one behind the front of a wall another line
+    meets."""
     scene = load_scene("furnace")
     tracer = ExactTracer(scene)
     vertices = eye_vertices(scene, tracer, 20000, seed=0)
@@ -164,11 +167,12 @@ def test_lookups_in_a_closed_box_rarely_leave_it_and_more_rarely_as_r_grows():
     for R in (16, 32, 64):
         look, weight = _sky_weighted_lookup(tracer.bundles(DirectionSet.make(16, seed=0), R), tracer, vertices, k)
         leaving.append(np.sum(weight * (look["node"] < 0)) / np.sum(weight))
-    # Measured: 0.30, 0.090, 0.035 % of the light (the open side's line deciding alone: 0.47,
-    # 0.10, 0.053 %). With those lines voting, the camera's first hits alone (30000 samples, seed
-    # 2) lost 0.47 % at R = 32, against 0.07 % without; in GL renders that was -1.5 % of the
-    # furnace's indirect light at R = 32 (tests/test_renderer.py).
-    assert leaving[0] > leaving[1] > leaving[2] and leaving[1] < 0.002, leaving
+    # Measured: 0.18, 0.061, 0.015 % of the light; 0.30, 0.090, 0.035 % with lines behind a wall's
+    # front voting; 0.47, 0.10, 0.053 % with the open side's line deciding alone. With the lines
+    # under the surface voting too, the camera's first hits alone (30000 samples, seed 2) lost
+    # 0.47 % at R = 32, against 0.07 % without; in GL renders that was -1.5 % of the furnace's
+    # indirect light at R = 32 (tests/test_renderer.py).
+    assert leaving[0] > leaving[1] > leaving[2] and leaving[1] < 0.001, leaving
 
 
 def test_lookups_stop_at_columns_of_facets_smaller_than_a_pixel():

@@ -449,6 +449,7 @@ def bundle_lookup(
         hit_t, near_distance, near_origin = 0.0, 4.0, None  # near_*: the nearest line meeting a surface
         meet_votes = leave_votes = 0  # the lines' votes (shaders/bundle_step.glsl)
         near_voter, near_voter_meets = 4.0, False
+        lines, fronts = [], []  # (distance, voter, meets, point at x's depth); (normal, node) met from the front
         blockers, total = [], 0.0  # (weight, t, node, origin) of lines meeting a surface smaller than a pixel
         for c in range(4):
             pixel = corner[i] + (c & 1, c >> 1)
@@ -482,10 +483,16 @@ def bundle_lookup(
                     if not on and smaller_than_pixel(j):
                         blockers.append((weight, t, j, origin))
                     meets = True
+                    if along < 0:
+                        fronts.append((plane[j], origin + depths[j] * d[i]))
                     if distance < near_distance:
                         near_hit, near_origin, near_distance = j, origin, distance
                     break
                 j = j + 1 if f else j - 1
+            lines.append((distance, voter, meets, origin + depth * d[i]))
+        for distance, voter, meets, at_vertex in lines:
+            # Not a voter either: a line behind the front of a surface another line meets.
+            voter = voter and not any(n @ (at_vertex - y) < 0 for n, y in fronts)
             meet_votes, leave_votes = meet_votes + meets, leave_votes + (voter and not meets)
             if (meets or voter) and distance < near_voter:
                 near_voter, near_voter_meets = distance, meets
