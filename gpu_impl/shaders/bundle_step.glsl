@@ -118,8 +118,8 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
     // Each line's node of a surface smaller than a pixel that the ray's point misses (a blocker, see
     // below), NO_NODE if none: the node, the ray's distance to its plane, the line's bilinear weight.
     uint blocker[4] = uint[4](NO_NODE, NO_NODE, NO_NODE, NO_NODE);
-    // Each line's vote (voter: not told below; meets: a surface), its point at the vertex's depth,
-    // and the front (normal, node) of the surface it meets, where the ray meets that front.
+    // Each line: whether it votes and whether it meets a surface, its point at the vertex's depth,
+    // and the front (normal, node) of the surface it meets where the ray meets that side (else 0).
     bool voter[4] = bool[4](false, false, false, false), meets[4] = bool[4](false, false, false, false);
     vec3 at_vertex[4], front_normal[4], front_node[4];
     float line_distance[4] = float[4](4.0, 4.0, 4.0, 4.0);
