@@ -126,6 +126,8 @@ FACING_IMAGE_UNITS = (1, 2)
 PATH_ENDED = np.uint32(0xFFFFFFFF)
 PATH_FROM_CAMERA = np.uint32(0xFFFFFFFE)
 PATH_BACK = np.uint32(0x80000000)  # Path.triangle: the path is on the triangle's back
+# A vertex on no triangle of the scene's (a light path's start on a light or the frame's disk).
+NO_TRIANGLE = np.uint32(0xFFFFFFFF)
 # The most directions a frame may have: the frames (bundle.glsl: BundleFrame, 48 bytes) are one
 # uniform block, and llvmpipe and NVIDIA's driver allow 64 KiB of one (GL_MAX_UNIFORM_BLOCK_SIZE).
 MAX_DIRECTIONS = 65536 // 48
@@ -146,6 +148,7 @@ SHADER_CONSTANTS = {
     "PATH_ENDED": PATH_ENDED,
     "PATH_FROM_CAMERA": PATH_FROM_CAMERA,
     "PATH_BACK": PATH_BACK,
+    "NO_TRIANGLE": NO_TRIANGLE,
     **{f"LIGHT_{kind.upper()}": value for kind, value in LIGHT_KINDS.items()},
     **{
         f"ENVIRONMENT_{'NONE' if kind is None else ('MAP' if kind == 'envmap' else kind.upper())}": value
@@ -190,7 +193,9 @@ LIGHT_PATH_START = np.dtype(
         ("normal", "<f4", 4),
         ("radiance", "<f4", 4),
         ("geometric", "<f4", 4),
-        ("square_point", "<f4", 4),
+        ("square_point", "<f4", 2),
+        ("triangle", "<u4"),
+        ("unused", "<u4"),
     ]
 )  # light_paths.glsl: LightPathStart
 LIGHT_PATH_VERTEX = np.dtype(

@@ -86,8 +86,15 @@ class EmitterSamples:
     def __init__(self, scene, count: int):
         """``scene`` must have emitters (the importers refuse emitters of zero area)."""
         self.scene, self.count = scene, int(count)
-        emitters = [m for m in scene.meshes if scene.materials[m.material].emissive]
+        emissive = [scene.materials[m.material].emissive for m in scene.meshes]
+        emitters = [m for m, e in zip(scene.meshes, emissive) if e]
         self.triangles = np.concatenate([m.positions[m.faces] for m in emitters])
+        # Each emissive triangle's index among the scene's (`Scene.arrays` order): what a light path
+        # from it records as the triangle it starts on (light_paths.glsl).
+        first = np.cumsum([0] + [len(m.faces) for m in scene.meshes])
+        self.scene_triangles = np.concatenate(
+            [first[i] + np.arange(len(m.faces)) for i, m in enumerate(scene.meshes) if emissive[i]]
+        )
         self.face_normals = _face_normals(self.triangles)
         # Vertex normals per corner where the mesh has them (Mitsuba's emitters use the shading normal).
         self.corner_normals = (

@@ -11,7 +11,6 @@
 
 // The index that points nowhere: the end of a linked list, a path that found no node.
 #define NO_NODE 0xFFFFFFFFu
-#define NO_TRIANGLE 0xFFFFFFFFu
 
 #if defined COMPUTE_SHADER
 // A 1-D work item index over a 2-D dispatch (GLContext.dispatch spreads large passes over y).

@@ -6,7 +6,9 @@ struct LightPathStart {
     vec4 normal;     // xyz the emitter's shading normal; w: b_n, the light paths' density of the start (V q p_A, or the environment's V q p(omega) p(disk point))
     vec4 radiance;   // rgb the emitter's radiance; w: e_n, next-event estimation's density of the point (M p_A; 0 for a light)
     vec4 geometric;  // xyz the emitter triangle's geometric normal
-    vec4 square_point;  // xy: the point of the unit square a fixed light's or the environment's start is drawn from (zw unused)
+    vec2 square_point;  // the point of the unit square a fixed light's or the environment's start is drawn from
+    uint triangle;      // an emitter point's triangle among the scene's (Scene.arrays order); NO_TRIANGLE for the others
+    uint unused;
 };
 struct LightPathVertex {
     vec4 position;   // xyz relative to the bundle centre; w: depth (0: no vertex)

@@ -156,8 +156,9 @@ void main() {
         BundleFrame f = frames[k];
         bool forward = dot(f.d.xyz, n) >= 0.0;
         vec3 omega = forward ? f.d.xyz : -f.d.xyz;
-        // The start records no triangle of the scene's: its own surface's splats behind it stay.
-        y = landed(bundle_step(k, forward, x, start.geometric.xyz, NO_TRIANGLE), omega);
+        // The start's triangle tells the splats of its own surface behind it (bundle_step.glsl:
+        // own_surface), which a ray leaving a curved emitter cannot meet.
+        y = landed(bundle_step(k, forward, x, start.geometric.xyz, start.triangle), omega);
         if (!y.found) return;
         vec3 edge = y.position - x;
         float t2 = dot(edge, edge), cos_start = abs(dot(n, omega)), cos_y = abs(dot(y.normal, omega));

@@ -35,7 +35,7 @@ import numpy as np
 from evalkit.core.scene.model import ENVIRONMENT_KINDS
 from evalkit.core.settings import setting
 from gpu_impl.context import set_uniforms
-from gpu_impl.layout import BINDINGS, LIGHT_PATH_START, LIGHT_PATH_VERTEX
+from gpu_impl.layout import BINDINGS, LIGHT_PATH_START, LIGHT_PATH_VERTEX, NO_TRIANGLE
 from gpu_impl.lights import EmitterSamples, LightVertices
 from gpu_impl.strategies.eye import EyePaths, EyeSettings
 from gpu_impl.units import PathStrategy, TuneTerms
@@ -240,6 +240,7 @@ class LightSources:
         u = (np.arange(v) + rng.random(v)) / v
         source = np.minimum(np.searchsorted(self.cdf, u, side="right"), len(self.cdf) - 1)
         records = np.zeros(v, dtype=LIGHT_PATH_START)
+        records["triangle"] = NO_TRIANGLE
         records["position"][:, 3] = np.asarray(self.ids, dtype=np.float64)[source]
         records["normal"][records["position"][:, 3] == FROM_ENVIRONMENT, 3] = self.environment_density
         on_emitters = records["position"][:, 3] == FROM_EMITTERS
@@ -255,6 +256,7 @@ class LightSources:
             records["radiance"][on_emitters, :3] = e.radiance[triangles]
             records["radiance"][on_emitters, 3] = samples * p_area
             records["geometric"][on_emitters, :3] = e.face_normals[triangles]
+            records["triangle"][on_emitters] = e.scene_triangles[triangles]
         # A fixed light's or the environment's paths start from points of the unit square stratified
         # over them: the first coordinate is where a path's stratum of u falls within its source's
         # share of [0, 1), the second the radical inverse of its rank among the source's paths,
