@@ -95,10 +95,11 @@ def test_a_wall_s_splats_stay_walls_beside_a_floor_vertex(gl):
     to it; with "not opposed" instead, round-off in the normals of a turned room let half of them
     pass, and lookups from its floor by the wall left the closed room. Lines that pass outside the
     room beside the vertex, where the floor's splats reach past the wall, do not vote: they lie
-    behind the front of the wall another line meets (shaders/bundle_step.glsl). Measured (this
-    test's vertices, three draws): the lookups that left where the ray meets the room, 4.6 to 5.5 %
-    with the old facing rule, 2.3 to 2.9 % with those lines voting, 0.27 to 0.45 % now; exact and
-    perfect bundles 0.03 to 0.05 %."""
+    behind the front of the wall another line meets; nor do lines under the floor whose only nodes
+    before the bound are the wall's splats reaching below it (shaders/bundle_step.glsl). Measured
+    (this test's vertices, three draws): the lookups that left where the ray meets the room, 4.6 to
+    5.5 % with the old facing rule, 2.3 to 2.9 % with the lines outside voting, 0.27 to 0.45 % with
+    those under the floor voting, 0.10 to 0.25 % now; exact and perfect bundles 0.03 to 0.05 %."""
     turn = Rotation.from_rotvec(0.3 * np.array([1.0, 2.0, 3.0]) / np.sqrt(14)).as_matrix()
     p, f = box(np.full(3, -1.0), np.full(3, 1.0), inward=True)
     room = scene_of([Mesh("room", p @ turn.T, f, 0)], [Material("grey")])
@@ -111,7 +112,7 @@ def test_a_wall_s_splats_stay_walls_beside_a_floor_vertex(gl):
     vertices = {"position": position, "normal": up, "geometric": up, "triangle": triangle}
     r = next_hit_errors(build(gl, room, "imperfect", K=16, R=64, seed=2, points=16384), tracer, vertices, seed=1)
     assert (triangle >= 0).all() and r["lookups"] == 4000
-    assert r["false_miss_rate"] < 0.01, r["false_miss_rate"]
+    assert r["false_miss_rate"] < 0.005, r["false_miss_rate"]
 
 
 def test_lookups_land_where_the_ray_meets_the_surface(gl, rng):
@@ -245,14 +246,16 @@ def test_gl_perfect_lookups_err_no_more_than_exact_ones_and_imperfect_more(gl):
     imperfect = next_hit_errors(build(gl, scene, "imperfect", K=16, R=128, seed=0), tracer, vertices)
     # Measured (K=16, R=128), error rate (false misses, false hits): floor 0.28 % (0.06, 0.16),
     # perfect 0.31 % (0.06, 0.16); imperfect with independent points at splat scale 2 (the old
-    # default) 2.07 % (1.32, 0.13), with the default stratified points at 1.8 1.44 % (0.69, 0.22).
+    # default) 1.60 % (0.72, 0.16), with the default stratified points at 1.8 0.75 % (0.16, 0.16).
     # Before splats ended at their triangles' sharp edges, 5.58 % (1.19, 1.50) and 4.42 % (0.60,
-    # 1.41): disks reaching over the boxes' edges stopped rays that pass beside them. The imperfect
-    # rates are still higher: by a hole between splats fewer of the four lines meet a splat, most
-    # of all with independent points.
+    # 1.41): disks reaching over the boxes' edges stopped rays that pass beside them. Before lines
+    # behind a wall's front stopped voting (shaders/bundle_step.glsl), 1.82 % (0.94, 0.16) and
+    # 0.94 % (0.34, 0.16): lines outside the box beside a vertex by its wall outvoted the wall. The
+    # imperfect rates are still higher: by a hole between splats fewer of the four lines meet a
+    # splat, most of all with independent points.
     assert 0 < floor["error_rate"] < 0.01
     assert abs(perfect["error_rate"] - floor["error_rate"]) < 0.005
-    assert imperfect["error_rate"] > floor["error_rate"] + 0.005
+    assert imperfect["error_rate"] > floor["error_rate"] + 0.003
     assert independent["error_rate"] > imperfect["error_rate"] + 0.003
     assert independent["false_miss_rate"] > imperfect["false_miss_rate"] + 0.003
     assert max(imperfect["false_hit_rate"], independent["false_hit_rate"]) < perfect["false_hit_rate"] + 0.003

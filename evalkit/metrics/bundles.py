@@ -464,8 +464,16 @@ def bundle_lookup(
                 k[i] * R * R + pixel[1] * R + pixel[0] : k[i] * R * R + pixel[1] * R + pixel[0] + 2
             ]
             j = lo + np.searchsorted(depths[lo:hi], bound, side="right" if f else "left")
-            # Not a voter: a line under the vertex's tangent plane with no node behind the vertex.
-            voter = crossing <= depth or j > lo if f else crossing >= depth or j < hi
+            # Not a voter: a line under the vertex's tangent plane with no node behind the vertex. A
+            # front the ray meets ahead, which the line meets before it crosses that plane, is not
+            # one (shaders/bundle_step.glsl).
+            voter = crossing <= depth if f else crossing >= depth
+            for jj in range(lo, j) if f else range(hi - 1, j - 1, -1):
+                if voter:
+                    break
+                along = plane[jj] @ o
+                behind = depths[jj] <= depth if f else depths[jj] >= depth
+                voter = behind or not (along < 0 and np.dot(plane[jj], origin + depths[jj] * d[i] - x) < 0)
             to_line = np.array([c & 1, c >> 1]) - offset[i]
             distance, meets = to_line @ to_line, False
             weight = (1.0 - abs(to_line[0])) * (1.0 - abs(to_line[1]))
