@@ -32,8 +32,9 @@
 // the plane (the wall's splats reaching below the floor), is not a node behind the vertex either.
 // With both counted, 2.3-2.9 % of the lookups from a room's floor by its wall left the room;
 // with the second still counted, 0.27-0.45 %; now 0.10-0.25 % (exact bundles: 0.03 %;
-// tests/test_bundle_metrics.py). A line in front of a surface's back (beside a step the ray may pass over) still votes: counted
-// out, it made lookups between the parts scene's pieces hit more often than their rays.
+// tests/test_bundle_metrics.py). A line in front of a surface's back (beside a step the ray may
+// pass over) still votes: counted out, it made lookups between the parts scene's pieces hit more
+// often than their rays.
 
 uniform float self_hit_bias;  // in bundle pixels, see below
 
@@ -62,10 +63,10 @@ bool on_node_surface(uint ref, vec3 y) {
 // Whether the lines around vertex x (geometric normal ng, towards the side the ray leaves; on
 // `triangle`, NO_TRIANGLE where it lies on none) skip a node as a splat of the surface x lies on:
 // - x lies in the splat's cylinder (its radius across and along its normal) and the two face the
-//   same way (normals within 60 degrees: OWN_SPLAT_COS, which says why not 90). A splat stands in for its surface a radius around its centre; in its own triangle's
-//   plane it stands off a curved surface (r^2 / 2 rho at curvature radius rho) and would shadow
-//   the vertex it represents. Surfaces of one facing closer than a splat radius are one surface
-//   to splats.
+//   same way (normals within 60 degrees: OWN_SPLAT_COS, which says why not 90). A splat stands
+//   in for its surface a radius around its centre; in its own triangle's plane it stands off a
+//   curved surface (r^2 / 2 rho at curvature radius rho) and would shadow the vertex it
+//   represents. Surfaces of one facing closer than a splat radius are one surface to splats.
 // - it is a splat of x's smooth surface whose centre lies behind x's tangent plane, within
 //   2 (r + h) of x (a line passes up to a pixel's diagonal beside x, and meets a splat up to
 //   its radius from its centre): the surface it stands for is one the ray cannot reach, while
@@ -152,7 +153,8 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
             uint before = forward ? m : m - 1u;
             vec3 plane_normal = triangle_normal(ref_triangle(node_ref(before)));
             bool behind = forward ? node_depth(before) <= depth : node_depth(before) >= depth;
-            voter[c] = behind || !(dot(plane_normal, omega) < 0.0 && dot(plane_normal, origin + node_depth(before) * f.d.xyz - x) < 0.0);
+            float gap = dot(plane_normal, origin + node_depth(before) * f.d.xyz - x);
+            voter[c] = behind || !(dot(plane_normal, omega) < 0.0 && gap < 0.0);
         }
         at_vertex[c] = origin + depth * f.d.xyz;
         vec2 to_line = vec2(c & 1, c >> 1) - offset;
