@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 from conftest import trace
+from test_bundles import edge_gain
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
@@ -84,7 +85,11 @@ def test_measured_holes_fall_and_redundant_nodes_rise_with_the_splat_scale(gl):
     assert all(a < b for a, b in zip(redundant, redundant[1:])), redundant
     (model, _) = analyse(rows)  # the point count's own fit, then the fit over all point counts
     assert model["points"] == 4096
-    # Measured: c 0.98, h0 0.006, c_n 0.999, hole rates predicted within 0.93 % (ratio) over
-    # s = 0.5 .. 2. Asserted with a 5x margin, and the constants near the ideal c = c_n = 1.
+    # Measured: c 0.98, h0 0.006, hole rates predicted within 0.93 % (ratio) over s = 0.5 .. 2;
+    # c_n 1.066: raw nodes are s^2 per crossing plus what cut splats gain at sharp edges
+    # (`edge_gain`, 0.031 at s = 0.5 to 0.123 at s = 2 here; c_n was 0.999 before cut splats grew
+    # to cover their edges). Asserted with a 5x margin, c near the ideal 1, and c_n above 1 and
+    # under 1 plus the largest gain.
     assert model["max_ratio_error"] < 0.05, model
-    assert 0.8 < model["c"] < 1.2 and 1.8 < model["q"] < 2.2 and 0.95 < model["c_nodes"] < 1.05 and model["h0"] < 0.02
+    assert 0.8 < model["c"] < 1.2 and 1.8 < model["q"] < 2.2 and model["h0"] < 0.02
+    assert 1.0 < model["c_nodes"] < 1 + edge_gain(scene, bundles.params["splat_radius"]), model

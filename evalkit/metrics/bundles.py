@@ -520,7 +520,8 @@ class _SplatShapes:
     cut its triangle's splats (shaders/scene.glsl: SplatShape) and its radius (sharp_splat_radius).
     A set built before splats ended at sharp edges (no ``crease_degrees`` in its params) has no
     lines; one built before cut splats grew (no ``splats_keep_area``) keeps every radius at
-    splat_radius; one built before its triangle's flat neighbours' sharp edges cut it too (no
+    splat_radius, and one built before they grew to cover their edges (no ``splat_growth``) grew
+    them to keep their disk's area; one built before its triangle's flat neighbours' sharp edges cut it too (no
     ``flat_degrees``) is cut by its own triangle's alone."""
 
     def __init__(self, bundles: BundleSet, arrays):
@@ -538,7 +539,8 @@ class _SplatShapes:
             )
         else:
             self.first, self.lines = np.zeros(len(arrays.faces) + 1, np.int64), np.zeros((0, 3))
-        self.grows = bool(bundles.params.get("splats_keep_area", False))
+        kept_area = bundles.params.get("splats_keep_area")  # the growth recorded before splat_growth
+        self.growth = bundles.params.get("splat_growth") or ("keep_area" if kept_area else None)
 
     @functools.cached_property
     def surfaces(self) -> np.ndarray:
@@ -558,10 +560,10 @@ class _SplatShapes:
         """Node j's splat's radius, worked out when a lookup meets it (nodes are millions; the
         lookups meet thousands)."""
         t = self.triangles[j]
-        if not (self.grows and self.first[t + 1] > self.first[t]):
+        if self.growth is None or self.first[t + 1] == self.first[t]:
             return self.radius
         distances = self.distances(j, self.barycentrics(j, self.centres[j]))
-        return float(sharp_splat_radii(self.radius, distances[None])[0])
+        return float(sharp_splat_radii(self.radius, distances[None], self.growth)[0])
 
     def inside(self, j: int, y: np.ndarray, beyond_disk: bool) -> bool:
         """Whether point y of node j's splat's plane, within its radius, lies in the splat: on the

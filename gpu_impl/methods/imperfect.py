@@ -4,7 +4,8 @@ points on the surfaces, each a disk of radius ``splat_scale * sqrt(A / (pi N))``
 disks. A splat ends at its triangle's sharp edges (convex creases and boundaries:
 `evalkit.core.scene.edges.sharp_edges`) and at those of the triangle's neighbours in its plane
 (`splat_cuts`), where a disk would stand out into empty space, and grows there, on its own triangle,
-until it keeps its disk's area (shaders/scene.glsl: sharp_splat_radius, inside_splat).
+until a crossing at the edge is covered as often as one inside the face (shaders/scene.glsl:
+sharp_splat_radius, inside_splat).
 
 - ``points``: N points per direction (shaders/splat_points.glsl), stratified along a space-filling
   curve or independent (``sampler``), each with its splat's radius. They are drawn by area, but
@@ -30,7 +31,7 @@ import moderngl
 import numpy as np
 
 from evalkit.core.errors import LimitError
-from evalkit.core.scene.edges import CREASE_DEGREES, FLAT_DEGREES
+from evalkit.core.scene.edges import CREASE_DEGREES, FLAT_DEGREES, SPLAT_GROWTH
 from evalkit.core.settings import DEPTH_TOLERANCE, setting
 from gpu_impl.bundles import BundleTracer, LinkedListTracer
 from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT
@@ -192,7 +193,8 @@ class SplatTracer(BundleTracer):
             "splatter": self.splatter,
             "merged": self.merge,
             "crease_degrees": CREASE_DEGREES,
-            "splats_keep_area": True,  # cut splats grow (shaders/scene.glsl: sharp_splat_radius)
+            # how cut splats grow (shaders/scene.glsl: sharp_splat_radius; edges.py: SPLAT_GROWTH)
+            "splat_growth": SPLAT_GROWTH,
             "flat_degrees": FLAT_DEGREES,  # cut by flat neighbours' sharp edges too (edges.splat_cuts)
             # every smooth surface has this many points' share (scene_buffers.py: surface_weights)
             "surface_least_points": SURFACE_LEAST_POINTS,

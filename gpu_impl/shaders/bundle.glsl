@@ -31,7 +31,7 @@ layout(std140, binding = BINDING_FRAMES) uniform Frames { BundleFrame frames[MAX
 // A surface point of imperfect bundles: its triangle and barycentrics (b1, b2) as two unorm16, so
 // the point follows its triangle when the geometry moves, its splat's radius: splat_radius, grown
 // where lines cut the disk (scene.glsl: sharp_splat_radius), and which of its triangle's cut lines
-// lie within that radius (scene.glsl: near_cut_lines), worked out once where the point is made.
+// lie within that radius (scene.glsl: lines_within), worked out once where the point is made.
 // Points k N .. (k + 1) N - 1 are direction k's (splat_points.glsl makes them).
 struct SplatPoint {
     uint triangle;

@@ -154,24 +154,21 @@ SplatShape splat_shape(uint t, uint lines) {
     return shape;
 }
 
-// The radius of a splat of radius r, centred at barycentrics b, that keeps the area pi r^2 of its
-// disk where its shape's lines cut it (a line farther than the radius takes nothing). A point stands for its share of
-// the surface; cut down to half a disk at an edge, the splats would cover a line's crossing near
-// the edge half as often as elsewhere, and light would leak along every crease
-// (docs/MEASURED_FACTS.md, "Cut splats keep their area"). The disk grows along the edge instead:
-// radius R keeps pi R^2 less a segment of R^2 (acos t - t sqrt(1 - t^2)), t = d / R, for each line
-// at distance d < R (a few fixed-point steps; the kept area changes slowly with R). Overlapping
-// segments (at a corner) are counted twice, which the cap of 2 r (a quarter disk's area) bounds.
+// The radius of a splat of radius r centred at barycentrics b, grown where its shape's lines cut
+// it. A point stands for its share of the surface, and a crossing anywhere inside a face finds a
+// splat centre within r as often as the disk of radius r around it holds points. At a sharp edge
+// only the half of that disk on the face's own side holds any, so splats of radius r, cut there,
+// would cover the edge's crossings half as often, and light would leak along every crease
+// (docs/MEASURED_FACTS.md, "Cut splats cover their edges"). A half disk of radius sqrt(2) r has
+// the full disk's area, and a quarter disk (a corner) of radius 2 r: so a splat within sqrt(2) r
+// of one line takes radius sqrt(2) r, and one within sqrt(2) r of two or more takes 2 r. Growing
+// a cut splat only until what it keeps has its disk's area (the rule before) left an edge's
+// crossings 0.6 of the interior's cover.
 float sharp_splat_radius(float r, SplatShape shape, vec2 b) {
-    vec3 cut_a = max(vec3(b, 1.0) * shape.lines_a, 0.0), cut_b = max(vec3(b, 1.0) * shape.lines_b, 0.0);
-    if (min(min(cut_a.x, cut_a.y), min(cut_a.z, min(min(cut_b.x, cut_b.y), cut_b.z))) >= r) return r;
-    float R = r;
-    for (int step = 0; step < 4; step++) {
-        vec3 t_a = clamp(cut_a / R, 0.0, 1.0), t_b = clamp(cut_b / R, 0.0, 1.0);
-        vec3 lost = acos(t_a) - t_a * sqrt(1.0 - t_a * t_a) + acos(t_b) - t_b * sqrt(1.0 - t_b * t_b);
-        R = r * sqrt(PI / max(PI - lost.x - lost.y - lost.z, 0.25 * PI));
-    }
-    return R;
+    float reach = sqrt(2.0) * r;
+    bvec3 near_a = lessThan(vec3(b, 1.0) * shape.lines_a, vec3(reach)), near_b = lessThan(vec3(b, 1.0) * shape.lines_b, vec3(reach));
+    int lines = int(near_a.x) + int(near_a.y) + int(near_a.z) + int(near_b.x) + int(near_b.y) + int(near_b.z);
+    return lines == 0 ? r : (lines == 1 ? reach : 2.0 * r);
 }
 
 // Which of a shape's lines (bit i for column i) lie nearer barycentrics b than `radius`: those

@@ -173,9 +173,9 @@ def splat_cuts(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The lines that cut each triangle's splats: the sharp edges (`sharp_edges`) of the triangle
     and of its flat neighbours (`flat_neighbours`), a surface's outline near the splat. A splat ends
-    at each and grows to keep its disk's area (shaders/scene.glsl: sharp_splat_radius); a splat on a
-    triangle that only touches an outline through its neighbour would otherwise stand out past it,
-    and cover the crossings there half as often as its neighbour's grown splats do.
+    at each and grows there (shaders/scene.glsl: sharp_splat_radius); a splat on a triangle that only
+    touches an outline through its neighbour would otherwise stand out past it, and cover the
+    crossings there less often than its neighbour's grown splats do.
 
     Returns ``first`` (T + 1,): triangle t's lines are ``lines[first[t]:first[t + 1]]``, and
     ``lines`` (L, 3): each line (l1, l2, l0) as an affine function of barycentrics in the triangle's
@@ -255,13 +255,25 @@ def plane_barycentrics(p: np.ndarray, p0: np.ndarray, p1: np.ndarray, p2: np.nda
     return np.stack([bb * dot(q, e1) - ab * dot(q, e2), aa * dot(q, e2) - ab * dot(q, e1)], axis=1) / det[:, None]
 
 
-def sharp_splat_radii(r: float, distances: np.ndarray) -> np.ndarray:
+# How cut splats grow (shaders/scene.glsl: sharp_splat_radius), recorded in an imperfect set's
+# params: "edge_cover" keeps a crossing at an edge as often covered as one inside a face;
+# "keep_area", the rule of sets built before it, grew a splat until it kept its disk's area.
+SPLAT_GROWTH = "edge_cover"
+
+
+def sharp_splat_radii(r: float, distances: np.ndarray, growth: str = SPLAT_GROWTH) -> np.ndarray:
     """The radii (M,) of splats of radius ``r`` whose centres lie ``distances`` (M, K) from the lines
-    that cut them (`cut_distances`), as shaders/scene.glsl's sharp_splat_radius grows them: a cut
-    splat grows until the part kept has its disk's area pi r^2. A disk of radius R loses R^2 (acos t
-    - t sqrt(1 - t^2)), t = d / R, to each line at distance d < R; the kept area is held at a quarter
-    disk at least (R <= 2 r), which bounds the corners, where the lost segments overlap and are
-    counted twice. Four fixed-point steps, as the shader takes."""
+    that cut them (`cut_distances`), as shaders/scene.glsl's sharp_splat_radius grows them: a
+    crossing at an edge finds splat centres on one side only, so a splat within sqrt(2) r of one
+    line takes radius sqrt(2) r (a half disk with the full disk's area) and one within sqrt(2) r of
+    two or more takes 2 r (a quarter disk's). ``growth="keep_area"`` is the rule of sets built
+    before (`SPLAT_GROWTH`): radius R keeping pi r^2 of its disk, less the segment beyond each line
+    within R, at most 2 r, in the shader's four fixed-point steps."""
+    if growth == "edge_cover":
+        near = (np.asarray(distances) < math.sqrt(2.0) * r).sum(axis=1)
+        return np.where(near == 0, float(r), np.where(near == 1, math.sqrt(2.0) * r, 2.0 * r))
+    if growth != "keep_area":
+        raise ValueError(f"unknown splat growth {growth!r}: 'edge_cover' or 'keep_area'")
     cut = np.maximum(distances, 0.0)
     radius = np.full(len(cut), float(r))
     for _ in range(4):
