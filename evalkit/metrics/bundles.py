@@ -483,7 +483,7 @@ def bundle_lookup(
             while lo <= j < hi:
                 gap = np.dot(plane[j], origin + depths[j] * d[i] - x)
                 along = np.dot(plane[j], o)
-                if gap * along > 0 and not own_surface(j, x, geometric[i], triangle[i]):
+                if gap * along > 0 and not own_surface(j, x, geometric[i], triangle[i], x + gap / along * o):
                     t = gap / along
                     on = on_surface(j, x + t * o)
                     if (hit < 0 or t < hit_t * (1 - 1e-5)) and on:
@@ -582,21 +582,24 @@ class _SplatShapes:
 
 def _own_surface_test(splats: _SplatShapes | None, plane, h: float):
     """Whether the lines around vertex x (geometric normal ng, towards the side the ray leaves, on
-    triangle t, -1: none) skip node j (shaders/bundle_step.glsl: own_surface): x within the
-    splat's cylinder of its radius, across and along its normal, facing the same way (normals
-    within 60 degrees, `OWN_SPLAT_COS`); or a splat of
-    t's smooth surface whose centre lies behind x's tangent plane, within 2 (r + h) of x."""
+    triangle t, -1: none) skip node j, the ray meeting its plane at y (shaders/bundle_step.glsl:
+    own_surface): x within the splat's cylinder of its radius, across and along its normal, facing
+    the same way (normals within 60 degrees, `OWN_SPLAT_COS`), unless it is a splat of another
+    smooth surface than t's and y lies in its triangle; or a splat of t's smooth surface whose
+    centre lies behind x's tangent plane, within 2 (r + h) of x."""
     if splats is None:
-        return lambda j, x, ng, t: False
+        return lambda j, x, ng, t, y: False
 
-    def skipped(j, x, ng, t):
+    def skipped(j, x, ng, t, y):
+        same = t < 0 or splats.surfaces[splats.triangles[j]] == splats.surfaces[t]
         r = splats.splat_radius(j)
         q = x - splats.centres[j]
         along = q @ plane[j]
         if plane[j] @ ng > OWN_SPLAT_COS and abs(along) <= r and q @ q - along * along <= r * r:
-            return True
-        behind = t >= 0 and q @ ng >= 0 and q @ q <= (2 * (r + h)) ** 2
-        return bool(behind and splats.surfaces[splats.triangles[j]] == splats.surfaces[t])
+            b = splats.barycentrics(j, y)
+            if same or min(b[0], b[1], 1 - b[0] - b[1]) < -1e-4:
+                return True
+        return bool(t >= 0 and same and q @ ng >= 0 and q @ q <= (2 * (r + h)) ** 2)
 
     return skipped
 

@@ -66,7 +66,11 @@ bool on_node_surface(uint ref, vec3 y) {
 //   same way (normals within 60 degrees: OWN_SPLAT_COS, which says why not 90). A splat stands
 //   in for its surface a radius around its centre; in its own triangle's plane it stands off a
 //   curved surface (r^2 / 2 rho at curvature radius rho) and would shadow the vertex it
-//   represents. Surfaces of one facing closer than a splat radius are one surface to splats.
+//   represents. A splat of another surface (x on a triangle) stays where y, the ray's point on
+//   its plane, lies in the splat's own triangle: there the splat is that surface, a real one in
+//   front of x. Skipped there, the light's splats let the ceiling above cornell-box's light, 0.01
+//   over it, see the room through the light, and the ceiling's indirect light there was twice
+//   Mitsuba's (docs/MEASURED_FACTS.md, "Another surface in front of the vertex").
 // - it is a splat of x's smooth surface whose centre lies behind x's tangent plane, within
 //   2 (r + h) of x (a line passes up to a pixel's diagonal beside x, and meets a splat up to
 //   its radius from its centre): the surface it stands for is one the ray cannot reach, while
@@ -76,16 +80,20 @@ bool on_node_surface(uint ref, vec3 y) {
 //   the second ones, against 0.996 and 0.998 for exact bundles (docs/MEASURED_FACTS.md). A splat
 //   of another surface behind the plane may be one the ray meets in front of it (the floor beside
 //   a column), and stays.
-bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle) {
+bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
     uint t = ref_triangle(ref);
     vec3 n = triangle_normal(t);
     SplatSource s = splat_source(ref);
     vec3 q = x - s.centre;
     float along = dot(q, n), reach = 2.0 * (s.radius + h);
-    if (dot(n, ng) > OWN_SPLAT_COS && abs(along) <= s.radius && dot(q, q) - along * along <= s.radius * s.radius) return true;
-    return triangle != NO_TRIANGLE && dot(q, ng) >= 0.0 && dot(q, q) <= reach * reach
-        && triangle_surface(t) == triangle_surface(triangle);
+    bool same_surface = triangle == NO_TRIANGLE || triangle_surface(t) == triangle_surface(triangle);
+    if (dot(n, ng) > OWN_SPLAT_COS && abs(along) <= s.radius && dot(q, q) - along * along <= s.radius * s.radius) {
+        if (same_surface) return true;
+        vec2 b = plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y);
+        if (min(min(b.x, b.y), 1.0 - b.x - b.y) < -1e-4) return true;
+    }
+    return triangle != NO_TRIANGLE && same_surface && dot(q, ng) >= 0.0 && dot(q, q) <= reach * reach;
 #else
     return false;
 #endif
@@ -173,8 +181,8 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
             uint ref = node_ref(node);
             vec3 plane_normal = triangle_normal(ref_triangle(ref));
             float gap = dot(plane_normal, origin + node_depth(node) * f.d.xyz - x), along = dot(plane_normal, omega);
-            if (gap * along > 0.0 && !own_surface(ref, x, ng, h, triangle)) {
-                float t = gap / along;
+            float t = gap / along;
+            if (gap * along > 0.0 && !own_surface(ref, x, ng, h, triangle, x + t * omega)) {
                 bool on = on_node_surface(ref, x + t * omega);
                 // No nearer than the best so far (on its plane, usually): it cannot win.
                 if ((hit == NO_NODE || t < hit_t * (1.0 - 1e-5)) && on) {
