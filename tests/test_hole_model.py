@@ -87,7 +87,7 @@ def test_measured_holes_fall_and_redundant_nodes_rise_with_the_splat_scale(gl):
     assert model["points"] == 4096
     # Measured: c 0.98, h0 0.006, hole rates predicted within 0.93 % (ratio) over s = 0.5 .. 2;
     # c_n 1.066: raw nodes are s^2 per crossing plus what cut splats gain at sharp edges
-    # (`edge_gain`, 0.031 at s = 0.5 to 0.123 at s = 2 here; c_n was 0.999 before cut splats grew
+    # (`edge_gain`, 0.031 at s = 0.5 to 0.122 at s = 2 here; c_n was 0.999 before cut splats grew
     # to cover their edges). Asserted with a 5x margin, c near the ideal 1, and c_n above 1 and
     # under 1 plus the largest gain.
     assert model["max_ratio_error"] < 0.05, model

@@ -520,9 +520,9 @@ class _SplatShapes:
     cut its triangle's splats (shaders/scene.glsl: SplatShape) and its radius (sharp_splat_radius).
     A set built before splats ended at sharp edges (no ``crease_degrees`` in its params) has no
     lines; one built before cut splats grew (no ``splats_keep_area``) keeps every radius at
-    splat_radius, and one built before they grew to cover their edges (no ``splat_growth``) grew
-    them to keep their disk's area; one built before its triangle's flat neighbours' sharp edges cut it too (no
-    ``flat_degrees``) is cut by its own triangle's alone."""
+    splat_radius; one built before they grew to cover their edges (no ``splat_growth``) grew them
+    to keep their disk's area; one built before its triangle's flat neighbours' sharp edges cut it
+    too (no ``flat_degrees``) is cut by its own triangle's alone."""
 
     def __init__(self, bundles: BundleSet, arrays):
         self.radius = float(bundles.params["splat_radius"])
