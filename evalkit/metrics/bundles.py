@@ -515,6 +515,12 @@ def bundle_lookup(
     return {"omega": omega, "leaves": leaves, "node": node, "point": point, "on_surface": landed}
 
 
+def _in_triangle(b: np.ndarray) -> bool:
+    """Whether barycentrics b lie in their triangle, up to 1e-4 of round-off (scene.glsl:
+    inside_triangle)."""
+    return bool(min(b[0], b[1], 1 - b[0] - b[1]) >= -1e-4)
+
+
 class _SplatShapes:
     """The splats of an imperfect set as the shaders cut and grow them, per node j: the lines that
     cut its triangle's splats (shaders/scene.glsl: SplatShape) and its radius (sharp_splat_radius).
@@ -577,7 +583,7 @@ class _SplatShapes:
         tolerance = 1e-4 * np.abs(lines[:, :2]).max(axis=1)
         if np.any(self.distances(j, b)[: len(lines)] < -tolerance):
             return False
-        return not beyond_disk or min(b[0], b[1], 1 - b[0] - b[1]) >= -1e-4
+        return not beyond_disk or _in_triangle(b)
 
 
 def _own_surface_test(splats: _SplatShapes | None, plane, h: float):
@@ -595,10 +601,9 @@ def _own_surface_test(splats: _SplatShapes | None, plane, h: float):
         r = splats.splat_radius(j)
         q = x - splats.centres[j]
         along = q @ plane[j]
-        if plane[j] @ ng > OWN_SPLAT_COS and abs(along) <= r and q @ q - along * along <= r * r:
-            b = splats.barycentrics(j, y)
-            if same or min(b[0], b[1], 1 - b[0] - b[1]) < -1e-4:
-                return True
+        in_cylinder = plane[j] @ ng > OWN_SPLAT_COS and abs(along) <= r and q @ q - along * along <= r * r
+        if in_cylinder and (same or not _in_triangle(splats.barycentrics(j, y))):
+            return True
         return bool(t >= 0 and same and q @ ng >= 0 and q @ q <= (2 * (r + h)) ** 2)
 
     return skipped
@@ -634,8 +639,7 @@ def _on_surface_test(bundles: BundleSet, arrays, splats: _SplatShapes | None):
 
     def on_triangle(j, y):
         p0, p1, p2 = arrays.positions[arrays.faces[triangles[j]]]
-        b = plane_barycentrics(y[None], p0[None], p1[None], p2[None])[0]
-        return bool(min(b[0], b[1], 1 - b[0] - b[1]) >= -1e-4)
+        return _in_triangle(plane_barycentrics(y[None], p0[None], p1[None], p2[None])[0])
 
     return on_triangle
 

@@ -55,8 +55,7 @@ bool on_node_surface(uint ref, vec3 y) {
 #else
     uvec3 v = triangle_vertices(ref);
     vec3 p0 = vertex_position(v.x);
-    vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, y);
-    return b.x >= -1e-4 && b.y >= -1e-4 && b.x + b.y <= 1.0 + 1e-4;
+    return inside_triangle(plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, y));
 #endif
 }
 
@@ -88,11 +87,8 @@ bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
     vec3 q = x - s.centre;
     float along = dot(q, n), reach = 2.0 * (s.radius + h);
     bool same_surface = triangle == NO_TRIANGLE || triangle_surface(t) == triangle_surface(triangle);
-    if (dot(n, ng) > OWN_SPLAT_COS && abs(along) <= s.radius && dot(q, q) - along * along <= s.radius * s.radius) {
-        if (same_surface) return true;
-        vec2 b = plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y);
-        if (min(min(b.x, b.y), 1.0 - b.x - b.y) < -1e-4) return true;
-    }
+    bool in_cylinder = dot(n, ng) > OWN_SPLAT_COS && abs(along) <= s.radius && dot(q, q) - along * along <= s.radius * s.radius;
+    if (in_cylinder && (same_surface || !inside_triangle(plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y)))) return true;
     return triangle != NO_TRIANGLE && same_surface && dot(q, ng) >= 0.0 && dot(q, q) <= reach * reach;
 #else
     return false;

@@ -87,6 +87,11 @@ vec2 plane_barycentrics(vec3 p0, vec3 e1, vec3 e2, vec3 p) {
     return vec2(c * dot(q, e1) - b * dot(q, e2), a * dot(q, e2) - b * dot(q, e1)) / (a * c - b * b);
 }
 
+// Whether barycentrics b lie in their triangle, up to 1e-4 of round-off.
+bool inside_triangle(vec2 b) {
+    return min(min(b.x, b.y), 1.0 - b.x - b.y) >= -1e-4;
+}
+
 // SPLAT_SHAPES: the passes that cut splats (imperfect bundles' points, builders and steps,
 // imperfect shadow maps) read each triangle's cut lines; the others leave their buffer out (a
 // compute pass may use at most 16 storage blocks).
@@ -192,7 +197,7 @@ bool inside_cuts(SplatShape shape, vec2 b) {
 // coverage of the surface itself and never reaches over a smooth edge onto a curved neighbour's
 // offset surface.
 bool inside_splat(SplatShape shape, vec2 b, bool beyond_disk) {
-    return inside_cuts(shape, b) && (!beyond_disk || min(min(b.x, b.y), 1.0 - b.x - b.y) >= -1e-4);
+    return inside_cuts(shape, b) && (!beyond_disk || inside_triangle(b));
 }
 #endif
 

@@ -194,7 +194,7 @@ uint splat(uint id) {
                 // Beyond the disk, the line must cross the triangle.
                 bool beyond_disk = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y > E_disk;
                 precise vec2 on = b + to_barycentrics * q;
-                if (beyond_disk && min(min(on.x, on.y), 1.0 - on.x - on.y) < -1e-4) continue;
+                if (beyond_disk && !inside_triangle(on)) continue;
             }
             covered++;
             if (neighbours) {
