@@ -143,12 +143,20 @@ def test_lookups_from_a_ceiling_meet_the_lamp_hung_under_it(gl):
     assert imperfect["error_rate"] < 0.15, imperfect["error_rate"]
 
 
-def test_lookups_land_where_the_ray_meets_the_surface(gl, rng):
-    """The four-line lookup puts the next vertex at the ray's own hit, not on a line beside it."""
+@pytest.mark.parametrize("method", ["perfect", "imperfect"])
+def test_lookups_land_where_the_ray_meets_the_surface(gl, rng, method):
+    """The four-line lookup puts the next vertex at the ray's own hit, not on a line beside it. A
+    splat stands for its triangle: the ray's point inside the triangle is on its surface though
+    it lies beyond the splat's disk, as it mostly does with splats smaller than a bundle pixel
+    (here 0.045 wide against 0.089; shaders/bundle_step.glsl: on_node_surface). Measured (three
+    draws of the vertices), the ray's hits landed on: perfect 100 %; imperfect 11.9-14.9 % with
+    the disk alone, 100 % with the triangle too."""
     scene = two_planes()
     vertices = floor_vertices(500, rng)
     tracer = ExactTracer(scene)
-    bundles = build(gl, scene, "perfect", K=16, R=64, seed=2)
+    bundles = build(gl, scene, method, K=16, R=64, seed=2, points=65536)
+    if method == "imperfect":
+        assert 2 * bundles.params["splat_radius"] < 0.6 * bundles.pixel_size()
     k = rng.integers(0, 16, 500)
     look = bundle_lookup(bundles, tracer.arrays, vertices["position"], vertices["normal"], vertices["geometric"], k)
     exact = tracer.next_hit(vertices["position"] + tracer.epsilon * vertices["geometric"], look["omega"])
@@ -261,7 +269,7 @@ def _directions_taken(bundles, vertices, seed):
     return np.where((np.einsum("ij,ij->i", d, vertices["normal"]) >= 0)[:, None], d, -d)
 
 
-def test_gl_perfect_lookups_err_no_more_than_exact_ones_and_imperfect_more(gl):
+def test_gl_lookups_err_as_exact_ones_and_independent_points_leave_holes(gl):
     scene = load_scene("cornell-box")
     tracer = ExactTracer(scene)
     vertices = eye_vertices(scene, tracer, 2000, seed=0)
@@ -274,21 +282,17 @@ def test_gl_perfect_lookups_err_no_more_than_exact_ones_and_imperfect_more(gl):
     imperfect = next_hit_errors(build(gl, scene, "imperfect", K=16, R=128, seed=0), tracer, vertices)
     # Measured (K=16, R=128), error rate (false misses, false hits): floor 0.28 % (0.06, 0.16),
     # perfect 0.31 % (0.06, 0.16); imperfect with independent points at splat scale 2 (the old
-    # default) 1.60 % (0.72, 0.16), with the default stratified points at 1.8 0.75 % (0.16, 0.16).
+    # default) 0.47 % (0.19, 0.16), with the default stratified points at 1.8 0.31 % (0.06, 0.16).
     # Before splats ended at their triangles' sharp edges, 5.58 % (1.19, 1.50) and 4.42 % (0.60,
-    # 1.41): disks reaching over the boxes' edges stopped rays that pass beside them. Before lines
-    # behind a wall's front stopped voting (shaders/bundle_step.glsl), 1.82 % (0.94, 0.16) and
-    # 0.94 % (0.34, 0.16): lines outside the box beside a vertex by its wall outvoted the wall. Since
-    # cut splats grow to cover their edges' crossings as their faces' (shaders/scene.glsl), 1.47 %
-    # (0.66, 0.16) and 0.78 % (0.16, 0.16); since lookups keep another surface's splats in front of
-    # the vertex (the light's, under the ceiling: shaders/bundle_step.glsl), 1.41 % (0.66, 0.16) and
-    # 0.72 % (0.16, 0.16). The imperfect rates are still higher: by a hole between splats fewer of
-    # the four lines meet a splat, most of all with independent points.
+    # 1.41): disks reaching over the boxes' edges stopped rays that pass beside them. Before a
+    # ray's point inside a splat's triangle counted as on its surface (shaders/bundle_step.glsl:
+    # on_node_surface), 1.41 % (0.66, 0.16) and 0.72 % (0.16, 0.16): lookups whose point fell
+    # beyond the splat's disk landed by the lines' vote, up to a pixel off, and where a hole left
+    # fewer lines meeting a splat, they missed. Independent points still leave more holes.
     assert 0 < floor["error_rate"] < 0.01
     assert abs(perfect["error_rate"] - floor["error_rate"]) < 0.005
-    assert imperfect["error_rate"] > floor["error_rate"] + 0.003
-    assert independent["error_rate"] > imperfect["error_rate"] + 0.003
-    assert independent["false_miss_rate"] > imperfect["false_miss_rate"] + 0.003
+    assert abs(imperfect["error_rate"] - perfect["error_rate"]) < 0.001
+    assert independent["false_miss_rate"] > imperfect["false_miss_rate"] + 0.001
     assert max(imperfect["false_hit_rate"], independent["false_hit_rate"]) < perfect["false_hit_rate"] + 0.003
 
 

@@ -623,13 +623,15 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
 
 
 def _on_surface_test(bundles: BundleSet, arrays, splats: _SplatShapes | None):
-    """Whether point y on node j's plane lies on its surface, as shaders/bundle_hits.glsl tells:
-    within the splat's radius and its shape (`_SplatShapes.inside`); or inside the triangle, up to
-    1e-4 of the barycentrics. The radius up to 1e-4 of its square."""
+    """Whether point y on node j's plane lies on its surface, as shaders/bundle_step.glsl tells
+    (on_node_surface): inside its triangle, up to 1e-4 of the barycentrics; or, for a splat, within
+    its radius (up to 1e-4 of its square) and its shape (`_SplatShapes.inside`)."""
     if splats is not None:
         disk = splats.radius**2 * (1 + 1e-4)
 
         def on_splat(j, y):
+            if _in_triangle(splats.barycentrics(j, y)):
+                return True
             d2 = np.sum((y - splats.centres[j]) ** 2)
             return d2 <= splats.splat_radius(j) ** 2 * (1 + 1e-4) and splats.inside(j, y, d2 > disk)
 
