@@ -31,7 +31,7 @@ import moderngl
 import numpy as np
 
 from evalkit.core.errors import LimitError
-from evalkit.core.scene.edges import CREASE_DEGREES, FLAT_DEGREES, SPLAT_GROWTH
+from evalkit.core.scene.edges import FLAT_DEGREES, SPLAT_CREASE_DEGREES, SPLAT_GROWTH
 from evalkit.core.settings import DEPTH_TOLERANCE, setting
 from gpu_impl.bundles import BundleTracer, LinkedListTracer
 from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT
@@ -192,7 +192,7 @@ class SplatTracer(BundleTracer):
             "sampler": self.sampler,
             "splatter": self.splatter,
             "merged": self.merge,
-            "crease_degrees": CREASE_DEGREES,
+            "crease_degrees": SPLAT_CREASE_DEGREES,
             # how cut splats grow (shaders/scene.glsl: sharp_splat_radius; edges.py: SPLAT_GROWTH)
             "splat_growth": SPLAT_GROWTH,
             "flat_degrees": FLAT_DEGREES,  # cut by flat neighbours' sharp edges too (edges.splat_cuts)

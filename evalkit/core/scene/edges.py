@@ -9,10 +9,18 @@ import math
 
 import numpy as np
 
-# Two triangles meeting at a convex edge whose normals part by more than this are a crease, not one
-# smooth surface (docs/MEASURED_FACTS.md, "Splats end at sharp edges"): tessellated curved
-# surfaces part by less (atrium's columns by 7.5 degrees, a 16-sided cylinder by 22.5).
+# Two triangles meeting at an edge whose normals part by more than this are a crease between two
+# smooth surfaces (smooth_surfaces): tessellated curved surfaces part by less (atrium's columns by
+# 7.5 degrees, a 16-sided cylinder by 22.5), and a column is one surface.
 CREASE_DEGREES = 30.0
+# A splat in its triangle's plane that reaches over a convex edge, where the neighbour bends away
+# by theta, stands off the neighbour by up to r sin(theta): lines beside a small part's outline meet
+# it where the part is not. Splats end at convex edges of more than this (sharp_edges, splat_cuts;
+# docs/MEASURED_FACTS.md, "Splats end at convex edges of 10 degrees"), which cuts a 16-sided
+# cylinder's facets (22.5 degrees) but not atrium's columns' (7.5): a facet narrower than a splat,
+# cut on both sides, keeps too few points to cover it (atrium at N = 16384, splat scale 2.5: leaks
+# 0.41 % at 10 degrees, 4.8 % at 5).
+SPLAT_CREASE_DEGREES = 10.0
 # Two triangles across an edge whose normals part by less than this lie in one plane to a splat,
 # whose sharp edges cut the splats of both (flat_neighbours, splat_cuts): over a splat's radius r
 # one stands off the other's plane by at most r sin(0.5 degrees) < r / 100.
@@ -90,7 +98,7 @@ def sharp_edges(
     positions: np.ndarray,
     faces: np.ndarray,
     normals: np.ndarray,
-    crease_degrees: float = CREASE_DEGREES,
+    crease_degrees: float = SPLAT_CREASE_DEGREES,
     pairs=None,
 ) -> np.ndarray:
     """(T, 3) bool: whether edge e of each triangle (from corner e to corner e + 1) is sharp, so that
@@ -167,7 +175,7 @@ def splat_cuts(
     positions: np.ndarray,
     faces: np.ndarray,
     normals: np.ndarray,
-    crease_degrees: float = CREASE_DEGREES,
+    crease_degrees: float = SPLAT_CREASE_DEGREES,
     neighbours: bool = True,
     pairs=None,
 ) -> tuple[np.ndarray, np.ndarray]:
