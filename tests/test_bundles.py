@@ -251,7 +251,7 @@ def test_splats_of_a_coarsely_faceted_ball_end_at_its_facets_edges(gl):
     positions, faces, _, _ = unit_sphere((16, 8))
     scene = scene_of([Mesh("ball", positions, faces, 0)], [Material("grey")])
     bundles = build(gl, scene, "imperfect", K=8, R=64, points=2048)
-    assert bundles.params["crease_degrees"] == SPLAT_CREASE_DEGREES < 12
+    assert bundles.params["crease_degrees"] == SPLAT_CREASE_DEGREES < 12.6  # cuts the ball's bends
     result = agreement(bundles, exact_lists(scene, bundles), 1e-4 * bundles.radius)
     assert result["exact_nodes"] > 40000
     assert result["spurious"] < 0.12 * bundles.node_count, result["spurious"] / bundles.node_count

@@ -8,9 +8,9 @@
 // to a pixel beside it, and each meets surfaces the ray may or may not. Each line offers the
 // first node beyond the vertex whose plane the ray reaches, and the ray's own point on that
 // plane; the ray lands on the nearest of them that lies on its node's surface (inside its
-// triangle, or its splat's triangle or disk). A point on a surface another line meets nearer is behind
-// that surface (the far wall beside a block), so all four are looked at. One line's node taken
-// where it lies put the next vertex half a pixel off on average, towards the open side, and
+// triangle, or its splat's triangle or disk). A point on a surface another line meets nearer is
+// behind that surface (the far wall beside a block), so all four are looked at. One line's node
+// taken where it lies put the next vertex half a pixel off on average, towards the open side, and
 // lost the light of lines passing beside a concave edge: +2 % and -1 % of cornell-box's and the
 // furnace's indirect light at R = 64 (docs/MEASURED_FACTS.md).
 //
