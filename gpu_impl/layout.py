@@ -97,6 +97,11 @@ TRIANGLE_SOLID = np.uint32(0x40000000)
 # or its flat neighbours' (evalkit/core/scene/edges.py: splat_cuts)
 TRIANGLE_CUT = np.uint32(0x08000000)
 TRIANGLE_MATERIAL = np.uint32(0x07FFFFFF)  # Triangle.material_flags: the material index
+# The words per triangle at the head of the SPLAT_SHAPES buffer (scene_buffers.py: splat_facts):
+# where its cut lines start, its smooth surface, the triangles across its three edges; of those,
+# the top bit: the triangle across runs the edge the same way, so its normal is turned.
+TRIANGLE_FACT_WORDS = np.uint32(5)
+TRIANGLE_TURNED = np.uint32(0x80000000)
 # Light.position.w; "emitter_sample" is a point drawn on an emissive triangle for next-event
 # estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its
 # normal; "light_path_vertex" is a vertex a light path left on a surface (strategies/bidirectional.py),
@@ -149,6 +154,8 @@ SHADER_CONSTANTS = {
     "PATH_FROM_CAMERA": PATH_FROM_CAMERA,
     "PATH_BACK": PATH_BACK,
     "NO_TRIANGLE": NO_TRIANGLE,
+    "TRIANGLE_FACT_WORDS": TRIANGLE_FACT_WORDS,
+    "TRIANGLE_TURNED": TRIANGLE_TURNED,
     **{f"LIGHT_{kind.upper()}": value for kind, value in LIGHT_KINDS.items()},
     **{
         f"ENVIRONMENT_{'NONE' if kind is None else ('MAP' if kind == 'envmap' else kind.upper())}": value

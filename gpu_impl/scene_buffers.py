@@ -6,17 +6,20 @@ import numpy as np
 
 from evalkit.core.bundleset import FRAME_PADDING
 from evalkit.core.scene import Scene
-from evalkit.core.scene.edges import edge_pairs, smooth_surfaces, solid_triangles, splat_cuts
+from evalkit.core.scene.edges import edge_pairs, smooth_surfaces, solid_triangles, splat_cuts, triangle_neighbours
 from gpu_impl.context import GLContext
 from gpu_impl.layout import (
     BINDINGS,
     MATERIAL,
     MATERIAL_TEXTURED,
     MATERIAL_TWOSIDED,
+    NO_TRIANGLE,
     TRIANGLE,
     TRIANGLE_CUT,
+    TRIANGLE_FACT_WORDS,
     TRIANGLE_SMOOTH,
     TRIANGLE_SOLID,
+    TRIANGLE_TURNED,
     VERTEX,
 )
 
@@ -116,21 +119,27 @@ class GpuScene:
         return self._solid
 
     def splat_facts(self) -> None:
-        """Find, and upload, what splats need of each triangle: the lines that cut its splats
-        (`evalkit.core.scene.edges.splat_cuts`: its sharp edges and its flat neighbours';
-        TRIANGLE_CUT in the triangle records) and its smooth surface (`smooth_surfaces`), with the
-        edge pairs found once for both. One SPLAT_SHAPES buffer holds them (shaders/scene.glsl:
-        splat_shape, triangle_surface). Found the first time splats ask; rigid poses keep them."""
+        """Find, and upload, what splats and lookups need of each triangle: the lines that cut its
+        splats (`evalkit.core.scene.edges.splat_cuts`: its sharp edges and its flat neighbours';
+        TRIANGLE_CUT in the triangle records), its smooth surface (`smooth_surfaces`) and the
+        triangles across its edges (`triangle_neighbours`), with the edge pairs found once for all.
+        One SPLAT_SHAPES buffer holds them (shaders/scene.glsl: splat_shape, triangle_surface,
+        triangle_across). Found the first time splats or lookups ask; rigid poses keep them."""
         if self._cuts is None:
             a = self.arrays
             pairs = edge_pairs(a.positions, a.faces, a.tri_normal) if len(a.faces) else None
             first, lines = splat_cuts(a.positions, a.faces, a.tri_normal, pairs=pairs)
             self._surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal, pairs=pairs)
-            # Words 2t and 2t + 1: where triangle t's cut lines start, its surface; word 2T: where
-            # the last one's end. Then three words a line.
-            head = np.empty(2 * len(a.faces) + 1, np.uint32)
-            head[0::2] = len(head) + 3 * first
-            head[1::2] = self._surfaces
+            across, turned = triangle_neighbours(a.positions, a.faces, a.tri_normal, pairs=pairs)
+            # Words 5t to 5t + 4: where triangle t's cut lines start, its surface, the triangles
+            # across its edges (NO_TRIANGLE: none; the top bit: turned the other way); word 5T:
+            # where the last one's lines end. Then three words a line.
+            head = np.empty(TRIANGLE_FACT_WORDS * len(a.faces) + 1, np.uint32)
+            head[0::TRIANGLE_FACT_WORDS] = len(head) + 3 * first
+            head[1::TRIANGLE_FACT_WORDS] = self._surfaces
+            for e in range(3):
+                word = across[:, e].astype(np.uint32) | np.where(turned[:, e], TRIANGLE_TURNED, 0).astype(np.uint32)
+                head[2 + e :: TRIANGLE_FACT_WORDS] = np.where(across[:, e] < 0, NO_TRIANGLE, word)
             words = np.concatenate([head, lines.astype(np.float32).view(np.uint32).reshape(-1)])
             self.buffers["SPLAT_SHAPES"] = self.gl.buffer(words.tobytes())
             self._cuts = np.diff(first)

@@ -66,6 +66,7 @@ from evalkit.core.scene.edges import (
     sharp_splat_radii,
     smooth_surfaces,
     splat_cuts,
+    triangle_neighbours,
 )
 from evalkit.core.settings import DEPTH_TOLERANCE, RenderSettings
 
@@ -439,6 +440,7 @@ def bundle_lookup(
     own_surface = _own_surface_test(splats, plane, h)
     triangle = np.full(len(k), -1) if triangle is None else np.asarray(triangle)
     smaller_than_pixel = _smaller_than_pixel(bundles, arrays)
+    beyond_outline = _outline_test(bundles, arrays)
     bias = self_hit_bias * h
     node = np.full(len(k), -1, np.int64)
     point = np.full((len(k), 3), np.nan)
@@ -490,7 +492,8 @@ def bundle_lookup(
                         hit, hit_t = j, t
                     if not on and smaller_than_pixel(j):
                         blockers.append((weight, t, j, origin))
-                    meets = True
+                    meets = on or not beyond_outline(j, x + t * o, o)
+                    voter = voter and meets  # past the outline: no vote either way
                     if along < 0:
                         fronts.append((plane[j], origin + depths[j] * d[i]))
                     if distance < near_distance:
@@ -620,6 +623,31 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
     corners = arrays.positions[arrays.faces]  # per triangle, not per node: nodes are many more
     small = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1) < h
     return lambda j: small[triangles[j]]
+
+
+def _outline_test(bundles: BundleSet, arrays):
+    """Whether the ray along o, whose point y on node j's triangle's plane lies outside the
+    triangle, passes the triangle's outline there (shaders/bundle_step.glsl: beyond_outline): the
+    triangle across the edge y lies beyond faces the other way along o, or there is none."""
+    triangles = bundles.node_triangle()
+    across, turned = triangle_neighbours(arrays.positions, arrays.faces, arrays.tri_normal)
+
+    def beyond(j, y, o):
+        t = triangles[j]
+        p0, p1, p2 = arrays.positions[arrays.faces[t]]
+        b = plane_barycentrics(y[None], p0[None], p1[None], p2[None])[0]
+        w = np.array([1 - b[0] - b[1], b[0], b[1]])
+        corner = int(np.argmin(w))
+        if w[corner] >= -1e-4:
+            return False
+        e = (corner + 1) % 3
+        u = across[t, e]
+        if u < 0:
+            return True
+        n = arrays.tri_normal[u] * (-1.0 if turned[t, e] else 1.0)
+        return bool((n @ o < 0) != (arrays.tri_normal[t] @ o < 0))
+
+    return beyond
 
 
 def _on_surface_test(bundles: BundleSet, arrays, splats: _SplatShapes | None):

@@ -9,9 +9,8 @@
 // here at the hit (the renderer decides per frame).
 
 #define BUNDLE_LOOKUP
-#if NODE_REFERENCE == NODE_SPLAT_POINT
-#define SPLAT_SHAPES  // bundle_step.glsl: whether a ray lands within a splat
-#endif
+// bundle_step.glsl: whether a ray lands within a splat, and past a met triangle's outline
+#define SPLAT_SHAPES
 #if SHADOW_LIGHTS && !LAZY_LIGHTING
 #define PRECOMPUTED_IRRADIANCE
 #endif

@@ -31,9 +31,8 @@
 // for the environment, which eye paths reach; 0 for a directional light, which they cannot).
 
 #define BUNDLE_LOOKUP
-#if NODE_REFERENCE == NODE_SPLAT_POINT
-#define SPLAT_SHAPES  // bundle_step.glsl: whether a ray lands within a splat
-#endif
+// bundle_step.glsl: whether a ray lands within a splat, and past a met triangle's outline
+#define SPLAT_SHAPES
 #define SHADOW_LIGHTS 1
 #include "common.glsl"
 #include "scene.glsl"

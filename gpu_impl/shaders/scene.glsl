@@ -96,17 +96,24 @@ bool inside_triangle(vec2 b) {
 // imperfect shadow maps) read each triangle's cut lines; the others leave their buffer out (a
 // compute pass may use at most 16 storage blocks).
 #if defined SPLAT_SHAPES
-// One array of 32-bit words (gpu_impl/scene_buffers.py: splat_facts): for each triangle t, word
-// 2t, where its cut lines start, up to word 2t + 2, the next triangle's (or, past the last, where
-// the lines end), and word 2t + 1, its smooth surface (evalkit/core/scene/edges.py:
-// smooth_surfaces); after these, three words a line, the bits of (l1, l2, l0): l1 b1 + l2 b2 + l0
-// is the distance of the point at barycentrics b from the line, positive on the surface's side
-// (evalkit/core/scene/edges.py: splat_cuts).
+// One array of 32-bit words (gpu_impl/scene_buffers.py: splat_facts): for each triangle t,
+// TRIANGLE_FACT_WORDS (5) words from word 5t: where its cut lines start (up to where the next
+// triangle's start, or, past the last, word 5T: where the lines end), its smooth surface
+// (evalkit/core/scene/edges.py: smooth_surfaces), and the triangles across its three edges
+// (triangle_neighbours); after these, three words a line, the bits of (l1, l2, l0): l1 b1 + l2 b2
+// + l0 is the distance of the point at barycentrics b from the line, positive on the surface's
+// side (evalkit/core/scene/edges.py: splat_cuts).
 layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uint splat_shapes[]; };
 
 // Triangle t's smooth surface: triangles joined across edges that bend less than the crease angle.
 uint triangle_surface(uint t) {
-    return splat_shapes[2u * t + 1u];
+    return splat_shapes[TRIANGLE_FACT_WORDS * t + 1u];
+}
+
+// The triangle across triangle t's edge e (from corner e to corner e + 1), NO_TRIANGLE where there
+// is none, with TRIANGLE_TURNED set where its normal must be turned to agree with t's.
+uint triangle_across(uint t, uint e) {
+    return splat_shapes[TRIANGLE_FACT_WORDS * t + 2u + e];
 }
 
 vec3 cut_line(uint word) {
@@ -135,7 +142,8 @@ struct SplatShape {
 
 // All of triangle t's cut lines, bit i for its line i.
 uint triangle_cut_lines(uint t) {
-    return triangle_cut(t) ? (1u << ((splat_shapes[2u * t + 2u] - splat_shapes[2u * t]) / 3u)) - 1u : 0u;
+    uint first = splat_shapes[TRIANGLE_FACT_WORDS * t], end = splat_shapes[TRIANGLE_FACT_WORDS * (t + 1u)];
+    return triangle_cut(t) ? (1u << ((end - first) / 3u)) - 1u : 0u;
 }
 
 // The shape of a splat of triangle t cut by the triangle's cut lines `lines` (bit i for its line
@@ -144,7 +152,7 @@ SplatShape splat_shape(uint t, uint lines) {
     const vec3 none = vec3(0.0, 0.0, 3.4e38);
     SplatShape shape = SplatShape(lines != 0u, mat3(none, none, none), mat3(none, none, none), vec3(0.0), vec3(0.0));
     if (lines == 0u) return shape;
-    uint first = splat_shapes[2u * t];
+    uint first = splat_shapes[TRIANGLE_FACT_WORDS * t];
     for (int i = 0; i < 6; i++) {
         vec3 l = (lines & (1u << uint(i))) != 0u ? cut_line(first + 3u * uint(i)) : none;
         float slack = 1e-4 * max(abs(l.x), abs(l.y));

@@ -94,6 +94,22 @@ def edge_pairs(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray):
     return kept, edge, shared, (t0, e0), (t1, e1), n0, n1, consistent
 
 
+def triangle_neighbours(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray, pairs=None):
+    """Per triangle and edge e (from corner e to corner e + 1), the triangle across it, (T, 3) int64,
+    -1 where there is none (a boundary, an edge of more than two, a triangle welding collapses), and
+    whether that triangle runs the edge the same way, so that its normal must be turned to agree,
+    (T, 3) bool. Lookups ask whether the ray passes a met triangle across its outline
+    (shaders/bundle_step.glsl: beyond_outline)."""
+    across = np.full((len(faces), 3), -1, np.int64)
+    turned = np.zeros((len(faces), 3), bool)
+    if not len(faces):
+        return across, turned
+    kept, _, _, (t0, e0), (t1, e1), _, _, consistent = pairs or edge_pairs(positions, faces, normals)
+    across[kept[t0], e0], across[kept[t1], e1] = kept[t1], kept[t0]
+    turned[kept[t0], e0] = turned[kept[t1], e1] = ~consistent
+    return across, turned
+
+
 def sharp_edges(
     positions: np.ndarray,
     faces: np.ndarray,
