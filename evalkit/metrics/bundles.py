@@ -440,7 +440,7 @@ def bundle_lookup(
     own_surface = _own_surface_test(splats, plane, h)
     triangle = np.full(len(k), -1) if triangle is None else np.asarray(triangle)
     smaller_than_pixel = _smaller_than_pixel(bundles, arrays)
-    beyond_outline = _outline_test(bundles, arrays)
+    beyond_outline = _outline_test(bundles, arrays, splats.pairs if splats else None)
     bias = self_hit_bias * h
     node = np.full(len(k), -1, np.int64)
     point = np.full((len(k), 3), np.nan)
@@ -625,12 +625,13 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
     return lambda j: small[triangles[j]]
 
 
-def _outline_test(bundles: BundleSet, arrays):
+def _outline_test(bundles: BundleSet, arrays, pairs=None):
     """Whether the ray along o, whose point y on node j's triangle's plane lies outside the
     triangle, passes the triangle's outline there (shaders/bundle_step.glsl: beyond_outline): the
-    triangle across the edge y lies beyond faces the other way along o, or there is none."""
+    triangle across the edge y lies beyond faces the other way along o, or there is none.
+    ``pairs``: the scene's `edge_pairs`, where the splats' shapes have found them already."""
     triangles = bundles.node_triangle()
-    across, turned = triangle_neighbours(arrays.positions, arrays.faces, arrays.tri_normal)
+    across, turned = triangle_neighbours(arrays.positions, arrays.faces, arrays.tri_normal, pairs=pairs)
 
     def beyond(j, y, o):
         t = triangles[j]

@@ -92,9 +92,10 @@ bool inside_triangle(vec2 b) {
     return min(min(b.x, b.y), 1.0 - b.x - b.y) >= -1e-4;
 }
 
-// SPLAT_SHAPES: the passes that cut splats (imperfect bundles' points, builders and steps,
-// imperfect shadow maps) read each triangle's cut lines; the others leave their buffer out (a
-// compute pass may use at most 16 storage blocks).
+// SPLAT_SHAPES: the passes that cut splats (imperfect bundles' points and builders, imperfect
+// shadow maps) read each triangle's cut lines, and the paths' steps (bundle_step.glsl) its cut
+// lines and the triangles across its edges, perfect bundles' too; the others leave the buffer out
+// (a compute pass may use at most 16 storage blocks).
 #if defined SPLAT_SHAPES
 // One array of 32-bit words (gpu_impl/scene_buffers.py: splat_facts): for each triangle t,
 // TRIANGLE_FACT_WORDS (5) words from word 5t: where its cut lines start (up to where the next
