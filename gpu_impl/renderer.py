@@ -114,8 +114,8 @@ class Renderer:
         self.gpu_scene = GpuScene(gl, first, sphere=sphere)
         units, own = self.resolved.units, self.resolved.unit_settings
         self.tracer = units["method"].tracer(gl, self.gpu_scene, settings)
-        # The paths' lookups read the triangles across each met triangle's edges (shaders/
-        # bundle_step.glsl: beyond_outline), which come with the splats' facts.
+        # The paths' lookups walk across met triangles' edges (shaders/bundle_step.glsl:
+        # walk_surface), reading the triangles across them, which come with the splats' facts.
         self.gpu_scene.splat_facts()
         # A static scene seen along the same directions every frame has the same bundles and the
         # same irradiance at their nodes or points: both are made once.

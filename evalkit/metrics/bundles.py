@@ -410,11 +410,12 @@ def bundle_lookup(
     (shaders/bundle_step.glsl: own_surface). Per vertex: the
     direction taken (d_k or -d_k, in the shading hemisphere), whether it leaves the geometric
     surface, the node landed on (index into the set's nodes, -1: none), the landing point, and
-    whether it lies on the node's surface (the ray's own point on it) or is a node where it lies:
-    the heaviest line's where lines that meet a surface smaller than a pixel in front of the ray's
-    point weigh more than half, else the nearest line's that meets a surface where the lines' vote
-    says the ray meets one (shaders/bundle_step.glsl says why and how they vote). The four lines
-    around the vertex are searched as the shader searches them."""
+    whether it lies on the node's surface (the ray's own point on it, or on a triangle a walk from
+    the node's reached) or is a node where it lies: the heaviest line's where lines that meet a
+    surface smaller than a pixel in front of the ray's point weigh more than half, else the nearest
+    line's that meets a surface where the lines' vote says the ray meets one (shaders/bundle_step.glsl
+    says why and how they vote); and the triangle landed on where it lies on a surface (-1 where
+    not). The four lines around the vertex are searched as the shader searches them."""
     ds = bundles.directions
     R, h = bundles.resolution, bundles.pixel_size()
     d, u, v = ds.directions[k], ds.axis_u[k], ds.axis_v[k]
@@ -440,14 +441,16 @@ def bundle_lookup(
     own_surface = _own_surface_test(splats, plane, h)
     triangle = np.full(len(k), -1) if triangle is None else np.asarray(triangle)
     smaller_than_pixel = _smaller_than_pixel(bundles, arrays)
-    beyond_outline = _outline_test(bundles, arrays, splats.pairs if splats else None)
+    walk = _surface_walk(bundles, arrays, splats.pairs if splats else None)
     bias = self_hit_bias * h
     node = np.full(len(k), -1, np.int64)
     point = np.full((len(k), 3), np.nan)
     landed = np.zeros(len(k), bool)
+    node_triangle = bundles.node_triangle()
+    surface = np.full(len(k), -1, np.int64)
     for i in np.nonzero(leaves)[0]:  # vertices are thousands; each search is a few steps
         x, o, f = position[i], omega[i], forward[i]
-        hit = near_hit = -1
+        hit = near_hit = hit_triangle = -1
         hit_t, near_distance, near_origin = 0.0, 4.0, None  # near_*: the nearest line meeting a surface
         meet_votes = leave_votes = 0  # the lines' votes (shaders/bundle_step.glsl)
         near_voter, near_voter_meets = 4.0, False
@@ -485,15 +488,16 @@ def bundle_lookup(
             while lo <= j < hi:
                 gap = np.dot(plane[j], origin + depths[j] * d[i] - x)
                 along = np.dot(plane[j], o)
+                end = ("outside",)  # or ("met", triangle, distance; -1: the node's own) or ("open",)
                 if gap * along > 0 and not own_surface(j, x, geometric[i], triangle[i], x + gap / along * o):
                     t = gap / along
-                    on = on_surface(j, x + t * o)
-                    if (hit < 0 or t < hit_t * (1 - 1e-5)) and on:
-                        hit, hit_t = j, t
-                    if not on and smaller_than_pixel(j):
+                    end = ("met", -1, t) if on_surface(j, x + t * o) else walk(j, x, o, t, triangle[i])
+                if end[0] != "outside":
+                    if end[0] == "met" and (hit < 0 or end[2] < hit_t * (1 - 1e-5)):
+                        hit, hit_t, hit_triangle = j, end[2], end[1]
+                    if end[0] == "open" and smaller_than_pixel(j):
                         blockers.append((weight, t, j, origin))
-                    meets = on or not beyond_outline(j, x + t * o, o)
-                    voter = voter and meets  # past the outline: no vote either way
+                    meets = True
                     if along < 0:
                         fronts.append((plane[j], origin + depths[j] * d[i]))
                     if distance < near_distance:
@@ -513,9 +517,17 @@ def bundle_lookup(
             node[i], point[i] = j, origin + depths[j] * d[i]
         elif hit >= 0:
             node[i], point[i], landed[i] = hit, x + hit_t * o, True
+            surface[i] = hit_triangle if hit_triangle >= 0 else node_triangle[hit]
         elif meet_votes > leave_votes or (meet_votes == leave_votes and near_voter_meets):  # the lines' vote
             node[i], point[i] = near_hit, near_origin + depths[near_hit] * d[i]
-    return {"omega": omega, "leaves": leaves, "node": node, "point": point, "on_surface": landed}
+    return {
+        "omega": omega,
+        "leaves": leaves,
+        "node": node,
+        "point": point,
+        "on_surface": landed,
+        "triangle": surface,
+    }
 
 
 def _in_triangle(b: np.ndarray) -> bool:
@@ -625,30 +637,44 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
     return lambda j: small[triangles[j]]
 
 
-def _outline_test(bundles: BundleSet, arrays, pairs=None):
-    """Whether the ray along o, whose point y on node j's triangle's plane lies outside the
-    triangle, passes the triangle's outline there (shaders/bundle_step.glsl: beyond_outline): the
-    triangle across the edge y lies beyond faces the other way along o, or there is none.
-    ``pairs``: the scene's `edge_pairs`, where the splats' shapes have found them already."""
+WALK_HOPS = 4  # shaders/bundle_step.glsl: WALK_HOPS
+
+
+def _surface_walk(bundles: BundleSet, arrays, pairs=None):
+    """From node j's triangle, whose plane the ray from x along o meets at distance s outside the
+    triangle, the walk across its edges (shaders/bundle_step.glsl: walk_surface): ("met", triangle,
+    distance) where the ray meets a triangle within WALK_HOPS of it, ("outside",) where it passes
+    an outline edge (the triangle across faces the other way along o, or there is none), reaches
+    a plane only behind x or the vertex's own triangle ``own``, else ("open",). ``pairs``: the
+    scene's `edge_pairs`, where the splats' shapes have found them already."""
     triangles = bundles.node_triangle()
     across, turned = triangle_neighbours(arrays.positions, arrays.faces, arrays.tri_normal, pairs=pairs)
 
-    def beyond(j, y, o):
+    def walk(j, x, o, s, own):
         t = triangles[j]
-        p0, p1, p2 = arrays.positions[arrays.faces[t]]
-        b = plane_barycentrics(y[None], p0[None], p1[None], p2[None])[0]
-        w = np.array([1 - b[0] - b[1], b[0], b[1]])
-        corner = int(np.argmin(w))
-        if w[corner] >= -1e-4:
-            return False
-        e = (corner + 1) % 3
-        u = across[t, e]
-        if u < 0:
-            return True
-        n = arrays.tri_normal[u] * (-1.0 if turned[t, e] else 1.0)
-        return bool((n @ o < 0) != (arrays.tri_normal[t] @ o < 0))
+        for hop in range(WALK_HOPS + 1):
+            p0, p1, p2 = arrays.positions[arrays.faces[t]]
+            b = plane_barycentrics((x + s * o)[None], p0[None], p1[None], p2[None])[0]
+            w = np.array([1 - b[0] - b[1], b[0], b[1]])
+            corner = int(np.argmin(w))
+            if w[corner] >= -1e-4:
+                return ("met", t, s)
+            if hop == WALK_HOPS:
+                return ("open",)
+            e = (corner + 1) % 3
+            u = across[t, e]
+            if u < 0:
+                return ("outside",)
+            n = arrays.tri_normal[u]
+            if u == own or ((n @ o < 0) != turned[t, e]) != (arrays.tri_normal[t] @ o < 0):
+                return ("outside",)
+            s = n @ (arrays.positions[arrays.faces[u, 0]] - x) / (n @ o)
+            if not np.isfinite(s) or s <= 0:
+                return ("outside",)
+            t = u
+        return ("open",)
 
-    return beyond
+    return walk
 
 
 def _on_surface_test(bundles: BundleSet, arrays, splats: _SplatShapes | None):
@@ -702,10 +728,13 @@ def next_hit_errors(
     ng = vertices["geometric"][use]
     exact = tracer.next_hit(vertices["position"][use] + tracer.epsilon * ng, omega)
     bundle_hit, exact_hit = node >= 0, exact.prim_id >= 0
-    facing = np.zeros(len(node), bool)
-    facing[bundle_hit] = (
-        np.einsum("ij,ij->i", bundles.normal[node[bundle_hit]].astype(np.float64), exact.normal[bundle_hit]) > 0
-    )
+    # The landing's normal: its triangle's where the ray lands on a surface (a walk's may be another
+    # than the node's, across a concave edge too), else the node's.
+    landed = look["triangle"][use]
+    normal = np.zeros((len(node), 3))
+    normal[bundle_hit] = bundles.normal[node[bundle_hit]]
+    normal[landed >= 0] = tracer.arrays.tri_normal[landed[landed >= 0]]
+    facing = bundle_hit & (np.einsum("ij,ij->i", normal, exact.normal) > 0)
     distance = np.linalg.norm(np.nan_to_num(point) - exact.point, axis=1)
     cos = np.abs(np.einsum("ij,ij->i", exact.geometric_normal, omega))
     same = (

@@ -15,25 +15,29 @@ struct BundleHit {
     vec3 albedo;
 };
 
+// A point on triangle t itself (a perfect bundle's node, or where a step walked to: bundle_step.glsl).
+BundleHit triangle_hit(vec3 position, uint t) {
+    uvec3 v = triangle_vertices(t);
+    vec3 p0 = vertex_position(v.x);
+    vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, position);
+    return BundleHit(t, position, shading_normal(t, v, b.x, b.y), material_albedo(triangle_material(t), surface_uv(v, b.x, b.y)));
+}
+
 BundleHit bundle_hit(vec3 position, uint ref) {
+#if NODE_REFERENCE == NODE_SPLAT_POINT
     BundleHit hit;
     hit.position = position;
-#if NODE_REFERENCE == NODE_SPLAT_POINT
     hit.triangle = points[ref].triangle;
-#else
-    hit.triangle = ref;
-#endif
     uvec3 v = triangle_vertices(hit.triangle);
     vec3 p0 = vertex_position(v.x);
     vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, position);
-#if NODE_REFERENCE == NODE_SPLAT_POINT
     vec2 centre = point_barycentrics(ref);
     hit.normal = shading_normal(hit.triangle, v, centre.x, centre.y);
-#else
-    hit.normal = shading_normal(hit.triangle, v, b.x, b.y);
-#endif
     hit.albedo = material_albedo(triangle_material(hit.triangle), surface_uv(v, b.x, b.y));
     return hit;
+#else
+    return triangle_hit(position, ref);
+#endif
 }
 
 #if defined BUNDLE_LOOKUP

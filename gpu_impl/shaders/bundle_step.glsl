@@ -8,14 +8,16 @@
 // to a pixel beside it, and each meets surfaces the ray may or may not. Each line offers the
 // first node beyond the vertex whose plane the ray reaches, and the ray's own point on that
 // plane; the ray lands on the nearest of them that lies on its node's surface (inside its
-// triangle, or its splat's triangle or disk). A point on a surface another line meets nearer is
-// behind that surface (the far wall beside a block), so all four are looked at. One line's node
+// triangle, or its splat's triangle or disk), or on a triangle that a walk across the node's
+// triangle's edges reaches (walk_surface). A line whose met surface the ray passes outside of
+// offers the next node on it instead. A point on a surface another line meets nearer is behind
+// that surface (the far wall beside a block), so all four are looked at. One line's node
 // taken where it lies put the next vertex half a pixel off on average, towards the open side, and
 // lost the light of lines passing beside a concave edge: +2 % and -1 % of cornell-box's and the
 // furnace's indirect light at R = 64 (docs/MEASURED_FACTS.md).
 //
-// Where no point lies on its surface, the ray passes between the surfaces the lines meet (or
-// they are triangles smaller than a pixel), and the lines vote: the ray meets a surface where
+// Where no point lies on a surface, the ray passes between the surfaces the lines meet (or
+// their walks stopped short), and the lines vote: the ray meets a surface where
 // more lines meet one than leave the scene, on a tie where the line nearest the vertex among
 // them does, and lands on the node of the nearest line that meets one, where it lies. Every line
 // that meets a surface here meets one the ray misses, so the ray leaves more often than the
@@ -103,25 +105,51 @@ bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
 #endif
 }
 
-// Whether the ray, whose point y on the plane of triangle t, met by a line beside the vertex,
-// lies outside t, passes t's outline there: the triangle across the edge y lies beyond faces the
-// other way along omega, or there is none. The ray then passes outside that surface, and the line
-// meeting it says nothing of whether the ray meets one: the line does not vote (bundle_step). On
-// the parts scene such lines outvoted the ray where it leaves past a part's outline: the second
-// lookups let through 0.984 of the sky light the rays do, and the images' indirect light was 0.985
-// of Mitsuba's (docs/MEASURED_FACTS.md, "Where perfect bundles' last indirect light on parts
-// goes").
-bool beyond_outline(uint t, vec3 y, vec3 omega) {
-    uvec3 v = triangle_vertices(t);
-    vec3 p0 = vertex_position(v.x);
-    vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, y);
-    vec3 w = vec3(1.0 - b.x - b.y, b.x, b.y);
-    uint corner = w.x <= w.y && w.x <= w.z ? 0u : (w.y <= w.z ? 1u : 2u);
-    if (w[corner] >= -1e-4) return false;  // inside, up to round-off (scene.glsl: inside_triangle)
-    uint across = triangle_across(t, (corner + 1u) % 3u);  // the edge opposite that corner
-    if (across == NO_TRIANGLE) return true;
-    vec3 n = triangle_normal(across & ~TRIANGLE_TURNED) * ((across & TRIANGLE_TURNED) != 0u ? -1.0 : 1.0);
-    return (dot(n, omega) < 0.0) != (dot(triangle_normal(t), omega) < 0.0);
+// How many triangles a step walks across a met triangle's edges (walk_surface). On the parts
+// scene (R = 256) one left the second lookups from exact hits letting through 0.989 of the sky
+// light that rays do, four 0.999 (docs/MEASURED_FACTS.md, "Lookups walk the met surface").
+const uint WALK_HOPS = 4u;
+const uint WALK_MET = 0u, WALK_OUTSIDE = 1u, WALK_OPEN = 2u;
+struct SurfaceWalk {
+    uint end;       // WALK_MET, WALK_OUTSIDE or WALK_OPEN
+    uint triangle;  // WALK_MET: the triangle the ray meets
+    float t;        // WALK_MET: the distance to it along omega
+};
+
+// Where the ray's point on the plane of triangle t (at distance s along omega from the vertex x),
+// met by a line beside the vertex, lies outside t: whether the ray meets t's surface elsewhere.
+// The walk crosses the edge the point lies beyond to the triangle there and takes the ray's point
+// on that one's plane, up to WALK_HOPS triangles:
+// - inside one, the ray meets it there, exactly (WALK_MET). Without the walk the ray landed on a
+//   farther surface another line met, or by the lines' vote, where a line met the neighbour of
+//   the triangle the ray meets.
+// - across an outline edge (the triangle beyond faces the other way along omega, or there is
+//   none), or to a plane the ray reaches only behind it, or to the vertex's own triangle, the ray
+//   passes outside that surface (WALK_OUTSIDE): the line's meeting it says nothing of the ray,
+//   which goes on to whatever the line meets behind it. Such lines outvoted the ray where it
+//   leaves past a part's outline: the parts scene's indirect light was 0.985 of Mitsuba's
+//   (docs/MEASURED_FACTS.md, "Where perfect bundles' last indirect light on parts goes").
+// - still beyond the last triangle's edge (WALK_OPEN): undecided; the line meets a surface.
+SurfaceWalk walk_surface(uint t, vec3 x, vec3 omega, float s, uint own) {
+    const SurfaceWalk outside = SurfaceWalk(WALK_OUTSIDE, NO_TRIANGLE, 0.0);
+    for (uint hop = 0u;; hop++) {
+        uvec3 v = triangle_vertices(t);
+        vec3 p0 = vertex_position(v.x);
+        vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, x + s * omega);
+        vec3 w = vec3(1.0 - b.x - b.y, b.x, b.y);
+        uint corner = w.x <= w.y && w.x <= w.z ? 0u : (w.y <= w.z ? 1u : 2u);
+        if (w[corner] >= -1e-4) return SurfaceWalk(WALK_MET, t, s);  // inside, up to round-off (scene.glsl: inside_triangle)
+        if (hop == WALK_HOPS) return SurfaceWalk(WALK_OPEN, NO_TRIANGLE, 0.0);
+        uint across = triangle_across(t, (corner + 1u) % 3u);  // the edge opposite that corner
+        if (across == NO_TRIANGLE) return outside;
+        uint u = across & ~TRIANGLE_TURNED;
+        vec3 n = triangle_normal(u);
+        bool turned = (across & TRIANGLE_TURNED) != 0u;
+        if (u == own || ((dot(n, omega) < 0.0) != turned) != (dot(triangle_normal(t), omega) < 0.0)) return outside;
+        s = dot(n, vertex_position(triangle_vertices(u).x) - x) / dot(n, omega);
+        if (!(s > 0.0) || isinf(s)) return outside;
+        t = u;
+    }
 }
 
 struct BundleStep {
@@ -147,6 +175,7 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
     float h = 2.0 * radius / float(resolution);  // the lines' spacing
     float bias = self_hit_bias * h;
     uint hit = NO_NODE, near_hit = NO_NODE;  // near_hit: the node of the nearest line that meets a surface
+    uint hit_triangle = NO_TRIANGLE;         // the triangle a walk met the ray on (NO_TRIANGLE: the node)
     int meet_votes = 0, leave_votes = 0;
     bool near_voter_meets = false;            // the nearest voting line's vote
     vec3 near_origin = vec3(0.0);
@@ -207,19 +236,23 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
             vec3 plane_normal = triangle_normal(ref_triangle(ref));
             float gap = dot(plane_normal, origin + node_depth(node) * f.d.xyz - x), along = dot(plane_normal, omega);
             float t = gap / along;
+            SurfaceWalk walk = SurfaceWalk(WALK_OUTSIDE, NO_TRIANGLE, 0.0);
             if (gap * along > 0.0 && !own_surface(ref, x, ng, h, triangle, x + t * omega)) {
-                bool on = on_node_surface(ref, x + t * omega);
+                // On the node's surface, the ray meets the node itself (NO_TRIANGLE).
+                walk = on_node_surface(ref, x + t * omega) ? SurfaceWalk(WALK_MET, NO_TRIANGLE, t) : walk_surface(ref_triangle(ref), x, omega, t, triangle);
+            }
+            if (walk.end != WALK_OUTSIDE) {
                 // No nearer than the best so far (on its plane, usually): it cannot win.
-                if ((hit == NO_NODE || t < hit_t * (1.0 - 1e-5)) && on) {
+                if (walk.end == WALK_MET && (hit == NO_NODE || walk.t < hit_t * (1.0 - 1e-5))) {
                     hit = node;
-                    hit_t = t;
+                    hit_t = walk.t;
+                    hit_triangle = walk.triangle;
                 }
-                if (!on && smaller_than_pixel(ref, h)) {
+                if (walk.end == WALK_OPEN && smaller_than_pixel(ref, h)) {
                     blocker[c] = node;
                     blocker_t[c] = t;
                 }
-                meets[c] = on || !beyond_outline(ref_triangle(ref), x + t * omega, omega);
-                voter[c] = voter[c] && meets[c];  // past the outline: no vote either way
+                meets[c] = true;
                 if (along < 0.0) {
                     front_normal[c] = plane_normal;
                     front_node[c] = origin + node_depth(node) * f.d.xyz;
@@ -277,7 +310,7 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
         // lies: a small curved facet's plane carried to the ray put the vertex inside neighbouring
         // parts (-18 % of the parts scene's indirect light at R = 128).
         vec3 y = on_surface ? x + hit_t * omega : near_origin + node_depth(hit) * f.d.xyz;
-        node = bundle_hit(y, node_ref(hit));
+        node = on_surface && hit_triangle != NO_TRIANGLE ? triangle_hit(y, hit_triangle) : bundle_hit(y, node_ref(hit));
         node_geometric = triangle_normal(node.triangle);
     }
     return BundleStep(leaves, hit, node, node_geometric);

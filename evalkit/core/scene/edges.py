@@ -98,8 +98,8 @@ def triangle_neighbours(positions: np.ndarray, faces: np.ndarray, normals: np.nd
     """Per triangle and edge e (from corner e to corner e + 1), the triangle across it, (T, 3) int64,
     -1 where there is none (a boundary, an edge of more than two, a triangle welding collapses), and
     whether that triangle runs the edge the same way, so that its normal must be turned to agree,
-    (T, 3) bool. Lookups ask whether the ray passes a met triangle across its outline
-    (shaders/bundle_step.glsl: beyond_outline)."""
+    (T, 3) bool. Lookups walk from a met triangle across these edges to the triangle the ray meets,
+    or to an outline the ray passes (shaders/bundle_step.glsl: walk_surface)."""
     across = np.full((len(faces), 3), -1, np.int64)
     turned = np.zeros((len(faces), 3), bool)
     if not len(faces):
