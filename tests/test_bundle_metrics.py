@@ -395,8 +395,9 @@ def test_the_shaders_lookups_are_the_emulations_vertex_by_vertex(gl, method):
     dark = look["node"][hit & ~shader_hit]
     twosided = np.array([m.twosided for m in scene.materials])
     assert not twosided[arrays.tri_material[bundles.node_triangle()[dark]]].any()
-    # Measured: none of the 6,392 lookups differs, perfect or imperfect (166 and 785 dark); nor,
-    # perfect, in 3 runs of 25,000 vertices at R = 256.
+    # Measured: none of the 6,392 lookups differs, perfect or imperfect (72 and 91 dark; 3205 and
+    # 3232 landed on a surface); before lookups walked the met surface, none either (166 and 785
+    # dark), nor, perfect, in 3 runs of 25,000 vertices at R = 256.
     # Where the ray lands on a surface, the surface too: a walk's triangle (shaders/bundle_step.glsl:
     # walk_surface) may be another than the node's. At a point on the edge between two triangles
     # of one smooth surface round-off picks either (4 of the imperfect lookups).
