@@ -437,11 +437,10 @@ def bundle_lookup(
     depths = bundles.depth.astype(np.float64)
     plane = arrays.tri_normal[bundles.node_triangle()]
     splats = _SplatShapes(bundles, arrays) if bundles.has_splats else None
-    on_surface = _on_surface_test(bundles, arrays, splats)
     own_surface = _own_surface_test(splats, plane, h)
     triangle = np.full(len(k), -1) if triangle is None else np.asarray(triangle)
     smaller_than_pixel = _smaller_than_pixel(bundles, arrays)
-    walk = _surface_walk(bundles, arrays, splats.pairs if splats else None)
+    walk = _surface_walk(bundles, arrays, splats)
     bias = self_hit_bias * h
     node = np.full(len(k), -1, np.int64)
     point = np.full((len(k), 3), np.nan)
@@ -491,7 +490,7 @@ def bundle_lookup(
                 end = ("outside",)  # or ("met", triangle, distance; -1: the node's own) or ("open",)
                 if gap * along > 0 and not own_surface(j, x, geometric[i], triangle[i], x + gap / along * o):
                     t = gap / along
-                    end = ("met", -1, t) if on_surface(j, x + t * o) else walk(j, x, o, t, triangle[i])
+                    end = walk(j, x, o, t, triangle[i])
                 if end[0] != "outside":
                     if end[0] == "met" and (hit < 0 or end[2] < hit_t * (1 - 1e-5)):
                         hit, hit_t, hit_triangle = j, end[2], end[1]
@@ -640,17 +639,21 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
 WALK_HOPS = 4  # shaders/bundle_step.glsl: WALK_HOPS
 
 
-def _surface_walk(bundles: BundleSet, arrays, pairs=None):
-    """From node j's triangle, whose plane the ray from x along o meets at distance s outside the
-    triangle, the walk across its edges (shaders/bundle_step.glsl: walk_surface): ("met", triangle,
-    distance) where the ray meets a triangle within WALK_HOPS of it, ("outside",) where it passes
-    an outline edge (the triangle across faces the other way along o, or there is none), reaches
-    a plane only behind x or the vertex's own triangle ``own``, else ("open",). ``pairs``: the
-    scene's `edge_pairs`, where the splats' shapes have found them already."""
+def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
+    """Where the ray from x along o meets node j's plane, at distance s (shaders/bundle_step.glsl:
+    walk_surface): ("met", -1, s) on the node's surface (`_on_surface_test`), else, walking across
+    its triangle's edges, ("met", triangle, distance) where the ray meets a triangle within
+    WALK_HOPS of it, ("outside",) where it passes an outline edge (the triangle across faces the
+    other way along o, or there is none), reaches a plane only behind x or the vertex's own
+    triangle ``own``, else ("open",). The splats' shapes bring the scene's edge pairs."""
     triangles = bundles.node_triangle()
+    on_surface = _on_surface_test(bundles, arrays, splats)
+    pairs = splats.pairs if splats else None
     across, turned = triangle_neighbours(arrays.positions, arrays.faces, arrays.tri_normal, pairs=pairs)
 
     def walk(j, x, o, s, own):
+        if on_surface(j, x + s * o):
+            return ("met", -1, s)
         t = triangles[j]
         for hop in range(WALK_HOPS + 1):
             p0, p1, p2 = arrays.positions[arrays.faces[t]]
@@ -672,14 +675,13 @@ def _surface_walk(bundles: BundleSet, arrays, pairs=None):
             if not np.isfinite(s) or s <= 0:
                 return ("outside",)
             t = u
-        return ("open",)
 
     return walk
 
 
 def _on_surface_test(bundles: BundleSet, arrays, splats: _SplatShapes | None):
     """Whether point y on node j's plane lies on its surface, as shaders/bundle_step.glsl tells
-    (on_node_surface): inside its triangle, up to 1e-4 of the barycentrics; or, for a splat, within
+    (walk_surface, first): inside its triangle, up to 1e-4 of the barycentrics; or, for a splat, within
     its radius (up to 1e-4 of its square) and its shape (`_SplatShapes.inside`)."""
     if splats is not None:
         disk = splats.radius**2 * (1 + 1e-4)

@@ -40,21 +40,11 @@
 
 uniform float self_hit_bias;  // in bundle pixels, see below
 
-// Whether point y, on the plane of a node's surface, lies on that surface: inside its triangle
-// (perfect bundles), or inside its splat's triangle or within its splat's disk and shape
-// (imperfect; scene.glsl: inside_splat, which SPLAT_SHAPES brings), up to round-off. A splat
-// stands for its triangle, which the line met near it: inside the triangle the ray meets that
-// surface exactly, as in a perfect bundle. With the disk alone, a ray's point a pixel from the
-// line fell outside a splat smaller than a pixel most of the time, and the lookup landed by the
-// lines' vote, on a node up to a pixel off the ray (the parts scene, N = 1048576, R = 256: 67 %
-// of the second vertices' sky light came from such landings, against 37 % with perfect bundles,
-// and rays from them let through 0.965 of the sky light rays from the true hits do;
-// docs/MEASURED_FACTS.md, "Splats stand for their triangles").
-bool on_node_surface(uint ref, vec3 y) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
+// Whether point y on a splat's plane, outside its triangle (at barycentrics b of it), lies within
+// the splat's disk and shape (scene.glsl: inside_splat, which SPLAT_SHAPES brings), up to round-off.
+bool within_splat(uint ref, vec2 b, vec3 y) {
     SplatSource s = splat_source(ref);
-    vec2 b = plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y);
-    if (inside_triangle(b)) return true;
     vec3 to_centre = y - s.centre;
     float d2 = dot(to_centre, to_centre);
     if (d2 > s.radius * s.radius * (1.0 + 1e-4)) return false;
@@ -62,12 +52,8 @@ bool on_node_surface(uint ref, vec3 y) {
     SplatShape shape = splat_shape(s.triangle, s.cut_lines);
     bool beyond_disk = d2 > splat_radius * splat_radius * (1.0 + 1e-4);
     return inside_splat(shape, b, beyond_disk);
-#else
-    uvec3 v = triangle_vertices(ref);
-    vec3 p0 = vertex_position(v.x);
-    return inside_triangle(plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, y));
-#endif
 }
+#endif
 
 // Whether the lines around vertex x (geometric normal ng, towards the side the ray leaves; on
 // `triangle`, NO_TRIANGLE where it lies on none) skip a node as a splat of the surface x lies on:
@@ -105,7 +91,7 @@ bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
 #endif
 }
 
-// How many triangles a step walks across a met triangle's edges (walk_surface). On the parts
+// How many triangles a step walks across a met node's triangle's edges (walk_surface). On the parts
 // scene (R = 256) one left the second lookups from exact hits letting through 0.989 of the sky
 // light that rays do, four 0.999 (docs/MEASURED_FACTS.md, "Lookups walk the met surface").
 const uint WALK_HOPS = 4u;
@@ -116,11 +102,19 @@ struct SurfaceWalk {
     float t;        // WALK_MET: the distance to it along omega
 };
 
-// Where the ray's point on the plane of triangle t (at distance s along omega from the vertex x),
-// met by a line beside the vertex, lies outside t: whether the ray meets t's surface elsewhere.
-// The walk crosses the edge the point lies beyond to the triangle there and takes the ray's point
-// on that one's plane, up to WALK_HOPS triangles:
-// - inside one, the ray meets it there, exactly (WALK_MET). Without the walk the ray landed on a
+// Where the ray's point on the plane of the node `ref` (at distance s along omega from the vertex
+// x), met by a line beside the vertex, lies:
+// - on the node's surface (WALK_MET, NO_TRIANGLE: the node itself): inside its triangle, or within
+//   its splat's disk and shape. A splat stands for its triangle, which the line met near it:
+//   inside the triangle the ray meets that surface exactly, as in a perfect bundle. With the disk
+//   alone, a ray's point a pixel from the line fell outside a splat smaller than a pixel most of
+//   the time, and the lookup landed by the lines' vote, on a node up to a pixel off the ray (the
+//   parts scene, N = 1048576, R = 256: 67 % of the second vertices' sky light came from such
+//   landings, against 37 % with perfect bundles; docs/MEASURED_FACTS.md, "Splats stand for their
+//   triangles").
+// - else the walk crosses the edge of the node's triangle that the point lies beyond, to the
+//   triangle there, and takes the ray's point on that one's plane, up to WALK_HOPS triangles.
+//   Inside one, the ray meets it there, exactly (WALK_MET). Without the walk the ray landed on a
 //   farther surface another line met, or by the lines' vote, where a line met the neighbour of
 //   the triangle the ray meets.
 // - across an outline edge (the triangle beyond faces the other way along omega, or there is
@@ -130,15 +124,20 @@ struct SurfaceWalk {
 //   leaves past a part's outline: the parts scene's indirect light was 0.985 of Mitsuba's
 //   (docs/MEASURED_FACTS.md, "Where perfect bundles' last indirect light on parts goes").
 // - still beyond the last triangle's edge (WALK_OPEN): undecided; the line meets a surface.
-SurfaceWalk walk_surface(uint t, vec3 x, vec3 omega, float s, uint own) {
+SurfaceWalk walk_surface(uint ref, vec3 x, vec3 omega, float s, uint own) {
     const SurfaceWalk outside = SurfaceWalk(WALK_OUTSIDE, NO_TRIANGLE, 0.0);
+    uint t = ref_triangle(ref);
     for (uint hop = 0u;; hop++) {
         uvec3 v = triangle_vertices(t);
         vec3 p0 = vertex_position(v.x);
         vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, x + s * omega);
         vec3 w = vec3(1.0 - b.x - b.y, b.x, b.y);
         uint corner = w.x <= w.y && w.x <= w.z ? 0u : (w.y <= w.z ? 1u : 2u);
-        if (w[corner] >= -1e-4) return SurfaceWalk(WALK_MET, t, s);  // inside, up to round-off (scene.glsl: inside_triangle)
+        // Inside, up to round-off (scene.glsl: inside_triangle); at the first, the node itself.
+        if (w[corner] >= -1e-4) return SurfaceWalk(WALK_MET, hop == 0u ? NO_TRIANGLE : t, s);
+#if NODE_REFERENCE == NODE_SPLAT_POINT
+        if (hop == 0u && within_splat(ref, b, x + s * omega)) return SurfaceWalk(WALK_MET, NO_TRIANGLE, s);
+#endif
         if (hop == WALK_HOPS) return SurfaceWalk(WALK_OPEN, NO_TRIANGLE, 0.0);
         uint across = triangle_across(t, (corner + 1u) % 3u);  // the edge opposite that corner
         if (across == NO_TRIANGLE) return outside;
@@ -237,10 +236,7 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
             float gap = dot(plane_normal, origin + node_depth(node) * f.d.xyz - x), along = dot(plane_normal, omega);
             float t = gap / along;
             SurfaceWalk walk = SurfaceWalk(WALK_OUTSIDE, NO_TRIANGLE, 0.0);
-            if (gap * along > 0.0 && !own_surface(ref, x, ng, h, triangle, x + t * omega)) {
-                // On the node's surface, the ray meets the node itself (NO_TRIANGLE).
-                walk = on_node_surface(ref, x + t * omega) ? SurfaceWalk(WALK_MET, NO_TRIANGLE, t) : walk_surface(ref_triangle(ref), x, omega, t, triangle);
-            }
+            if (gap * along > 0.0 && !own_surface(ref, x, ng, h, triangle, x + t * omega)) walk = walk_surface(ref, x, omega, t, triangle);
             if (walk.end != WALK_OUTSIDE) {
                 // No nearer than the best so far (on its plane, usually): it cannot win.
                 if (walk.end == WALK_MET && (hit == NO_NODE || walk.t < hit_t * (1.0 - 1e-5))) {

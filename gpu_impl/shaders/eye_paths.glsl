@@ -9,7 +9,7 @@
 // here at the hit (the renderer decides per frame).
 
 #define BUNDLE_LOOKUP
-// bundle_step.glsl: whether a ray lands within a splat, and past a met triangle's outline
+// bundle_step.glsl: a splat's shape, and the triangles across a met triangle's edges (walk_surface)
 #define SPLAT_SHAPES
 #if SHADOW_LIGHTS && !LAZY_LIGHTING
 #define PRECOMPUTED_IRRADIANCE

@@ -31,7 +31,7 @@
 // for the environment, which eye paths reach; 0 for a directional light, which they cannot).
 
 #define BUNDLE_LOOKUP
-// bundle_step.glsl: whether a ray lands within a splat, and past a met triangle's outline
+// bundle_step.glsl: a splat's shape, and the triangles across a met triangle's edges (walk_surface)
 #define SPLAT_SHAPES
 #define SHADOW_LIGHTS 1
 #include "common.glsl"
