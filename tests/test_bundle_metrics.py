@@ -149,7 +149,7 @@ def test_lookups_land_where_the_ray_meets_the_surface(gl, rng, method):
     """The four-line lookup puts the next vertex at the ray's own hit, not on a line beside it. A
     splat stands for its triangle: the ray's point inside the triangle is on its surface though
     it lies beyond the splat's disk, as it mostly does with splats smaller than a bundle pixel
-    (here 0.045 wide against 0.089; shaders/bundle_step.glsl: on_node_surface). Measured (three
+    (here 0.045 wide against 0.089; shaders/bundle_step.glsl: walk_surface). Measured (three
     draws of the vertices), the ray's hits landed on: perfect 100 %; imperfect 11.9-14.9 % with
     the disk alone, 100 % with the triangle too."""
     scene = two_planes()
@@ -292,7 +292,7 @@ def test_gl_lookups_err_as_exact_ones_and_independent_points_leave_holes(gl):
     # Before splats ended at their triangles' sharp edges, 5.58 % (1.19, 1.50) and 4.42 % (0.60,
     # 1.41): disks reaching over the boxes' edges stopped rays that pass beside them. Before a
     # ray's point inside a splat's triangle counted as on its surface (shaders/bundle_step.glsl:
-    # on_node_surface), 1.41 % (0.66, 0.16) and 0.72 % (0.16, 0.16): lookups whose point fell
+    # walk_surface), 1.41 % (0.66, 0.16) and 0.72 % (0.16, 0.16): lookups whose point fell
     # beyond the splat's disk landed by the lines' vote, up to a pixel off, and where a hole left
     # fewer lines meeting a splat, they missed. Independent points still leave more holes.
     assert 0 < floor["error_rate"] < 0.01
