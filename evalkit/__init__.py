@@ -23,6 +23,7 @@ _EXPORTS = {
     "reference": "references.mitsuba",
     "compare_images": "evalkit.metrics.images",
     "mean_ratio": "evalkit.metrics.confidence",
+    "render_ratio": "evalkit.metrics.confidence",
 }
 
 

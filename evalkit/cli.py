@@ -31,7 +31,7 @@ from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
 from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png
 from evalkit.metrics.bundles import compare_bundles, resolution_advice, scene_surfaces
-from evalkit.metrics.confidence import mean_ratio, pool_renders, z_test
+from evalkit.metrics.confidence import mean_ratio, pool_renders, render_ratio, z_test
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
@@ -368,7 +368,7 @@ def _render(args) -> int:
 def _compare(args) -> int:
     test, test_variance, test_meta = _test_image(args.test)
     test_name = " + ".join(args.test)
-    ref, _ = read_exr(args.ref)
+    ref, ref_meta = read_exr(args.ref)
     metrics = compare_images(
         test,
         ref,
@@ -395,7 +395,7 @@ def _compare(args) -> int:
             write_exr(out / f"{m.name}.exr", np.repeat(m.map[..., None], 3, axis=2).astype(np.float32), provenance)
             vmax = error_map_png(m.map, out / f"{m.name}.png")
             print(f"map         {out / (m.name + '.exr')} and .png (magma, 0..{vmax:.3g})")
-    confidence = _confidence(args.ref, test, test_variance, test_meta, ref)
+    confidence = _confidence(args.ref, test, test_variance, test_meta, ref, ref_meta)
     if args.json:
         result = {name: {"value": m.value, "params": m.params} for name, m in metrics.items()}
         if len(args.test) > 1:
@@ -422,14 +422,23 @@ def _test_image(paths: list[str]) -> tuple[np.ndarray, np.ndarray | None, dict]:
     return pool_renders(renders)
 
 
-def _confidence(ref_path, test, test_variance, test_meta, ref) -> dict:
-    """The mean ratio with its interval (the test's frame means and the reference's variance, from
-    its ``_variance.exr`` sibling) and the z-test (both variances), as far as the files allow."""
+def _confidence(ref_path, test, test_variance, test_meta, ref, ref_meta) -> dict:
+    """The mean ratio with its interval and the z-test (both variances), as far as the files
+    allow. The ratio's interval takes the test's frame means and, for a Mitsuba reference, the
+    variance beside it (its ``_variance.exr`` sibling); against another of the toolkit's renders,
+    that render's frame means (`render_ratio`: paired frame by frame where the counts match)."""
     ref_variance = _variance_of(ref_path)
     out = {}
     frame_means = test_meta.get("frame_means")
+    if frame_means and ref_meta.get("frame_means"):
+        r = render_ratio(np.asarray(frame_means), np.asarray(ref_meta["frame_means"]))
+        out["render_ratio"] = r
+        channels = ", ".join(_interval(c) for c in r["per_channel"])
+        pairs = f"{r['frames'][0]} frame pairs" if r["paired"] else "unpaired: {} and {} frames".format(*r["frames"])
+        print(f"mean ratio  {_interval(r['all'])} ({r['level']:.0%} interval, {pairs}); rgb {channels}")
+        frame_means = None  # the render's per-pixel variances would make its image mean look surer than it is
     if ref_variance is None:
-        print("confidence  none: the reference has no _variance.exr beside it")
+        print(f"{'z-test' if out else 'confidence':12}none: the reference has no _variance.exr beside it")
         return out
     if frame_means:
         r = mean_ratio(np.asarray(frame_means), ref, ref_variance)

@@ -12,7 +12,7 @@ import pytest
 from conftest import render_with, run_evalkit
 
 from evalkit.core.exr import read_exr, write_exr
-from evalkit.metrics.confidence import mean_ratio, pool_renders, within, z_test
+from evalkit.metrics.confidence import mean_ratio, pool_renders, render_ratio, within, z_test
 from gpu_impl.renderer import write_render
 
 
@@ -26,6 +26,26 @@ def test_the_interval_covers_the_true_ratio_as_often_as_it_says():
         r = mean_ratio(frames, ref, ref_var)["all"]
         covered += r["lo"] <= truth <= r["hi"]
     assert 0.92 <= covered / trials <= 0.98
+
+
+def test_the_ratio_of_two_renders_covers_the_truth_as_often_as_it_says_paired_or_not():
+    # Two methods' frames share most of their noise when they share their seed (the frame's
+    # directions): pairing cancels it, and the interval stays honest with or without it.
+    rng = np.random.default_rng(4)
+    truth, trials = 0.97, 400
+    covered = {"paired": 0, "unpaired": 0}
+    width = {"paired": [], "unpaired": []}
+    for _ in range(trials):
+        shared = rng.normal(0, 0.1, (20, 3))
+        base = 0.5 * (1 + shared + rng.normal(0, 0.005, (20, 3)))
+        test = truth * 0.5 * (1 + shared + rng.normal(0, 0.005, (20, 3)))
+        other = 0.5 * (1 + rng.normal(0, 0.1, (12, 3)))  # another seed, another frame count
+        for key, r in (("paired", render_ratio(test, base)), ("unpaired", render_ratio(test, other))):
+            assert r["paired"] == (key == "paired")
+            covered[key] += r["all"]["lo"] <= truth <= r["all"]["hi"]
+            width[key].append(r["all"]["hi"] - r["all"]["lo"])
+    assert all(0.92 <= c / trials <= 0.98 for c in covered.values()), covered
+    assert np.median(width["paired"]) < np.median(width["unpaired"]) / 10
 
 
 def test_one_frame_says_nothing_of_its_noise():
@@ -80,6 +100,29 @@ def test_render_files_and_compare_carry_the_confidence(tmp_path):
     assert "mean ratio" in done.stdout and "z-test" in done.stdout
     result = json.loads(done.stdout.splitlines()[-1])
     assert result["mean_ratio"]["frames"] == 4 and result["z_test"]["tested"] > 0
+
+    # One setting against another (R=16 over R=32): the base render's frames give its noise,
+    # paired frame by frame, and a shared seed (the same directions in each frame) cancels most of
+    # it. (Imperfect bundles would not do: on this box they land where perfect ones do, to round-off.)
+    halves = {}
+    for seed in (0, 1):
+        other = tmp_path / f"coarse{seed}"
+        done = run_evalkit(
+            "render", "cornell-box", "--method", "perfect", "--directions", "8", "--resolution", "16",
+            "--frames", "4", "--seed", str(seed), *args, "--out", str(other),
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        done = run_evalkit(
+            "compare", str(other / "indirect.exr"), str(out / "indirect.exr"), "--metrics", "mse", "--json"
+        )
+        assert done.returncode == 0, done.stderr
+        result = json.loads(done.stdout.splitlines()[-1])
+        r = result["render_ratio"]
+        assert r["paired"] and r["frames"] == [4, 4] and "mean_ratio" not in result
+        test_means = np.asarray(read_exr(other / "indirect.exr")[1]["frame_means"])
+        assert r["all"]["ratio"] == pytest.approx(test_means.mean() / np.mean(meta["frame_means"]), rel=1e-6)
+        halves[seed] = (r["all"]["hi"] - r["all"]["lo"]) / 2
+    assert halves[0] < halves[1] / 3, halves
 
 
 def test_compare_pools_renders_of_one_setting_and_refuses_what_would_not_pool(gl, tmp_path):

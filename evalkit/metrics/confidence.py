@@ -9,6 +9,10 @@
   every pixel's sampler apart), so the standard error of its image mean is the root of the summed
   per-pixel variances of the mean over the number of values. The two combine by the delta method
   (relative errors add in quadrature) with Welch-Satterthwaite's degrees of freedom.
+- `render_ratio`: the same ratio between two of the toolkit's renders (two methods, say), from
+  both renders' frames. With as many frames on both sides the frames pair up; two renders of one
+  seed draw the same directions and jitter frame by frame, so the noise they share cancels and the
+  interval is a fraction of the unpaired one (the bias of one method against another, measured).
 - `pool_renders`: one estimate from renders of the same settings under different seeds, so that
   a long check runs in pieces (on several machines, or over several sessions): their frames
   together, as if one render had made them all.
@@ -39,37 +43,71 @@ def mean_ratio(test_frame_means: np.ndarray, ref: np.ndarray, ref_variance: np.n
     ``level`` interval. ``test_frame_means``: (F, 3), each frame's image mean per channel (the
     render's ``frame_means``); ``ref``, ``ref_variance``: (H, W, 3), the reference and its
     per-pixel variance of the mean. With one frame the test's noise is unknown: no interval."""
-    from scipy import stats
-
     frames = np.asarray(test_frame_means, dtype=np.float64).reshape(-1, 3)
     ref, var = np.asarray(ref, dtype=np.float64), np.asarray(ref_variance, dtype=np.float64)
     count = ref.shape[0] * ref.shape[1]
-    out = {"level": level, "frames": len(frames)}
     # Per channel, then over all three (the channels' mean: its frames' means, its summed variance).
-    series = {
-        "per_channel": [(frames[:, c], ref[..., c].mean(), var[..., c].sum() / count**2) for c in range(3)],
-        "all": [(frames.mean(axis=1), ref.mean(), var.sum() / (3 * count) ** 2)],
-    }
-    for key, items in series.items():
-        rows = []
-        for f, mr, vr in items:
-            mt = float(f.mean())
-            ratio = mt / mr if mr > 0 else math.nan
-            row = {"ratio": ratio, "lo": None, "hi": None, "test_se": None, "ref_se": math.sqrt(vr)}
-            if len(f) > 1 and mr > 0 and mt > 0:
-                a = (f.std(ddof=1) / math.sqrt(len(f)) / mt) ** 2  # relative variances
-                b = vr / mr**2
-                dof = (a + b) ** 2 / (a * a / (len(f) - 1)) if a > 0 else math.inf
-                q = (
-                    float(stats.t.ppf(0.5 + level / 2, dof))
-                    if math.isfinite(dof)
-                    else float(stats.norm.ppf(0.5 + level / 2))
-                )
-                half = q * math.sqrt(a + b) * ratio
-                row.update(lo=ratio - half, hi=ratio + half, test_se=math.sqrt(a) * mt)
-            rows.append(row)
-        out[key] = rows if key == "per_channel" else rows[0]
-    return out
+    items = [(frames[:, c], ref[..., c].mean(), var[..., c].sum() / count**2) for c in range(3)]
+    items.append((frames.mean(axis=1), ref.mean(), var.sum() / (3 * count) ** 2))
+    rows = []
+    for f, mr, vr in items:
+        mt = float(f.mean())
+        row = _row(mt / mr if mr > 0 else math.nan, ref_se=math.sqrt(vr))
+        if len(f) > 1 and mr > 0 and mt > 0:
+            a = (f.std(ddof=1) / math.sqrt(len(f)) / mt) ** 2  # relative variances
+            _widen(row, a, vr / mr**2, len(f) - 1, math.inf, level)
+            row["test_se"] = math.sqrt(a) * mt
+        rows.append(row)
+    return {"level": level, "frames": len(frames), "per_channel": rows[:3], "all": rows[3]}
+
+
+def render_ratio(test_frame_means: np.ndarray, base_frame_means: np.ndarray, level: float = LEVEL) -> dict:
+    """The test render's image mean over another render's (a base: another method, say), from
+    both renders' frame means (F, 3), per channel and over all channels, with its ``level``
+    interval. A render's pixels share their frame's bundles, so its image mean's noise comes from
+    its frames, never from its per-pixel variances.
+
+    With as many frames on both sides the frames pair up, test frame i with base frame i, and the
+    ratio's noise is that of t_i - r b_i (the ratio estimator's delta method, Student's t with F - 1
+    degrees of freedom). Pairs are independent of one another whatever the two renders drew, so
+    the interval holds for any two renders; it is narrow where the two share their seed, since
+    then frame i of both draws the same directions and camera jitter (common random numbers) and
+    the noise they share cancels. With other counts: both spreads, as `mean_ratio` combines them
+    (``paired`` is False)."""
+    test = np.asarray(test_frame_means, dtype=np.float64).reshape(-1, 3)
+    base = np.asarray(base_frame_means, dtype=np.float64).reshape(-1, 3)
+    paired = len(test) == len(base)
+    columns = [(test[:, c], base[:, c]) for c in range(3)] + [(test.mean(axis=1), base.mean(axis=1))]
+    rows = []
+    for t, b in columns:
+        mt, mb = float(t.mean()), float(b.mean())
+        row = _row(mt / mb if mb > 0 else math.nan)
+        if mt > 0 and mb > 0 and min(len(t), len(b)) > 1:
+            if paired:
+                residual = t - row["ratio"] * b
+                _widen(row, residual.var(ddof=1) / len(t) / mt**2, 0.0, len(t) - 1, math.inf, level)
+            else:
+                a, c = t.var(ddof=1) / len(t) / mt**2, b.var(ddof=1) / len(b) / mb**2
+                _widen(row, a, c, len(t) - 1, len(b) - 1, level)
+        rows.append(row)
+    return {"level": level, "frames": [len(test), len(base)], "paired": paired, "per_channel": rows[:3], "all": rows[3]}
+
+
+def _row(ratio: float, ref_se: float | None = None) -> dict:
+    return {"ratio": ratio, "lo": None, "hi": None, "test_se": None, "ref_se": ref_se}
+
+
+def _widen(row: dict, a: float, b: float, dof_a: float, dof_b: float, level: float) -> None:
+    """Sets the interval of ``row``'s ratio from the two relative variances of its means, ``a``
+    and ``b``, of ``dof_a`` and ``dof_b`` degrees of freedom: the delta method (relative errors
+    add in quadrature), Student's t with Welch-Satterthwaite's degrees of freedom."""
+    from scipy import stats
+
+    parts = [v * v / d for v, d in ((a, dof_a), (b, dof_b)) if v > 0 and math.isfinite(d)]
+    dof = (a + b) ** 2 / sum(parts) if parts else math.inf
+    q = float(stats.t.ppf(0.5 + level / 2, dof)) if math.isfinite(dof) else float(stats.norm.ppf(0.5 + level / 2))
+    half = q * math.sqrt(a + b) * row["ratio"]
+    row.update(lo=row["ratio"] - half, hi=row["ratio"] + half)
 
 
 def within(ratio: dict, bound: float) -> bool:
