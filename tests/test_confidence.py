@@ -1,7 +1,8 @@
 """How sure a comparison is (evalkit/metrics/confidence.py): the mean ratio's interval covers the
-truth as often as it says, the z-test finds a bias the noise cannot explain and nothing where
-there is none, and a render's own account of its noise (per-pixel variance of the mean, the
-frames' image means) is what its frames give."""
+truth as often as it says (against a reference, and between two renders, paired frame by frame
+or not), the z-test finds a bias the noise cannot explain and nothing where there is none, and a
+render's own account of its noise (per-pixel variance of the mean, the frames' image means) is
+what its frames give."""
 
 from __future__ import annotations
 
