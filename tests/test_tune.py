@@ -384,7 +384,8 @@ def test_settings_the_renderer_refused_are_passed_over_with_all_that_hold_more()
 
 def test_an_optimum_that_overran_the_budget_is_rendered_again_with_the_frames_it_fits():
     """Eye paths measured at 1.5 s a frame overrun 10 s with 10 frames and are rendered again with
-    6; bidirectional paths at 0.9 s a frame kept the budget and are not rendered again."""
+    6; bidirectional paths at 0.9 s a frame kept the budget and are not rendered again. Where the
+    second render overruns too, a third one fits."""
     models = {c: {k: Model(c, k, (TIME if k == "time" else ERROR)[c], []) for k in ("time", "error")} for c in TIME}
     optima = [Recommendation(c, {**settings(16, 128), "frames": 10}, 10.0, 0.01) for c in (PERFECT, BIDIRECTIONAL)]
     seconds = {PERFECT: 1.5, BIDIRECTIONAL: 0.9}  # a frame's
@@ -407,6 +408,22 @@ def test_an_optimum_that_overran_the_budget_is_rendered_again_with_the_frames_it
     assert notes == ["perfect measured 15 s with 10 frames, over the budget of 10 s: rendered again with 6"]
     assert len(studies.runs) == 2
     assert _rerendered_within_budget(studies, again, rows, run, models, 10.0) == (again, rows, [])
+
+    # A busy machine: rendered again, the eye paths take 2 s a frame and overrun once more, so they
+    # are rendered again with the 5 frames that fit.
+    slower = iter([1.5, 2.0, 2.0])
+
+    class Busy(Studies):
+        def run(self, name, grid):
+            seconds[PERFECT] = next(slower)
+            return super().run(name, grid)
+
+    busy = Busy()
+    again, rows, notes = _rerendered_within_budget(
+        busy, optima, busy.run("check", [run(o) for o in optima]), run, models, 10.0
+    )
+    assert [o.settings["frames"] for o in again] == [5, 10] and [r["wall_s"] for r in rows] == [10.0, 9.0]
+    assert notes[1] == "perfect measured 12 s with 6 frames, over the budget of 10 s: rendered again with 5"
 
 
 def test_the_maps_size_is_left_at_its_default_where_no_light_vertex_is_drawn():
