@@ -56,8 +56,8 @@ MAX_FRAMES = 100_000  # a calibration run's frame limit: its time budget ends it
 # predicted at 9.96 s measured 12.9 s, 0.87x the error of eye paths that kept the budget).
 BUDGET_TOLERANCE = 0.1
 # How many times a checked optimum that overran is rendered again with the frames its measured time
-# fits. Once left little room: on lit-room at 2 s its checks measure 1.95-2.09 s after a render
-# again (the tolerance ends at 2.2 s), and in one CI run eye paths, with 40x the error of
+# fits. Once left little room: on lit-room at 2 s the bidirectional checks that count measure
+# 1.8-2.1 s (the tolerance ends at 2.2 s), and in one CI run eye paths, with 40x the error of
 # bidirectional ones, were recommended, as when every bidirectional optimum overran twice.
 RERENDERS = 3
 # The seeds of the renders that measure a bias term (`TuneTerms.measured`): two, so that their noise
