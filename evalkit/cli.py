@@ -431,20 +431,18 @@ def _confidence(ref_path, test, test_variance, test_meta, ref, ref_meta) -> dict
     out = {}
     frame_means = test_meta.get("frame_means")
     if frame_means and ref_meta.get("frame_means"):
-        r = render_ratio(np.asarray(frame_means), np.asarray(ref_meta["frame_means"]))
-        out["render_ratio"] = r
+        # Never from a render's per-pixel variances: they would make its image mean look surer than it is.
+        r = out["render_ratio"] = render_ratio(np.asarray(frame_means), np.asarray(ref_meta["frame_means"]))
+        counted = f"{r['frames'][0]} frame pairs" if r["paired"] else "unpaired: {} and {} frames".format(*r["frames"])
+    elif frame_means and ref_variance is not None:
+        r = out["mean_ratio"] = mean_ratio(np.asarray(frame_means), ref, ref_variance)
+        counted = f"{r['frames']} frames"
+    if out:
         channels = ", ".join(_interval(c) for c in r["per_channel"])
-        pairs = f"{r['frames'][0]} frame pairs" if r["paired"] else "unpaired: {} and {} frames".format(*r["frames"])
-        print(f"mean ratio  {_interval(r['all'])} ({r['level']:.0%} interval, {pairs}); rgb {channels}")
-        frame_means = None  # the render's per-pixel variances would make its image mean look surer than it is
+        print(f"mean ratio  {_interval(r['all'])} ({r['level']:.0%} interval, {counted}); rgb {channels}")
     if ref_variance is None:
         print(f"{'z-test' if out else 'confidence':12}none: the reference has no _variance.exr beside it")
         return out
-    if frame_means:
-        r = mean_ratio(np.asarray(frame_means), ref, ref_variance)
-        out["mean_ratio"] = r
-        channels = ", ".join(_interval(c) for c in r["per_channel"])
-        print(f"mean ratio  {_interval(r['all'])} ({r['level']:.0%} interval, {r['frames']} frames); rgb {channels}")
     if test_variance is not None:
         z = z_test(test, test_variance, ref, ref_variance)
         out["z_test"] = {k: v for k, v in z.items() if k != "map"}

@@ -585,15 +585,14 @@ class _SplatShapes:
         distances = self.distances(j, self.barycentrics(j, self.centres[j]))
         return float(sharp_splat_radii(self.radius, distances[None], self.growth)[0])
 
-    def inside(self, j: int, y: np.ndarray, beyond_disk: bool) -> bool:
-        """Whether point y of node j's splat's plane, within its radius, lies in the splat: on the
-        inner side of every line that cuts it and, beyond the disk it grew from, inside its
-        triangle, up to round-off as scene.glsl's inside_splat allows."""
+    def inside(self, j: int, b: np.ndarray, beyond_disk: bool) -> bool:
+        """Whether the point at barycentrics b of node j's splat's plane, within its radius, lies in
+        the splat: on the inner side of every line that cuts it and, beyond the disk it grew from,
+        inside its triangle, up to round-off as scene.glsl's inside_splat allows."""
         t = self.triangles[j]
         lines = self.lines[self.first[t] : self.first[t + 1]]
         if not len(lines):
             return True
-        b = self.barycentrics(j, y)
         tolerance = 1e-4 * np.abs(lines[:, :2]).max(axis=1)
         if np.any(self.distances(j, b)[: len(lines)] < -tolerance):
             return False
@@ -641,27 +640,34 @@ WALK_HOPS = 4  # shaders/bundle_step.glsl: WALK_HOPS
 
 def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
     """Where the ray from x along o meets node j's plane, at distance s (shaders/bundle_step.glsl:
-    walk_surface): ("met", -1, s) on the node's surface (`_on_surface_test`), else, walking across
-    its triangle's edges, ("met", triangle, distance) where the ray meets a triangle within
-    WALK_HOPS of it, ("outside",) where it passes an outline edge (the triangle across faces the
-    other way along o, or there is none), reaches a plane only behind x or the vertex's own
-    triangle ``own``, else ("open",). The splats' shapes bring the scene's edge pairs."""
+    walk_surface): ("met", -1, s) on the node's surface (inside its triangle, up to 1e-4 of the
+    barycentrics; or, for a splat, within its radius, up to 1e-4 of its square, and its shape:
+    `_SplatShapes.inside`), else, walking across its triangle's edges, ("met", triangle, distance)
+    where the ray meets a triangle within WALK_HOPS of it, ("outside",) where it passes an outline
+    edge (the triangle across faces the other way along o, or there is none), reaches a plane only
+    behind x or the vertex's own triangle ``own``, else ("open",). The splats' shapes bring the
+    scene's edge pairs."""
     triangles = bundles.node_triangle()
-    on_surface = _on_surface_test(bundles, arrays, splats)
     pairs = splats.pairs if splats else None
     across, turned = triangle_neighbours(arrays.positions, arrays.faces, arrays.tri_normal, pairs=pairs)
 
+    def within_splat(j, b, y):
+        d2 = np.sum((y - splats.centres[j]) ** 2)
+        return d2 <= splats.splat_radius(j) ** 2 * (1 + 1e-4) and splats.inside(
+            j, b, d2 > splats.radius**2 * (1 + 1e-4)
+        )
+
     def walk(j, x, o, s, own):
-        if on_surface(j, x + s * o):
-            return ("met", -1, s)
         t = triangles[j]
         for hop in range(WALK_HOPS + 1):
             p0, p1, p2 = arrays.positions[arrays.faces[t]]
             b = plane_barycentrics((x + s * o)[None], p0[None], p1[None], p2[None])[0]
             w = np.array([1 - b[0] - b[1], b[0], b[1]])
             corner = int(np.argmin(w))
-            if w[corner] >= -1e-4:
-                return ("met", t, s)
+            if w[corner] >= -1e-4:  # inside, up to round-off (`_in_triangle`); at the first, the node itself
+                return ("met", t if hop else -1, s)
+            if hop == 0 and splats is not None and within_splat(j, b, x + s * o):
+                return ("met", -1, s)
             if hop == WALK_HOPS:
                 return ("open",)
             e = (corner + 1) % 3
@@ -677,30 +683,6 @@ def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
             t = u
 
     return walk
-
-
-def _on_surface_test(bundles: BundleSet, arrays, splats: _SplatShapes | None):
-    """Whether point y on node j's plane lies on its surface, as shaders/bundle_step.glsl tells
-    (walk_surface, first): inside its triangle, up to 1e-4 of the barycentrics; or, for a splat, within
-    its radius (up to 1e-4 of its square) and its shape (`_SplatShapes.inside`)."""
-    if splats is not None:
-        disk = splats.radius**2 * (1 + 1e-4)
-
-        def on_splat(j, y):
-            if _in_triangle(splats.barycentrics(j, y)):
-                return True
-            d2 = np.sum((y - splats.centres[j]) ** 2)
-            return d2 <= splats.splat_radius(j) ** 2 * (1 + 1e-4) and splats.inside(j, y, d2 > disk)
-
-        return on_splat
-
-    triangles = bundles.node_triangle()
-
-    def on_triangle(j, y):
-        p0, p1, p2 = arrays.positions[arrays.faces[triangles[j]]]
-        return _in_triangle(plane_barycentrics(y[None], p0[None], p1[None], p2[None])[0])
-
-    return on_triangle
 
 
 def next_hit_errors(
