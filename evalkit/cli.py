@@ -61,6 +61,36 @@ ADVICE_SOURCES = [
 ]
 
 
+def _resolution_advice(scene, seed: int = 0, probe: bool = True) -> dict | None:
+    """`resolution_advice` for ``scene``, from the user cache where it is; else probed and cached
+    (``probe``) or None. Embree's probes up to R = 2048 take a minute on a large scene: they are
+    keyed by the scene's content and the code that makes the advice."""
+    key = f"advice-{scene.content_hash()}-seed{seed}-{cache.code_hash(*ADVICE_SOURCES)}"
+    advice = cache.load("facts", key)
+    if advice is None and probe:
+        advice = resolution_advice(scene, ExactTracer(scene), seed=seed)
+        cache.store("facts", key, advice)
+    return advice
+
+
+def _below_advice(scene, resolution: int) -> str | None:
+    """A warning when ``resolution`` is under the R that `evalkit scene info` advised for ``scene``
+    (its default seed's advice, when cached: a render does not wait a minute for the probe)."""
+    advice = _resolution_advice(scene, probe=False)
+    if advice is None:
+        return None
+    recommended = advice["recommended"]
+    if recommended is not None and resolution >= recommended:
+        return None
+    verdict = f"R >= {recommended}" if recommended else f"more than R={max(advice['error_rate'])}"
+    rate = advice["error_rate"].get(resolution)
+    return (
+        f"R={resolution} is under the {verdict} that `evalkit scene info` advises for {scene.name}"
+        + (f" (wrong next hits: {100 * rate:.1f} % at R={resolution})" if rate is not None else "")
+        + ': paths pass surfaces the rays meet, a bias no frame count removes (README, "Choosing R")'
+    )
+
+
 def _scene_info(args) -> int:
     scene = load_scene(args.scene)
     info = scene_summary(scene)
@@ -93,13 +123,7 @@ def _scene_info(args) -> int:
         f"features    textures={f['textures']} emitters={f['emitters']} environment={f['environment']} "
         f"lights={','.join(f['light_types']) or '-'}"
     )
-    # Embree's probes up to R = 2048 take a minute on a large scene: kept in the user cache, keyed by
-    # the scene's content and the code that makes the advice.
-    key = f"advice-{scene.content_hash()}-seed{args.seed}-{cache.code_hash(*ADVICE_SOURCES)}"
-    advice = cache.load("facts", key)
-    if advice is None:
-        advice = resolution_advice(scene, ExactTracer(scene), seed=args.seed)
-        cache.store("facts", key, advice)
+    advice = _resolution_advice(scene, args.seed)
     probed = ", ".join(f"{100 * e:.1f} % at R={r}" for r, e in advice["error_rate"].items())
     verdict = f"R >= {advice['recommended']}" if advice["recommended"] else f"more than R={max(advice['error_rate'])}"
     print(
@@ -331,6 +355,9 @@ def _render(args) -> int:
         raise InputError("evalkit render", str(e)) from None
     finally:
         bar.close()
+    below = _below_advice(scene, settings.resolution)
+    if below:
+        result.warnings.append(below)
     written = write_render(result, args.out)
     p, t = result.params, result.timings
     print(

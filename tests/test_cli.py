@@ -73,6 +73,22 @@ def test_scene_info_builtin(name, min_triangles):
     assert f"resolution  R >= {info['resolution']['recommended']}:" in done.stdout
 
 
+def test_render_warns_below_the_resolution_scene_info_advised(tmp_path):
+    """Once `evalkit scene info` has probed a scene, a render at a smaller R says so, on screen and
+    in its files; at the advised R it does not."""
+    info = run_evalkit("scene", "info", "cornell-box", "--json")
+    assert info.returncode == 0, info.stderr
+    advised = last_json(info.stdout)["resolution"]["recommended"]
+    quick = ["--method", "perfect", "--directions", "4", "--width", "8", "--height", "8", "--frames", "1"]
+    for r in (advised // 2, advised):
+        done = run_evalkit("render", "cornell-box", *quick, "--resolution", str(r), "--out", str(tmp_path / str(r)))
+        assert done.returncode == 0, done.stderr
+        warned = f"R={r} is under the R >= {advised} that `evalkit scene info` advises for cornell-box"
+        written = json.loads((tmp_path / str(r) / "timings.json").read_text())["warnings"]
+        below = r < advised
+        assert (warned in done.stdout) == below and any(warned in w for w in written) == below
+
+
 def test_scene_info_gltf_with_warnings(tmp_path):
     import trimesh
 
