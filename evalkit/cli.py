@@ -73,19 +73,23 @@ def _resolution_advice(scene, seed: int = 0, probe: bool = True) -> dict | None:
     return advice
 
 
+def _advised(advice: dict) -> str:
+    """The advice in a few words: the least R, or that none probed was enough."""
+    recommended = advice["recommended"]
+    return f"R >= {recommended}" if recommended else f"more than R={max(advice['error_rate'])}"
+
+
 def _below_advice(scene, resolution: int) -> str | None:
     """A warning when ``resolution`` is under the R that `evalkit scene info` advised for ``scene``
     (its default seed's advice, when cached: a render does not wait a minute for the probe)."""
     advice = _resolution_advice(scene, probe=False)
     if advice is None:
         return None
-    recommended = advice["recommended"]
-    if recommended is not None and resolution >= recommended:
+    if advice["recommended"] is not None and resolution >= advice["recommended"]:
         return None
-    verdict = f"R >= {recommended}" if recommended else f"more than R={max(advice['error_rate'])}"
     rate = advice["error_rate"].get(resolution)
     return (
-        f"R={resolution} is under the {verdict} that `evalkit scene info` advises for {scene.name}"
+        f"R={resolution} is under the {_advised(advice)} that `evalkit scene info` advises for {scene.name}"
         + (f" (wrong next hits: {100 * rate:.1f} % at R={resolution})" if rate is not None else "")
         + ': paths pass surfaces the rays meet, a bias no frame count removes (README, "Choosing R")'
     )
@@ -125,9 +129,8 @@ def _scene_info(args) -> int:
     )
     advice = _resolution_advice(scene, args.seed)
     probed = ", ".join(f"{100 * e:.1f} % at R={r}" for r, e in advice["error_rate"].items())
-    verdict = f"R >= {advice['recommended']}" if advice["recommended"] else f"more than R={max(advice['error_rate'])}"
     print(
-        f"resolution  {verdict}: wrong next hits {probed} "
+        f"resolution  {_advised(advice)}: wrong next hits {probed} "
         f'(target {100 * advice["target"]:.0f} %, docs/MEASURED_FACTS.md "Choosing R")'
     )
     info["resolution"] = advice
