@@ -63,8 +63,8 @@ ADVICE_SOURCES = [
 
 def _resolution_advice(scene, seed: int = 0, probe: bool = True) -> dict | None:
     """`resolution_advice` for ``scene``, from the user cache where it is; else probed and cached
-    (``probe``) or None. Embree's probes up to R = 2048 take a minute on a large scene: they are
-    keyed by the scene's content and the code that makes the advice."""
+    (``probe``) or None. Embree's probes grow with the scene and the R it needs (16 s on atrium on
+    2 cores): they are kept by the scene's content and the code that makes the advice."""
     key = f"advice-{scene.content_hash()}-seed{seed}-{cache.code_hash(*ADVICE_SOURCES)}"
     advice = cache.load("facts", key)
     if advice is None and probe:
@@ -81,7 +81,7 @@ def _advised(advice: dict) -> str:
 
 def _below_advice(scene, resolution: int) -> str | None:
     """A warning when ``resolution`` is under the R that `evalkit scene info` advised for ``scene``
-    (its default seed's advice, when cached: a render does not wait a minute for the probe)."""
+    (its default seed's advice, when cached: a render does not wait for the probe)."""
     advice = _resolution_advice(scene, probe=False)
     if advice is None:
         return None
