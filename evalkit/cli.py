@@ -64,7 +64,8 @@ ADVICE_SOURCES = [
 def _resolution_advice(scene, seed: int = 0, probe: bool = True) -> dict | None:
     """`resolution_advice` for ``scene``, from the user cache where it is; else probed and cached
     (``probe``) or None. Embree's probes grow with the scene and the R it needs (16 s on atrium on
-    2 cores): they are kept by the scene's content and the code that makes the advice."""
+    2 cores, a render alongside): they are kept by the scene's content and the code that makes
+    the advice."""
     key = f"advice-{scene.content_hash()}-seed{seed}-{cache.code_hash(*ADVICE_SOURCES)}"
     advice = cache.load("facts", key)
     if advice is None and probe:
@@ -89,7 +90,7 @@ def _below_advice(scene, resolution: int) -> str | None:
         return None
     rate = advice["error_rate"].get(resolution)
     return (
-        f"R={resolution} is under the {_advised(advice)} that `evalkit scene info` advises for {scene.name}"
+        f"R={resolution} is under what `evalkit scene info` advises for {scene.name}, {_advised(advice)}"
         + (f" (wrong next hits: {100 * rate:.1f} % at R={resolution})" if rate is not None else "")
         + ': paths pass surfaces the rays meet, a bias no frame count removes (README, "Choosing R")'
     )

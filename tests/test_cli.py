@@ -83,7 +83,7 @@ def test_render_warns_below_the_resolution_scene_info_advised(tmp_path):
     for r in (advised // 2, advised):
         done = run_evalkit("render", "cornell-box", *quick, "--resolution", str(r), "--out", str(tmp_path / str(r)))
         assert done.returncode == 0, done.stderr
-        warned = f"R={r} is under the R >= {advised} that `evalkit scene info` advises for cornell-box"
+        warned = f"R={r} is under what `evalkit scene info` advises for cornell-box, R >= {advised}"
         written = json.loads((tmp_path / str(r) / "timings.json").read_text())["warnings"]
         below = r < advised
         assert (warned in done.stdout) == below and any(warned in w for w in written) == below
