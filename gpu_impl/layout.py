@@ -90,6 +90,9 @@ BINDINGS = {
 SPLAT_BIT = np.uint32(0x80000000)  # node prim: a splat of triangle prim & ~SPLAT_BIT
 MATERIAL_TEXTURED = np.uint32(1)  # Material.texture.w flags
 MATERIAL_TWOSIDED = np.uint32(2)
+MATERIAL_NEAREST = np.uint32(4)  # nearest texel, else bilinear
+MATERIAL_WRAP_MIRROR = np.uint32(8)  # mirrored repeat; with neither wrap bit, repeat
+MATERIAL_WRAP_CLAMP = np.uint32(16)
 TRIANGLE_SMOOTH = np.uint32(0x80000000)  # Triangle.material_flags: interpolate vertex normals
 # Triangle.material_flags: the triangle bounds a solid (scene_buffers.py: solid_triangles)
 TRIANGLE_SOLID = np.uint32(0x40000000)
@@ -141,6 +144,9 @@ SHADER_CONSTANTS = {
     "SPLAT_BIT": SPLAT_BIT,
     "MATERIAL_TEXTURED": MATERIAL_TEXTURED,
     "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,
+    "MATERIAL_NEAREST": MATERIAL_NEAREST,
+    "MATERIAL_WRAP_MIRROR": MATERIAL_WRAP_MIRROR,
+    "MATERIAL_WRAP_CLAMP": MATERIAL_WRAP_CLAMP,
     "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH,
     "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL,
     "TRIANGLE_CUT": TRIANGLE_CUT,
@@ -175,7 +181,10 @@ SHADER_CONSTANTS = {
 }
 
 # Records, as the shaders declare them (std430).
-MATERIAL = np.dtype([("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "<u4", 4)])  # scene.glsl: Material
+# scene.glsl: Material
+MATERIAL = np.dtype(
+    [("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "<u4", 4), ("to_uv_u", "<f4", 4), ("to_uv_v", "<f4", 4)]
+)
 TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.glsl: Triangle
 VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
 # bundle.glsl: SplatPoint

@@ -11,8 +11,11 @@ from gpu_impl.context import GLContext
 from gpu_impl.layout import (
     BINDINGS,
     MATERIAL,
+    MATERIAL_NEAREST,
     MATERIAL_TEXTURED,
     MATERIAL_TWOSIDED,
+    MATERIAL_WRAP_CLAMP,
+    MATERIAL_WRAP_MIRROR,
     NO_TRIANGLE,
     TRIANGLE,
     TRIANGLE_CUT,
@@ -67,10 +70,13 @@ class GpuScene:
             materials["albedo"][i, :3] = m.albedo
             materials["emission"][i, :3] = m.emission
             flags = MATERIAL_TWOSIDED if m.twosided else 0
+            to_uv = np.eye(3) if m.to_uv is None else m.to_uv
+            materials["to_uv_u"][i, :3], materials["to_uv_v"][i, :3] = to_uv[0], to_uv[1]
             if m.texture is not None:
                 h, w = m.texture.shape[:2]
                 materials["texture"][i, :3] = (sum(t.shape[0] * t.shape[1] for t in textures), w, h)
-                flags |= MATERIAL_TEXTURED
+                flags |= MATERIAL_TEXTURED | (MATERIAL_NEAREST if m.filter_type == "nearest" else 0)
+                flags |= {"repeat": 0, "mirror": MATERIAL_WRAP_MIRROR, "clamp": MATERIAL_WRAP_CLAMP}[m.wrap_mode]
                 textures.append(m.texture)
             materials["texture"][i, 3] = flags
         # The environment map's first texel, or None (environment.glsl reads it from the same buffer).

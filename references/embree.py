@@ -177,9 +177,9 @@ class ExactTracer:
         for m in self._textured:
             sel = np.nonzero(material == m)[0]
             if len(sel):
-                albedo[sel] = sample_texture(
-                    self.scene.materials[m].texture, self._interpolate(a.uvs, prim[sel], b1[sel], b2[sel])
-                )
+                mat = self.scene.materials[m]
+                uv = self._interpolate(a.uvs, prim[sel], b1[sel], b2[sel])
+                albedo[sel] = sample_texture(mat.texture, uv, mat.to_uv, mat.wrap_mode, mat.filter_type)
         return normal, geometric, albedo, self._emission[material], material
 
     def _interpolate(self, values: np.ndarray, prim: np.ndarray, b1: np.ndarray, b2: np.ndarray) -> np.ndarray:

@@ -33,7 +33,7 @@ vec3 environment(vec3 dir) {
     uv.x -= floor(uv.x);
     vec2 p = vec2(uv.x * float(envmap_size.x) - 0.5, uv.y * float(envmap_size.y - 1));
     vec2 f = floor(p), w = p - f;
-    int x0 = (int(f.x) % envmap_size.x + envmap_size.x) % envmap_size.x, x1 = (x0 + 1) % envmap_size.x;
+    int x0 = wrap_texel(int(f.x), envmap_size.x, false, false), x1 = wrap_texel(int(f.x) + 1, envmap_size.x, false, false);
     int y0 = clamp(int(f.y), 0, envmap_size.y - 1), y1 = clamp(int(f.y) + 1, 0, envmap_size.y - 1);
     vec3 c = mix(mix(envmap_texel(x0, y0), envmap_texel(x1, y0), w.x), mix(envmap_texel(x0, y1), envmap_texel(x1, y1), w.x), w.y);
     return environment_radiance * c;

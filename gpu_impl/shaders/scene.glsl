@@ -6,6 +6,8 @@ struct Material {
     vec4 albedo;     // rgb; used when the material has no texture
     vec4 emission;   // rgb radiance, front side only
     uvec4 texture;   // first texel, width, height, flags (MATERIAL_*)
+    vec4 to_uv_u;    // the mesh's uv to texture space (Mitsuba's to_uv): u' = dot(to_uv_u.xyz, (u, v, 1))
+    vec4 to_uv_v;    // v' = dot(to_uv_v.xyz, (u, v, 1))
 };
 
 struct Triangle {
@@ -215,9 +217,20 @@ vec3 texel(uint first, uint width, int x, int y) {
     return vec3(texels[i], texels[i + 1u], texels[i + 2u]);
 }
 
-// Bilinear, repeat-wrapped lookup: texel (row, col) is centred on ((col + 0.5) / W, (row + 0.5) / H)
-// in (u, v), as Mitsuba's bitmap texture and evalkit.core.scene.model.sample_texture have it.
-// TEXTURES 0 (a scene without textures) compiles the texture fetch out.
+// A texel index of any sign wrapped into [0, n) as Mitsuba's bitmap texture wraps it: repeat,
+// mirror (period 2n, the second half reversed) or clamp. GLSL leaves % undefined for negative
+// operands (llvmpipe gives -1 % 9 == 3), so a negative index is folded with non-negative ones only.
+int wrap_texel(int i, int n, bool mirror, bool clamped) {
+    if (clamped) return clamp(i, 0, n - 1);
+    int period = mirror ? 2 * n : n;
+    int m = i >= 0 ? i % period : period - 1 - (-(i + 1)) % period;
+    return m < n ? m : period - 1 - m;
+}
+
+// Mitsuba's bitmap lookup: the mesh's uv through to_uv, then texel (row, col) centred on
+// ((col + 0.5) / W, (row + 0.5) / H), bilinear or nearest, wrapped by wrap_texel; the same as
+// evalkit.core.scene.colour.sample_texture. TEXTURES 0 (a scene without textures) compiles the
+// texture fetch out.
 #ifndef TEXTURES
 #define TEXTURES 1
 #endif
@@ -225,12 +238,19 @@ vec3 material_albedo(uint m, vec2 uv) {
     uvec4 tex = materials[m].texture;
     if (TEXTURES == 0 || (tex.w & MATERIAL_TEXTURED) == 0u) return materials[m].albedo.rgb;
     ivec2 size = ivec2(tex.yz);
+    bool mirror = (tex.w & MATERIAL_WRAP_MIRROR) != 0u, clamped = (tex.w & MATERIAL_WRAP_CLAMP) != 0u;
+    vec3 uv1 = vec3(uv, 1.0);
+    uv = vec2(dot(materials[m].to_uv_u.xyz, uv1), dot(materials[m].to_uv_v.xyz, uv1));
+    if ((tex.w & MATERIAL_NEAREST) != 0u) {
+        ivec2 i = ivec2(floor(uv * vec2(size)));
+        return texel(tex.x, tex.y, wrap_texel(i.x, size.x, mirror, clamped), wrap_texel(i.y, size.y, mirror, clamped));
+    }
     vec2 p = uv * vec2(size) - 0.5;
     vec2 f = floor(p);
     vec2 w = p - f;
     ivec2 i0 = ivec2(f);
-    int x0 = ((i0.x % size.x) + size.x) % size.x, y0 = ((i0.y % size.y) + size.y) % size.y;
-    int x1 = (x0 + 1) % size.x, y1 = (y0 + 1) % size.y;
+    int x0 = wrap_texel(i0.x, size.x, mirror, clamped), y0 = wrap_texel(i0.y, size.y, mirror, clamped);
+    int x1 = wrap_texel(i0.x + 1, size.x, mirror, clamped), y1 = wrap_texel(i0.y + 1, size.y, mirror, clamped);
     return mix(mix(texel(tex.x, tex.y, x0, y0), texel(tex.x, tex.y, x1, y0), w.x),
                mix(texel(tex.x, tex.y, x0, y1), texel(tex.x, tex.y, x1, y1), w.x), w.y);
 }

@@ -10,7 +10,17 @@ from dataclasses import replace
 import numpy as np
 
 from evalkit.core.errors import InputError
-from evalkit.core.scene.model import FOV_AXES, LIGHT_KINDS, Camera, Light, Material, Mesh, Scene
+from evalkit.core.scene.model import (
+    FILTER_TYPES,
+    FOV_AXES,
+    LIGHT_KINDS,
+    WRAP_MODES,
+    Camera,
+    Light,
+    Material,
+    Mesh,
+    Scene,
+)
 
 # Embree silently ignores primitives with coordinates above about 1.8e18 (docs/MEASURED_FACTS.md).
 MAX_COORDINATE = 1e18
@@ -88,6 +98,14 @@ def assemble(
         _check_finite(source, f"material '{mat.name}' emission", mat.emission)
         if mat.texture is not None:
             _check_finite(source, f"material '{mat.name}' texture", mat.texture)
+            if mat.to_uv is not None:
+                _check_finite(source, f"material '{mat.name}' to_uv", mat.to_uv)
+            if mat.wrap_mode not in WRAP_MODES or mat.filter_type not in FILTER_TYPES:
+                raise InputError(
+                    source,
+                    f"material '{mat.name}': texture wrap mode '{mat.wrap_mode}' / filter '{mat.filter_type}' "
+                    f"is not one of {WRAP_MODES} / {FILTER_TYPES}",
+                )
         if mat.emissive and any(m.material == i for m in meshes):
             area = sum(float(m.triangle_areas().sum()) for m in clean if m.material == i)
             if not area > 0.0:

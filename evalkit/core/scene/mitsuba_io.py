@@ -27,14 +27,16 @@ import numpy as np
 from evalkit.core.errors import InputError
 from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene.assemble import assemble
-from evalkit.core.scene.colour import rgb
-from evalkit.core.scene.model import Camera, Light, Material, Mesh, Scene
+from evalkit.core.scene.colour import rgb, sample_texture
+from evalkit.core.scene.model import FILTER_TYPES, WRAP_MODES, Camera, Light, Material, Mesh, Scene
 from evalkit.core.scene.tessellate import unit_disk, unit_sphere
 
 SPHERE_SEGMENTS = (128, 64)  # (longitude, latitude): area within 0.1 % of the analytic sphere
 DISK_SEGMENTS = 128
 BAKE_RESOLUTION = 256
-_DIFFUSE_KEYS = {"reflectance.value", "reflectance.data", "reflectance.to_uv"}
+# A texture whose lookups differ from Mitsuba's by more than this (relative to its largest value)
+# at probed uvs is reported as approximated: float32 bilinear weights differ by ~1e-6.
+TEXTURE_TOLERANCE = 1e-4
 
 
 def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Scene:
@@ -236,44 +238,104 @@ def _area_emission(mi, shape, shape_name: str, warnings: list[str]):
 
 def _material(mi, bsdf, shape_name: str, emission, warnings: list[str]) -> Material:
     params = mi.traverse(bsdf)
-    keys = set(params.keys())
     kind = bsdf.class_name()
     name = bsdf.id() or f"{shape_name}.bsdf"
-    twosided = kind == "TwoSidedBRDF"
-    inner = {k.split(".", 1)[1] for k in keys if k.startswith("brdf_")} if twosided else keys
-    exact = (kind == "SmoothDiffuse" or twosided) and inner <= _DIFFUSE_KEYS
-    texture, albedo = _bake_albedo(mi, bsdf, params)
-    message = (
-        f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo "
-        f"{tuple(round(a, 4) for a in albedo)} (its diffuse reflectance)"
+    diffuse = kind == "SmoothDiffuse" or (kind == "TwoSidedBRDF" and _twosided_diffuse(mi, bsdf))
+    texture, albedo, off = _reflectance(mi, bsdf, params)
+    notes = []
+    if not diffuse:
+        notes.append(f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo {_rounded(albedo)}")
+        if max(albedo) > 1.0:
+            # A conductor's "diffuse reflectance" is its specular one, up to 6 or more: a diffuse
+            # surface with it would create energy.
+            notes[-1] += f" (its diffuse reflectance {_rounded(albedo)} clamped to 1)"
+            albedo = tuple(min(a, 1.0) for a in albedo)
+            if texture.get("texture") is not None:
+                texture["texture"] = np.minimum(texture["texture"], 1.0)
+        else:
+            notes[-1] += " (its diffuse reflectance)"
+    if off > TEXTURE_TOLERANCE:
+        notes.append(
+            f"BSDF '{name}': its reflectance texture is baked to a {_shape(texture)} bitmap, "
+            f"up to {off:.3g} off Mitsuba's at probed uvs"
+        )
+    for message in notes:
+        if message not in warnings:  # once per BSDF, also when shared by an emitter
+            warnings.append(message)
+    return Material(
+        name,
+        albedo,
+        emission=emission,
+        twosided=kind == "TwoSidedBRDF",
+        source_bsdf=kind,
+        approximated=bool(notes),
+        **texture,
     )
-    if not exact and message not in warnings:  # once per BSDF, also when shared by an emitter
-        warnings.append(message)
-    return Material(name, albedo, texture, emission, twosided, source_bsdf=kind, approximated=not exact)
 
 
-def _bake_albedo(mi, bsdf, params):
-    """The BSDF's diffuse reflectance: (texture or None, mean rgb)."""
-    data_keys = sorted(k for k in params.keys() if k.endswith(".data"))  # noqa: SIM118 (iterates as items)
-    to_uv_keys = sorted(k for k in params.keys() if k.endswith(".to_uv"))  # noqa: SIM118 (iterates as items)
-    probe = np.random.default_rng(0).random((16, 2))
-    values = _eval_reflectance(mi, bsdf, probe)
+def _twosided_diffuse(mi, bsdf) -> bool:
+    """Whether a twosided BSDF wraps diffuse BSDFs only: their parameters are a reflectance alone."""
+    keys = mi.traverse(bsdf).keys()  # noqa: SIM118 (SceneParameters iterate as items)
+    return {k.split(".")[1] for k in keys if k.startswith("brdf_")} <= {"reflectance"}
+
+
+def _rounded(albedo) -> tuple:
+    return tuple(round(float(a), 4) for a in albedo)
+
+
+def _shape(texture: dict) -> str:
+    h, w = texture["texture"].shape[:2]
+    return f"{w} x {h}"
+
+
+def _reflectance(mi, bsdf, params) -> tuple[dict, tuple, float]:
+    """The BSDF's diffuse reflectance: (the `Material` texture fields, {} for a constant; the mean
+    rgb; the largest difference from Mitsuba's own lookup at probed uvs).
+
+    A bitmap keeps its texels (read at their centres through Mitsuba, so any encoding decodes as
+    Mitsuba decodes it), its ``to_uv``, and the wrap mode and filter that reproduce Mitsuba's
+    lookups; a checkerboard is the 2 x 2 bitmap it is with nearest filtering. Any other texture is
+    baked on a `BAKE_RESOLUTION` grid over the unit uv square, and the probe says how far off that is.
+    """
+    rng = np.random.default_rng(0)
+    values = _eval_reflectance(mi, bsdf, rng.random((16, 2)))
     if np.ptp(values, axis=0).max() <= 1e-7:
-        return None, rgb(values[0])
+        return {}, rgb(values[0]), 0.0
+    keys = list(params.keys())  # noqa: SIM118 (SceneParameters iterate as items)
+    data_keys = sorted(k for k in keys if k.endswith(".data"))
+    to_uv_keys = sorted(k for k in keys if k.endswith(".to_uv"))
+    to_uv = _np(params[to_uv_keys[0]].matrix).reshape(3, 3) if to_uv_keys else None
+    if to_uv is not None and np.allclose(to_uv, np.eye(3)):
+        to_uv = None
+    checker = [k for k in keys if k.endswith(".color0.value") or k.endswith(".color1.value")]
     if data_keys:
         h, w = np.shape(params[data_keys[0]])[:2]
+        candidates = [(wrap, filt) for wrap in WRAP_MODES for filt in FILTER_TYPES]
+    elif len(checker) == 2 and len(data_keys) == 0:
+        h = w = 2
+        candidates = [("repeat", "nearest")]
     else:
         h = w = BAKE_RESOLUTION
+        to_uv = None
+        candidates = [("repeat", "bilinear")]
     # Texel centres in texture space, pulled back to the mesh's uv space through to_uv, so that
-    # eval(uv) lands exactly on each texel and bilinear filtering returns the stored value.
+    # eval(uv) lands exactly on each texel.
     tv, tu = np.meshgrid((np.arange(h) + 0.5) / h, (np.arange(w) + 0.5) / w, indexing="ij")
-    uv = np.stack([tu.ravel(), tv.ravel()], axis=-1)
-    if to_uv_keys:
-        m = _np(params[to_uv_keys[0]].matrix).reshape(3, 3)
-        if not np.allclose(m, np.eye(3)):
-            uv = (np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(m).T)[:, :2]
-    texels = _eval_reflectance(mi, bsdf, uv).reshape(h, w, 3).astype(np.float32)
-    return texels, rgb(texels.reshape(-1, 3).mean(axis=0))
+    centres = np.stack([tu.ravel(), tv.ravel()], axis=-1)
+    to_mesh = np.eye(3) if to_uv is None else np.linalg.inv(to_uv)
+    texels = _eval_reflectance(mi, bsdf, centres @ to_mesh[:2, :2].T + to_mesh[:2, 2]).reshape(h, w, 3)
+    texels = texels.astype(np.float32)
+    # The wrap mode and filter are not parameters Mitsuba exposes: the ones whose lookups match
+    # Mitsuba's at uvs reaching two periods beyond the texture on each side are the texture's.
+    probe = rng.uniform(-2.0, 3.0, (4096, 2)) @ to_mesh[:2, :2].T + to_mesh[:2, 2]
+    truth = _eval_reflectance(mi, bsdf, probe)
+    scale = max(float(np.abs(truth).max()), 1e-6)
+    off, wrap, filt = min(
+        (float(np.abs(sample_texture(texels, probe, to_uv, w_, f_) - truth).max()) / scale, w_, f_)
+        for w_, f_ in candidates
+    )
+    fields = {"texture": texels, "to_uv": to_uv, "wrap_mode": wrap, "filter_type": filt}
+    return fields, rgb(texels.reshape(-1, 3).mean(axis=0)), off
 
 
 def _eval_reflectance(mi, bsdf, uv: np.ndarray) -> np.ndarray:
@@ -423,9 +485,11 @@ def _bsdf_dict(mi, mat: Material) -> dict:
             "type": "bitmap",
             "bitmap": mi.Bitmap(mat.texture),
             "raw": True,
-            "filter_type": "bilinear",
-            "wrap_mode": "repeat",
+            "filter_type": mat.filter_type,
+            "wrap_mode": mat.wrap_mode,
         }
+        if mat.to_uv is not None:
+            reflectance["to_uv"] = mi.ScalarTransform3f(mat.to_uv.tolist())
     diffuse = {"type": "diffuse", "reflectance": reflectance}
     return {"type": "twosided", "bsdf": diffuse} if mat.twosided else diffuse
 

@@ -8,8 +8,9 @@ of the scene.
 Conventions (the same as Mitsuba's, so the export is a plain copy):
 - positions are in scene space: world space minus `Scene.origin` (float64), so float32 uploads keep
   their precision however far from the world origin the scene was modelled;
-- a texture is linear RGB, float32 (H, W, 3); uv (u, v) looks up texel row ``v*H`` and column
-  ``u*W``, with repeat wrapping and bilinear filtering;
+- a texture is linear RGB, float32 (H, W, 3), looked up as Mitsuba's ``bitmap`` texture: the mesh's
+  uv through the material's ``to_uv``, then texel row ``v*H`` and column ``u*W``, wrapped by its
+  ``wrap_mode`` and filtered by its ``filter_type`` (`evalkit.core.scene.colour.sample_texture`);
 - the camera looks along its local +z with +y up, as Mitsuba's ``perspective`` sensor does;
 - area emission leaves the front side of a triangle only (counter-clockwise winding); a material
   that is not ``twosided`` reflects nothing from its back side.
@@ -25,6 +26,9 @@ import numpy as np
 
 RGB = tuple[float, float, float]
 
+WRAP_MODES = ("repeat", "mirror", "clamp")  # Mitsuba's bitmap texture's wrap_mode
+FILTER_TYPES = ("bilinear", "nearest")  # and its filter_type
+LOOKUP = (WRAP_MODES[0], FILTER_TYPES[0])  # the default wrap mode and filter
 LIGHT_KINDS = ("point", "spot", "directional", "constant", "envmap")
 ENVIRONMENT_KINDS = ("constant", "envmap")
 FOV_AXES = ("x", "y")
@@ -35,8 +39,10 @@ class Material:
     """A diffuse material, optionally emissive.
 
     ``albedo`` is used where ``texture`` is None; with a texture it holds the texture's mean (for
-    reports). ``source_bsdf`` names what the file asked for, and ``approximated`` says whether
-    treating it as diffuse is an approximation (a plastic or a conductor, say).
+    reports). A texture is looked up through ``to_uv`` (3x3 affine map from the mesh's uv to
+    texture space, None for the identity), ``wrap_mode`` and ``filter_type``, as Mitsuba's.
+    ``source_bsdf`` names what the file asked for, and ``approximated`` says whether the import
+    approximated it (a plastic or a conductor treated as diffuse, a procedural texture baked).
     """
 
     name: str
@@ -46,6 +52,9 @@ class Material:
     twosided: bool = False
     source_bsdf: str = "diffuse"
     approximated: bool = False
+    to_uv: np.ndarray | None = None  # (3, 3) float64
+    wrap_mode: str = "repeat"
+    filter_type: str = "bilinear"
 
     @property
     def emissive(self) -> bool:
@@ -325,6 +334,9 @@ class Scene:
                 put(m.motion)
         for mat in self.materials:
             put(mat.albedo, mat.texture, mat.emission, mat.twosided)
+            # The default lookup leaves the hashes of stored references as they were.
+            if mat.texture is not None and (mat.to_uv is not None or (mat.wrap_mode, mat.filter_type) != LOOKUP):
+                put(mat.to_uv, mat.wrap_mode, mat.filter_type)
         for light in self.lights:
             put(
                 light.kind,
