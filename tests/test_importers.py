@@ -341,7 +341,10 @@ def test_texture_transforms_wrap_modes_filters_and_checkerboards_import_and_expo
 
 
 def test_a_conductor_never_becomes_a_diffuse_albedo_above_one(tmp_path):
-    body = '<shape type="rectangle"><bsdf type="roughconductor" id="gold"><string name="material" value="Au"/></bsdf></shape>'
+    body = (
+        '<shape type="rectangle"><bsdf type="roughconductor" id="gold">'
+        '<string name="material" value="Au"/></bsdf></shape>'
+    )
     s = load_scene(xml_scene(tmp_path, body))
     (mat,) = s.materials
     assert mat.approximated and max(mat.albedo) <= 1.0
