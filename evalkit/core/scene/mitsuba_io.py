@@ -3,13 +3,18 @@ through its public object API; a `Scene` exports to a Mitsuba dict that renders 
 
 Import rules:
 - meshes (obj, ply, serialized, and the mesh-backed rectangle and cube) are copied as Mitsuba holds
-  them, in world space; sphere and disk are tessellated (`SPHERE_SEGMENTS`, `DISK_SEGMENTS`);
+  them, in world space; sphere, disk and cylinder are tessellated (`SPHERE_SEGMENTS`,
+  `DISK_SEGMENTS`, `CYLINDER_SEGMENTS`), their ``flip_normals`` kept;
+- shape groups and their instances (XML files) are flattened before Mitsuba loads the file: each
+  instance becomes copies of its group's shapes under the composed transforms;
 - the albedo of every BSDF is its ``eval_diffuse_reflectance``, sampled at the texel centres of
   its bitmap (or on a `BAKE_RESOLUTION` grid for a procedural texture), so any texture plugin and
   any ``to_uv`` transform come out right. ``diffuse`` and ``twosided(diffuse)`` map exactly; every
   other BSDF is approximated as diffuse with a warning, once per BSDF, recorded in the scene;
-- emitters: area, point, spot, directional, constant and envmap; anything else, and media, are
-  named in a warning;
+- emitters: area (uniform radiance), point, spot (without a projected texture), directional,
+  constant and envmap; media are named in a warning;
+- anything the toolkit cannot represent is refused in one line that names it (another shape or
+  sensor plugin, a textured area emitter or spot light, vertex and face colours), never dropped;
 - the scene's integrator, its sensor's sampler and its film (but the film's width and height) are
   not used: the toolkit renders with its own settings and references with its own path tracer.
   They are named in a warning, and a file that Mitsuba cannot load because of them alone (an
@@ -19,6 +24,7 @@ Import rules:
 from __future__ import annotations
 
 import contextlib
+import copy
 import os
 import xml.etree.ElementTree as ElementTree
 
@@ -29,10 +35,11 @@ from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene.assemble import assemble
 from evalkit.core.scene.colour import rgb, sample_texture
 from evalkit.core.scene.model import FILTER_TYPES, WRAP_MODES, Camera, Light, Material, Mesh, Scene
-from evalkit.core.scene.tessellate import unit_disk, unit_sphere
+from evalkit.core.scene.tessellate import unit_cylinder, unit_disk, unit_sphere
 
 SPHERE_SEGMENTS = (128, 64)  # (longitude, latitude): area within 0.1 % of the analytic sphere
 DISK_SEGMENTS = 128
+CYLINDER_SEGMENTS = 128  # area within 0.01 % of the analytic cylinder's
 BAKE_RESOLUTION = 256
 # A texture whose lookups differ from Mitsuba's by more than this (relative to its largest value)
 # at probed uvs is reported as approximated: float32 bilinear weights differ by ~1e-6.
@@ -49,21 +56,69 @@ def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Sc
     except ElementTree.ParseError as e:
         raise InputError(path, f"malformed XML: {e}") from None
     unused = _render_settings(root)
+    flattened = _flatten_instances(path, root)
     mi = mitsuba(variant)
+
+    def load_edited():
+        with _resolving_from(mi, os.path.dirname(os.path.abspath(path))):
+            return mi.load_string(ElementTree.tostring(root, encoding="unicode"))
+
     try:
-        mi_scene = mi.load_file(path)
+        mi_scene = load_edited() if flattened else mi.load_file(path)
     except Exception as e:  # Mitsuba reports every load problem as a RuntimeError with its own text
-        if not unused:
+        if flattened or not unused:
             raise InputError(path, f"Mitsuba could not load it: {_last_line(e)}") from None
         # Loaded again without what the toolkit does not use; the first error names the file's
         # own lines, so it is the one reported if that fails too.
         try:
-            with _resolving_from(mi, os.path.dirname(os.path.abspath(path))):
-                mi_scene = mi.load_string(ElementTree.tostring(root, encoding="unicode"))
+            mi_scene = load_edited()
         except Exception:
             raise InputError(path, f"Mitsuba could not load it: {_last_line(e)}") from None
     name = os.path.splitext(os.path.basename(path))[0]
     return from_mitsuba_scene(mi, mi_scene, name=name, source=path, notes=unused)
+
+
+def _flatten_instances(path: str, root) -> bool:
+    """Replaces every ``instance`` in ``root`` by copies of its shape group's shapes, each with the
+    instance's transform composed after its own, and removes the shape groups; returns whether
+    there were any. Mitsuba's Python API does not expose an instance's shapes, so the file is
+    flattened before Mitsuba loads it; a group of groups' instances is flattened first."""
+    parents = {child: parent for parent in root.iter() for child in parent}
+    groups = {g.get("id"): g for g in root.iter("shape") if g.get("type") == "shapegroup"}
+    if not groups and not any(e.get("type") == "instance" for e in root.iter("shape")):
+        return False
+
+    def expand(instance, depth=0):
+        ref = instance.find("ref")
+        name = None if ref is None else ref.get("id")
+        if name not in groups:
+            raise InputError(path, f"an instance refers to shape group '{name}', which the file does not define")
+        if depth > 16:
+            raise InputError(path, f"shape group '{name}' instances itself")
+        ops = [op for t in instance.findall("transform") if t.get("name") == "to_world" for op in t]
+        copies = []
+        for shape in groups[name].findall("shape"):
+            inner = expand(shape, depth + 1) if shape.get("type") == "instance" else [copy.deepcopy(shape)]
+            for c in inner:
+                c.attrib.pop("id", None)
+                transform = next((t for t in c.findall("transform") if t.get("name") == "to_world"), None)
+                if transform is None:
+                    transform = ElementTree.SubElement(c, "transform", name="to_world")
+                transform.extend(copy.deepcopy(op) for op in ops)  # applied after the shape's own
+            copies.extend(inner)
+        return copies
+
+    for instance in [e for e in root.iter("shape") if e.get("type") == "instance"]:
+        parent = parents[instance]
+        if parent.get("type") == "shapegroup":
+            continue  # expanded with its group's instances
+        at = list(parent).index(instance)
+        parent.remove(instance)
+        for offset, shape in enumerate(expand(instance)):
+            parent.insert(at + offset, shape)
+    for group in groups.values():
+        parents[group].remove(group)
+    return True
 
 
 def _render_settings(root) -> list[str]:
@@ -132,27 +187,27 @@ def from_mitsuba_scene(mi, mi_scene, name: str, source: str, notes: list[str] = 
         if shape.interior_medium() is not None or shape.exterior_medium() is not None:
             warnings.append(f"shape '{shape_name}': participating media are not supported; the medium is ignored")
         if geometry is None:
-            warnings.append(f"shape '{shape_name}': plugin {kind} is not supported; the shape is left out")
-            continue
-        emission = _area_emission(mi, shape, shape_name, warnings)
+            why = " (instances are flattened in XML files only)" if kind == "Instance" else ""
+            raise InputError(source, f"shape '{shape_name}': plugin {kind} is not supported{why}")
+        emission = _area_emission(mi, shape, shape_name, source)
         bsdf = shape.bsdf()
         key = (bsdf.ptr, emission)
         if key not in material_index:
             material_index[key] = len(materials)
-            materials.append(_material(mi, bsdf, shape_name, emission, warnings))
+            materials.append(_material(mi, bsdf, shape_name, emission, warnings, source))
         positions, faces, normals, uvs = geometry
         meshes.append(Mesh(shape_name, positions, faces, material_index[key], normals, uvs))
 
     lights = []
     for emitter in mi_scene.emitters():
-        light = _light(mi, emitter, warnings)
+        light = _light(mi, emitter, source)
         if light is not None:
             lights.append(light)
 
     camera = None
     sensors = mi_scene.sensors()
     if sensors:
-        camera = _camera(mi, sensors[0], warnings)
+        camera = _camera(mi, sensors[0], source)
     return assemble(name, source, meshes, materials, lights, camera, warnings)
 
 
@@ -180,10 +235,16 @@ def _shape_geometry(mi, shape, kind):
         normals = _np(shape.vertex_normals_buffer()).reshape(-1, 3) if shape.has_vertex_normals() else None
         uvs = _np(shape.vertex_texcoords_buffer()).reshape(-1, 2) if shape.has_vertex_texcoords() else None
         return positions, faces, normals, uvs
-    if kind in ("Sphere", "Disk"):
-        to_world = _matrix(mi.traverse(shape)["to_world"])
-        local = unit_sphere(SPHERE_SEGMENTS) if kind == "Sphere" else unit_disk(DISK_SEGMENTS)
-        return _transform(local, to_world)
+    tessellate = {
+        "Sphere": lambda: unit_sphere(SPHERE_SEGMENTS),
+        "Disk": lambda: unit_disk(DISK_SEGMENTS),
+        "Cylinder": lambda: unit_cylinder(CYLINDER_SEGMENTS),
+    }
+    if kind in tessellate:
+        pos, faces, normals, uv = tessellate[kind]()
+        if shape.has_flipped_normals():  # flip_normals: the front side (and emission) faces in
+            faces, normals = faces[:, ::-1], -normals
+        return _transform((pos, faces, normals, uv), _matrix(mi.traverse(shape)["to_world"]))
     return None
 
 
@@ -218,28 +279,24 @@ def _transform(local, to_world: np.ndarray):
     return world, faces, n, uv
 
 
-def _area_emission(mi, shape, shape_name: str, warnings: list[str]):
+def _area_emission(mi, shape, shape_name: str, source: str):
     emitter = shape.emitter()
     if emitter is None:
         return (0.0, 0.0, 0.0)
     params = mi.traverse(emitter)
-    if "radiance.value" in params:
-        return rgb(_np(params["radiance.value"]))
-    data = [k for k in params.keys() if k.endswith(".data")]  # noqa: SIM118 (SceneParameters iterate as items)
-    if data:
-        mean = _np(params[data[0]]).reshape(-1, _np(params[data[0]]).shape[-1])[:, :3].mean(axis=0)
-        warnings.append(
-            f"shape '{shape_name}': textured area emission is approximated by its mean {tuple(np.round(mean, 4))}"
+    if "radiance.value" not in params:
+        raise InputError(
+            source, f"shape '{shape_name}': textured area emission is not supported (only a uniform radiance)"
         )
-        return rgb(mean)
-    warnings.append(f"shape '{shape_name}': area emitter radiance could not be read; it is left dark")
-    return (0.0, 0.0, 0.0)
+    return rgb(_np(params["radiance.value"]))
 
 
-def _material(mi, bsdf, shape_name: str, emission, warnings: list[str]) -> Material:
+def _material(mi, bsdf, shape_name: str, emission, warnings: list[str], source: str) -> Material:
     params = mi.traverse(bsdf)
     kind = bsdf.class_name()
     name = bsdf.id() or f"{shape_name}.bsdf"
+    if "MeshAttribute[" in str(bsdf):
+        raise InputError(source, f"BSDF '{name}': vertex and face colours (mesh_attribute textures) are not supported")
     diffuse = kind == "SmoothDiffuse" or (kind == "TwoSidedBRDF" and _twosided_diffuse(mi, bsdf))
     texture, albedo, off = _reflectance(mi, bsdf, params)
     notes = []
@@ -354,7 +411,7 @@ def _eval_reflectance(mi, bsdf, uv: np.ndarray) -> np.ndarray:
     return _np(bsdf.eval_diffuse_reflectance(si)).reshape(3, -1).T
 
 
-def _light(mi, emitter, warnings: list[str]) -> Light | None:
+def _light(mi, emitter, source: str) -> Light | None:
     kind = emitter.class_name()
     if kind == "AreaLight":
         return None  # read with its shape
@@ -363,12 +420,8 @@ def _light(mi, emitter, warnings: list[str]) -> Light | None:
         return Light("point", rgb(_np(p["intensity.value"])), position=_np(p["position"]).reshape(3))
     if kind == "SpotLight":
         m = _matrix(p["to_world"])
-        if (
-            "texture.value" not in p
-            or np.ptp(_np(p["texture.value"])) > 0
-            or float(_np(p["texture.value"]).ravel()[0]) != 1.0
-        ):
-            warnings.append("spot light: a projected texture is not supported; it is ignored")
+        if "texture.value" not in p or np.any(_np(p["texture.value"]) != 1.0):
+            raise InputError(source, "spot light: a projected texture is not supported")
         return Light(
             "spot",
             rgb(_np(p["intensity.value"])),
@@ -387,8 +440,7 @@ def _light(mi, emitter, warnings: list[str]) -> Light | None:
         texels = _np(p["data"])[:, 1:-1, :3].astype(np.float32)
         scale = float(_np(p["scale"]).ravel()[0])
         return Light("envmap", rgb(scale), envmap=texels, to_world=_matrix(p["to_world"]))
-    warnings.append(f"emitter plugin {kind} is not supported; it is left out")
-    return None
+    raise InputError(source, f"emitter plugin {kind} is not supported")
 
 
 def _unit(v) -> np.ndarray:
@@ -396,13 +448,10 @@ def _unit(v) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _camera(mi, sensor, warnings: list[str]) -> Camera | None:
+def _camera(mi, sensor, source: str) -> Camera:
     kind = sensor.class_name()
     if kind != "PerspectiveCamera":
-        warnings.append(
-            f"sensor plugin {kind} is not supported (only a pinhole perspective camera); a default camera is used"
-        )
-        return None
+        raise InputError(source, f"sensor plugin {kind} is not supported (only a pinhole perspective camera)")
     p = mi.traverse(sensor)
     width, height = (int(x) for x in sensor.film().size())
     return Camera(

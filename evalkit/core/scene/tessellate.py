@@ -1,4 +1,4 @@
-"""Triangle grids for analytic shapes: Mitsuba's sphere and disk on import, and the built-in scenes."""
+"""Triangle grids for analytic shapes: Mitsuba's sphere, disk and cylinder on import, and the built-in scenes."""
 
 from __future__ import annotations
 
@@ -54,6 +54,16 @@ def unit_disk(segments: int):
     k = np.arange(1, segments + 1)
     faces = np.stack([np.zeros_like(k), k, k + 1], axis=-1)
     return pos, faces, np.tile([0.0, 0.0, 1.0], (len(pos), 1)), uv
+
+
+def unit_cylinder(segments: int):
+    """Mitsuba's cylinder: radius 1 around z from z = 0 to 1, open ends, outward, with its uv
+    (u = phi / 2pi, v = z) and exact normals. Returns (positions, faces, normals, uvs)."""
+    phi, z = np.meshgrid(np.linspace(0.0, 2 * math.pi, segments + 1), [0.0, 1.0], indexing="ij")
+    normals = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=-1).reshape(-1, 3)
+    pos = normals + np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=-1).reshape(-1, 3)
+    uv = np.stack([phi / (2 * math.pi), z], axis=-1).reshape(-1, 2)
+    return pos, grid_faces(segments, 1), normals, uv  # front side along d(phi) x d(z): outward
 
 
 def box(lo: np.ndarray, hi: np.ndarray, subdivisions: int = 1, inward: bool = False):
