@@ -29,6 +29,7 @@ from evalkit.core.scene.summary import scene_summary
 from evalkit.core.settings import DEPTH_TOLERANCE, PRESETS, RenderSettings, declared
 from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
+from evalkit.fidelity import DEFAULT_WIDTH, TOLERANCE, check_scene, fidelity_of, summary_line
 from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png
 from evalkit.metrics.bundles import compare_bundles, resolution_advice, scene_surfaces
 from evalkit.metrics.confidence import mean_ratio, pool_renders, render_ratio, z_test
@@ -96,6 +97,62 @@ def _below_advice(scene, resolution: int) -> str | None:
     )
 
 
+def _record_fidelity(scene, result) -> None:
+    """Puts the import check's figures, where `evalkit scene check` has run on this scene, in the
+    render's statistics (timings.json), and a warning when the check failed."""
+    fidelity = fidelity_of(scene)
+    if fidelity is None:
+        return
+    result.stats["import_fidelity"] = {
+        k: fidelity[k] for k in ("passed", "tolerance", "settings", "mitsuba", "evalkit")
+    } | {"total": fidelity["images"]["total"]}
+    if not fidelity["passed"]:
+        result.warnings.append(summary_line(fidelity))
+
+
+def _scene_check(args) -> int:
+    bar = ProgressLine(quiet=args.json)
+    try:
+        result = check_scene(
+            args.scene,
+            bounces=args.bounces,
+            spp=args.spp,
+            chunks=args.chunks,
+            width=args.width,
+            height=args.height,
+            seed=args.seed,
+            tolerance=args.tolerance,
+            progress=bar,
+        )
+    finally:
+        bar.close()
+    w, h = result["settings"]["size"]
+    print(f"scene       {result['scene']}  ({result['source']})")
+    print(
+        f"check       the file as Mitsuba loads it against the toolkit's import of it, both rendered by Mitsuba: "
+        f"{w}x{h}, {args.spp} spp in {args.chunks} chunks, B={args.bounces}, seed {args.seed}"
+    )
+    for name, image in result["images"].items():
+        ratios = "  ".join(_ratio_text(r) for r in image["ratio"])
+        print(
+            f"{name:<11} mean ratio (r, g, b) {ratios}; relMSE {image['relmse']:.3g}; "
+            f"{100 * (1 - image['z_outside_share']):.2f} % of pixels pass the z-test"
+        )
+    for w in result["approximations"]:
+        print(f"import      {w}")
+    print(summary_line(result) + f" (tolerance {100 * result['tolerance']:g} %)")
+    if args.json:
+        print(json.dumps(result))
+    return 0 if result["passed"] else 1
+
+
+def _ratio_text(row: dict) -> str:
+    if row["ratio"] is None:
+        return "n/a"
+    interval = "" if row["lo"] is None else f" [{row['lo']:.4f}, {row['hi']:.4f}]"
+    return f"{row['ratio']:.4f}{interval}"
+
+
 def _scene_info(args) -> int:
     scene = load_scene(args.scene)
     info = scene_summary(scene)
@@ -135,6 +192,10 @@ def _scene_info(args) -> int:
         f'(target {100 * advice["target"]:.0f} %, docs/MEASURED_FACTS.md "Choosing R")'
     )
     info["resolution"] = advice
+    fidelity = fidelity_of(scene)
+    if fidelity is not None:
+        print(f"import      {summary_line(fidelity)}")
+        info["import_fidelity"] = fidelity
     for w in info["warnings"]:
         print(f"warning     {w}")
     if args.json:
@@ -362,6 +423,7 @@ def _render(args) -> int:
     below = _below_advice(scene, settings.resolution)
     if below:
         result.warnings.append(below)
+    _record_fidelity(scene, result)
     written = write_render(result, args.out)
     p, t = result.params, result.timings
     print(
@@ -793,6 +855,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the eye vertices and directions that probe R")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_scene_info)
+    p = scene.add_parser(
+        "check",
+        help="render a Mitsuba XML file and the toolkit's import of it with Mitsuba and compare them: the image "
+        "mean per channel with its 95 %% interval, relMSE, the z-test; exit 1 beyond the tolerance",
+    )
+    p.add_argument("scene", help="a Mitsuba .xml file")
+    p.add_argument("--bounces", type=int, default=1)
+    p.add_argument("--spp", type=int, default=64, help="samples per pixel of each render")
+    p.add_argument("--chunks", type=int, default=8, help="chunks the spp are rendered in (the noise comes from them)")
+    p.add_argument("--width", type=int, default=DEFAULT_WIDTH, help="the film's width (the camera's aspect kept)")
+    p.add_argument("--height", type=int, default=None)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--tolerance", type=float, default=TOLERANCE, help="of the total image's mean, per channel")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(run=_scene_check)
 
     p = sub.add_parser(
         "bundles",

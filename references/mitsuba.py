@@ -158,10 +158,7 @@ def _render_entry(scene, scene_hash, entry, bounces, spp, width, height, seed, c
                 progress(f"starting {entry} again: the saved progress is for {int(z['chunks'])} chunks, not {chunks}")
     start, resumed_at = time.perf_counter(), done
     for chunk in range(done, chunks):
-        s = chunk_seed(seed, chunk)
-        direct = np.array(mi.render(mi_scene, integrator=integrators[2], seed=s), dtype=np.float64)[..., :3]
-        total = np.array(mi.render(mi_scene, integrator=integrators[bounces + 2], seed=s), dtype=np.float64)[..., :3]
-        means = np.stack([direct, total - direct, total])
+        means = chunk_images(mi, mi_scene, integrators, bounces, chunk_seed(seed, chunk))
         sums += means
         squares += means * means
         done = chunk + 1
@@ -216,10 +213,23 @@ def _mitsuba_scene(scene: Scene, bounces: int, spp: int, width: int, height: int
 
     mi = mitsuba(variant)
     mi_scene = mi.load_dict(to_mitsuba_dict(scene, mi, spp=spp, width=width, height=height))
-    integrators = {
-        depth: mi.load_dict({"type": "path", "max_depth": depth, "rr_depth": depth}) for depth in (2, bounces + 2)
-    }
-    return mi, mi_scene, integrators
+    return mi, mi_scene, path_integrators(mi, bounces)
+
+
+def path_integrators(mi, bounces: int) -> dict:
+    """Mitsuba's path integrators for the direct image (max_depth 2) and the total one (max_depth
+    bounces + 2), by max_depth, Russian roulette off."""
+    return {depth: mi.load_dict({"type": "path", "max_depth": depth, "rr_depth": depth}) for depth in (2, bounces + 2)}
+
+
+def chunk_images(mi, mi_scene, integrators: dict, bounces: int, seed: int, sensor=None) -> np.ndarray:
+    """One chunk's direct, indirect and total images (3, H, W, 3) float64: the direct and total
+    renders share ``seed``, so the indirect image is their difference (module docstring). ``sensor``:
+    another sensor than the scene's own."""
+    kw = {} if sensor is None else {"sensor": sensor}
+    direct = np.array(mi.render(mi_scene, integrator=integrators[2], seed=seed, **kw), dtype=np.float64)[..., :3]
+    total = np.array(mi.render(mi_scene, integrator=integrators[bounces + 2], seed=seed, **kw), dtype=np.float64)
+    return np.stack([direct, total[..., :3] - direct, total[..., :3]])
 
 
 def timed_render(

@@ -49,6 +49,21 @@ TEXTURE_TOLERANCE = 1e-4
 def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Scene:
     """Load a Mitsuba XML scene file (relative mesh and texture paths resolve from its folder)."""
     path = os.fspath(path)
+    mi = mitsuba(variant)
+    mi_scene, unused = _load_xml(mi, path, flatten=True)
+    name = os.path.splitext(os.path.basename(path))[0]
+    return from_mitsuba_scene(mi, mi_scene, name=name, source=path, notes=unused)
+
+
+def load_mitsuba_original(path: str | os.PathLike, variant: str | None = None):
+    """(Mitsuba, the file as Mitsuba itself loads it): its instances kept, only what the toolkit
+    never uses taken out (integrators, samplers, films but their size), for `evalkit.fidelity`."""
+    mi = mitsuba(variant)
+    return mi, _load_xml(mi, os.fspath(path), flatten=False)[0]
+
+
+def _load_xml(mi, path: str, flatten: bool):
+    """(the loaded ``mi.Scene``, notes naming the file's render settings left out)."""
     if not os.path.isfile(path):
         raise InputError(path, "file not found")
     try:
@@ -56,26 +71,23 @@ def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Sc
     except ElementTree.ParseError as e:
         raise InputError(path, f"malformed XML: {e}") from None
     unused = _render_settings(root)
-    flattened = _flatten_instances(path, root)
-    mi = mitsuba(variant)
+    flattened = flatten and _flatten_instances(path, root)
 
     def load_edited():
         with _resolving_from(mi, os.path.dirname(os.path.abspath(path))):
             return mi.load_string(ElementTree.tostring(root, encoding="unicode"))
 
     try:
-        mi_scene = load_edited() if flattened else mi.load_file(path)
+        return (load_edited() if flattened else mi.load_file(path)), unused
     except Exception as e:  # Mitsuba reports every load problem as a RuntimeError with its own text
         if flattened or not unused:
             raise InputError(path, f"Mitsuba could not load it: {_last_line(e)}") from None
         # Loaded again without what the toolkit does not use; the first error names the file's
         # own lines, so it is the one reported if that fails too.
         try:
-            mi_scene = load_edited()
+            return load_edited(), unused
         except Exception:
             raise InputError(path, f"Mitsuba could not load it: {_last_line(e)}") from None
-    name = os.path.splitext(os.path.basename(path))[0]
-    return from_mitsuba_scene(mi, mi_scene, name=name, source=path, notes=unused)
 
 
 def _flatten_instances(path: str, root) -> bool:
@@ -475,28 +487,7 @@ def to_mitsuba_dict(scene: Scene, mi, spp: int = 64, width: int | None = None, h
     The sensor uses a box pixel filter and a float32 film, which is what comparisons with the
     rasterizer need (docs/MEASURED_FACTS.md). Positions are in scene space (recentred).
     """
-    cam = scene.camera
-    width, height = cam.film_size(width, height)
-    d: dict = {
-        "type": "scene",
-        "sensor": {
-            "type": "perspective",
-            "fov": cam.fov,
-            "fov_axis": cam.fov_axis,
-            "near_clip": cam.near_clip,
-            "far_clip": cam.far_clip,
-            "to_world": mi.ScalarTransform4f(cam.to_world.tolist()),
-            "sampler": {"type": "independent", "sample_count": int(spp)},
-            "film": {
-                "type": "hdrfilm",
-                "width": width,
-                "height": height,
-                "rfilter": {"type": "box"},
-                "pixel_format": "rgb",
-                "component_format": "float32",
-            },
-        },
-    }
+    d: dict = {"type": "scene", "sensor": sensor_dict(scene.camera, mi, spp, width, height)}
     bsdfs = [mi.load_dict(_bsdf_dict(mi, m)) for m in scene.materials]
     for i, mesh in enumerate(scene.meshes):
         mat = scene.materials[mesh.material]
@@ -524,6 +515,31 @@ def to_mitsuba_dict(scene: Scene, mi, spp: int = 64, width: int | None = None, h
     for i, light in enumerate(scene.lights):
         d[f"light{i:03d}"] = _emitter_dict(mi, light)
     return d
+
+
+def sensor_dict(camera: Camera, mi, spp: int, width: int | None, height: int | None, offset=(0.0, 0.0, 0.0)) -> dict:
+    """Mitsuba's sensor of ``camera`` at ``spp`` (a box pixel filter, a float32 film), moved by
+    ``offset`` (the scene's origin puts it back in the file's world space)."""
+    width, height = camera.film_size(width, height)
+    to_world = camera.to_world.copy()
+    to_world[:3, 3] += np.asarray(offset, dtype=np.float64)
+    return {
+        "type": "perspective",
+        "fov": camera.fov,
+        "fov_axis": camera.fov_axis,
+        "near_clip": camera.near_clip,
+        "far_clip": camera.far_clip,
+        "to_world": mi.ScalarTransform4f(to_world.tolist()),
+        "sampler": {"type": "independent", "sample_count": int(spp)},
+        "film": {
+            "type": "hdrfilm",
+            "width": width,
+            "height": height,
+            "rfilter": {"type": "box"},
+            "pixel_format": "rgb",
+            "component_format": "float32",
+        },
+    }
 
 
 def _bsdf_dict(mi, mat: Material) -> dict:

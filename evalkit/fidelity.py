@@ -1,0 +1,138 @@
+"""Import fidelity: how far the toolkit's reading of a Mitsuba XML file is from the file itself.
+
+Both scenes are rendered by Mitsuba's own path integrator with one sensor (the imported camera's,
+put back in the file's world space: a box pixel filter, a float32 film), the same bounce count, and
+the same seed per chunk, so the check measures the import alone and none of the bundles' error:
+
+- the original is the file as Mitsuba loads it (its instances, analytic shapes, textures, BSDFs);
+- the imported scene is `evalkit.core.scene.load_scene`'s, exported back
+  (`evalkit.core.scene.mitsuba_io.to_mitsuba_dict`): what the bundles and the references render.
+
+Per image (direct, indirect, total) it reports the imported image mean over the original's per
+channel with its 95 % interval (`render_ratio`, chunks paired: they share their seeds), relMSE, and
+the per-pixel z-test's share of pixels outside (Sidak-corrected, as Mitsuba's render tests), with
+the approximations the import made. The check passes when every channel of the total image is
+within ``tolerance`` of 1 and at least `Z_SHARE` of its pixels pass the z-test.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import time
+
+import numpy as np
+
+from evalkit.core import cache
+from evalkit.core.errors import InputError
+from evalkit.core.scene import load_scene
+from evalkit.core.scene.mitsuba_io import load_mitsuba_original, sensor_dict, to_mitsuba_dict
+from evalkit.core.settings import IMAGES
+from evalkit.metrics.confidence import render_ratio, z_test
+from evalkit.metrics.images import relmse
+from references.mitsuba import chunk_images, chunk_seed, path_integrators
+
+TOLERANCE = 0.01  # the image mean, per channel
+Z_SHARE = 0.9975  # pixels that must pass the z-test: Mitsuba's own render tests' share
+DEFAULT_WIDTH = 96
+
+
+def check_scene(
+    path: str,
+    bounces: int = 1,
+    spp: int = 64,
+    chunks: int = 8,
+    width: int | None = DEFAULT_WIDTH,
+    height: int | None = None,
+    seed: int = 0,
+    tolerance: float = TOLERANCE,
+    variant: str | None = None,
+    progress=None,
+) -> dict:
+    """Renders the Mitsuba file at ``path`` and the toolkit's import of it with Mitsuba (``spp``
+    samples per pixel in ``chunks`` chunks) and compares them (module docstring). Returns the
+    figures, the settings and versions that made them, and ``passed``; the result is stored in the
+    user cache under the imported scene's content, where `fidelity_of` finds it."""
+    if not str(path).lower().endswith(".xml"):
+        raise InputError(str(path), "the import check compares a Mitsuba XML file with its import")
+    if chunks < 2 or spp % chunks:
+        raise InputError(str(path), f"{chunks} chunks must be at least 2 and divide spp={spp}")
+    progress = progress or (lambda line: None)
+    start = time.perf_counter()
+    scene = load_scene(path)
+    mi, original = load_mitsuba_original(path, variant)
+    per_chunk = spp // chunks
+    sensor = mi.load_dict(sensor_dict(scene.camera, mi, per_chunk, width, height, offset=scene.origin))
+    imported = mi.load_dict(to_mitsuba_dict(scene, mi, spp=per_chunk, width=width, height=height))
+    integrators = path_integrators(mi, bounces)
+    runs = {"original": [], "imported": []}
+    for chunk in range(chunks):
+        s = chunk_seed(seed, chunk)
+        runs["original"].append(chunk_images(mi, original, integrators, bounces, s, sensor=sensor))
+        runs["imported"].append(chunk_images(mi, imported, integrators, bounces, s))
+        progress(f"chunk {chunk + 1}/{chunks}: {per_chunk} spp of both, {time.perf_counter() - start:.1f} s")
+    a, b = np.stack(runs["imported"]), np.stack(runs["original"])  # (C, 3 images, H, W, 3)
+    images = {}
+    for i, name in enumerate(IMAGES):
+        test, ref = a[:, i].mean(axis=0), b[:, i].mean(axis=0)
+        test_var, ref_var = a[:, i].var(axis=0, ddof=1) / chunks, b[:, i].var(axis=0, ddof=1) / chunks
+        ratio = render_ratio(a[:, i].mean(axis=(1, 2)), b[:, i].mean(axis=(1, 2)))
+        z = z_test(test, test_var, ref, ref_var)
+        images[name] = {
+            "ratio": [_interval(row) for row in ratio["per_channel"]],
+            "relmse": relmse(test, ref).value,
+            "z_outside_share": z["outside_share"],
+            "z_tested": z["tested"],
+        }
+    total = images["total"]
+    within = all(_within(r, tolerance) for r in total["ratio"])
+    z_ok = not total["z_outside_share"] > 1.0 - Z_SHARE  # NaN (nothing tested: a black image) passes
+    result = {
+        "scene": scene.name,
+        "source": str(path),
+        "scene_hash": scene.content_hash(),
+        "settings": {"bounces": bounces, "spp": spp, "chunks": chunks, "seed": seed, "size": list(test.shape[1::-1])},
+        "tolerance": tolerance,
+        "z_share": Z_SHARE,
+        "images": images,
+        "approximations": list(scene.warnings),
+        "passed": bool(within and z_ok),
+        "mitsuba": mi.__version__,
+        "variant": mi.variant(),
+        "evalkit": importlib.metadata.version("raybundle-evalkit"),
+        "seconds": round(time.perf_counter() - start, 3),
+    }
+    cache.store("facts", _key(scene.content_hash()), result)
+    return result
+
+
+def fidelity_of(scene) -> dict | None:
+    """The last `check_scene` result for ``scene`` (by its content), from the user cache, or None."""
+    return cache.load("facts", _key(scene.content_hash()))
+
+
+def summary_line(result: dict) -> str:
+    """The check in one line: the total image's ratios per channel and the z-test's share."""
+    total = result["images"]["total"]
+    ratios = ", ".join(f"{r['ratio']:.4f}" for r in total["ratio"])
+    verdict = "passed" if result["passed"] else "FAILED"
+    return (
+        f"import fidelity {verdict}: total image mean over Mitsuba's own load (r, g, b) {ratios}; "
+        f"{100 * (1 - total['z_outside_share']):.2f} % of pixels pass the z-test "
+        f"({result['settings']['spp']} spp, B={result['settings']['bounces']}, evalkit scene check)"
+    )
+
+
+def _key(scene_hash: str) -> str:
+    return f"fidelity-{scene_hash}"
+
+
+def _interval(row: dict) -> dict:
+    return {
+        k: (None if row.get(k) is None or not np.isfinite(row[k]) else float(row[k])) for k in ("ratio", "lo", "hi")
+    }
+
+
+def _within(row: dict, tolerance: float) -> bool:
+    if row["ratio"] is None:  # a channel black in both (0 / 0)
+        return True
+    return abs(row["ratio"] - 1.0) <= tolerance

@@ -1,0 +1,56 @@
+"""`evalkit scene check`: the file as Mitsuba loads it against the toolkit's import of it, both
+rendered by Mitsuba. The corpus (tests/data/import_corpus) holds one scene per imported feature."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from conftest import run_evalkit
+
+from evalkit.core.scene import load_scene
+from evalkit.fidelity import check_scene, fidelity_of
+
+CORPUS = Path(__file__).parent / "data" / "import_corpus"
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in CORPUS.glob("*.xml")))
+def test_every_corpus_scene_imports_within_one_percent_and_passes_the_z_test(name):
+    result = check_scene(str(CORPUS / f"{name}.xml"), spp=32, chunks=4, width=48)
+    assert result["passed"], result["images"]["total"]
+    for image in result["images"].values():
+        for row in image["ratio"]:
+            assert abs(row["ratio"] - 1.0) <= 0.01 or row["lo"] <= 1.0 <= row["hi"], row
+    assert not result["approximations"], result["approximations"]
+
+
+def test_an_approximated_bsdf_fails_the_check_and_scene_info_and_renders_say_so(tmp_path):
+    # A rough conductor flattened to a diffuse albedo: the check measures what that does to the image.
+    scene = (
+        (CORPUS / "lights.xml")
+        .read_text()
+        .replace(
+            '<bsdf type="diffuse" id="grey"><rgb name="reflectance" value="0.6, 0.6, 0.6"/></bsdf>',
+            '<bsdf type="roughconductor" id="grey"><string name="material" value="Cu"/></bsdf>',
+        )
+    )
+    path = tmp_path / "metal.xml"
+    path.write_text(scene)
+    (tmp_path / "sky.exr").write_bytes((CORPUS / "sky.exr").read_bytes())
+    run = run_evalkit("scene", "check", str(path), "--spp", "16", "--chunks", "4", "--width", "32", "--json")
+    assert run.returncode == 1, run.stderr
+    result = json.loads(run.stdout.strip().splitlines()[-1])
+    assert not result["passed"] and any("RoughConductor" in w for w in result["approximations"])
+    assert "import fidelity FAILED" in run.stdout
+    assert fidelity_of(load_scene(str(path)))["passed"] is False  # cached for scene info and renders
+    info = run_evalkit("scene", "info", str(path))
+    assert "import fidelity FAILED" in info.stdout, info.stdout
+    out = tmp_path / "render"
+    run_evalkit(
+        "render", str(path), "--method", "perfect", "--directions", "4", "--resolution", "16", "--width", "8",
+        "--frames", "1", "--out", str(out),
+    )  # fmt: skip
+    timings = json.loads((out / "timings.json").read_text())
+    assert timings["stats"]["import_fidelity"]["passed"] is False
+    assert any("import fidelity FAILED" in w for w in timings["warnings"])
