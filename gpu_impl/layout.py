@@ -83,6 +83,8 @@ BINDINGS = {
     "VISIBLE": 37,
     # imperfect shadow maps' pull-push pyramids (visibility/imperfect.py)
     "ISM_PYRAMID": 38,
+    # the environment map's sampling density per cell (lights.py: EnvironmentSamples; environment.glsl)
+    "ENVIRONMENT_PDF": 39,
 }
 
 # Bits and enumerations. np.uint32 values are written as GLSL uint literals (1u), Python ints as
@@ -109,7 +111,14 @@ TRIANGLE_TURNED = np.uint32(0x80000000)
 # estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its
 # normal; "light_path_vertex" is a vertex a light path left on a surface (strategies/bidirectional.py),
 # lighting the same way, and reached by connections.
-LIGHT_KINDS = {"point": 0.0, "spot": 1.0, "directional": 2.0, "emitter_sample": 3.0, "light_path_vertex": 4.0}
+LIGHT_KINDS = {
+    "point": 0.0,
+    "spot": 1.0,
+    "directional": 2.0,
+    "emitter_sample": 3.0,
+    "light_path_vertex": 4.0,
+    "environment_sample": 5.0,
+}
 ENVIRONMENT_KINDS = {None: 0, "constant": 1, "envmap": 2}  # the ENVIRONMENT define
 # How a node's reference is read (bundle.glsl, NODE_REFERENCE): a triangle or a splat point. Each
 # bundle method's tracer says which of them its nodes hold.

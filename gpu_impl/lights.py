@@ -158,21 +158,86 @@ class EmitterSamples:
         return t, positions, normals
 
 
+class EnvironmentSamples:
+    """Directions drawn from an environment map in proportion to its radiance, for next-event
+    estimation of the environment: each a directional light with a shadow map of its own for one
+    frame (`ShadowLights.set_environment_samples`), weighted by multiple importance sampling against
+    the bundle direction that could have found the environment (lights.glsl, eye_paths.glsl).
+
+    The map's cells are its texel intervals in (u, v): W columns [i / W, (i + 1) / W) and H - 1 rows
+    between texel rows j / (H - 1) and (j + 1) / (H - 1) (Mitsuba's texel positions, environment.glsl).
+    A cell is drawn in proportion to L_c dw_c, L_c the largest radiance (channels' mean) its
+    bilinear lookups read and dw_c its solid angle, and a direction uniformly in solid angle within
+    it, so p(w) = L_c / sum(L dw) per solid angle: nonzero wherever the map's radiance is, and as
+    peaked as its sun. A sample w carries irradiance L(w) / (M p(w)) across its direction.
+    """
+
+    def __init__(self, light: Light, count: int):
+        self.light, self.count = light, int(count)
+        radiance = np.asarray(light.envmap, dtype=np.float64) * np.asarray(light.intensity)
+        h, w = radiance.shape[:2]
+        lum = radiance.mean(axis=2)
+        # Columns i - 1, i and i + 1 and rows j and j + 1 reach into cell (j, i).
+        columns = np.maximum(lum, np.maximum(np.roll(lum, 1, axis=1), np.roll(lum, -1, axis=1)))
+        cells = np.maximum(columns[:-1], columns[1:])  # (H - 1, W)
+        self.cos_rows = np.cos(np.pi * np.arange(h) / (h - 1))
+        solid = 2.0 * np.pi / w * (self.cos_rows[:-1] - self.cos_rows[1:])  # (H - 1,)
+        power = cells * solid[:, None]
+        total = float(power.sum())
+        if not total > 0.0:
+            raise ValueError("an environment map without radiance has nothing to sample")
+        self.pdf = cells / total  # per solid angle, per cell (H - 1, W)
+        self.cdf = np.cumsum(power.ravel()) / total
+        self.radiance = radiance
+        self.to_world = np.asarray(light.to_world, dtype=np.float64)[:3, :3]
+
+    def frame_samples(self, seed: int, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This frame's M directions toward the environment (M, 3), stratified over its power, the
+        irradiance each carries, L(w) / (M p(w)) (M, 3), and the densities M p(w) (M,)."""
+        m, (h, w) = self.count, self.pdf.shape
+        rng = np.random.default_rng([seed, frame, 3])
+        cell = np.minimum(np.searchsorted(self.cdf, (np.arange(m) + rng.random(m)) / m, side="right"), h * w - 1)
+        j, i = np.divmod(cell, w)
+        u = (i + rng.random(m)) / w
+        cos_theta = self.cos_rows[j] - rng.random(m) * (self.cos_rows[j] - self.cos_rows[j + 1])
+        sin_theta = np.sqrt(np.maximum(1.0 - cos_theta * cos_theta, 0.0))
+        phi = 2.0 * np.pi * u
+        local = np.stack([sin_theta * np.sin(phi), cos_theta, -sin_theta * np.cos(phi)], axis=1)
+        directions = local @ self.to_world.T
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        densities = m * self.pdf[j, i]
+        radiance = self.lookup(u, np.arccos(np.clip(cos_theta, -1.0, 1.0)) / np.pi)
+        return directions, radiance / densities[:, None], densities
+
+    def lookup(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The map's radiance at (u, v) as environment.glsl reads it: bilinear, columns centred at
+        (i + 0.5) / W and wrapped, rows at j / (H - 1)."""
+        h, w = self.radiance.shape[:2]
+        x, y = u * w - 0.5, v * (h - 1)
+        x0, y0 = np.floor(x), np.floor(y)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+        c0, c1 = np.mod(x0, w), np.mod(x0 + 1, w)
+        r0, r1 = np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1)
+        t = self.radiance
+        return (1 - fy) * ((1 - fx) * t[r0, c0] + fx * t[r0, c1]) + fy * ((1 - fx) * t[r1, c0] + fx * t[r1, c1])
+
+
 def _face_normals(triangles: np.ndarray) -> np.ndarray:
     n = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
 def pack_tiles(
-    sizes: list[int], max_side: int, new_row: int | None = None
+    sizes: list[int], max_side: int, new_rows: tuple[int, ...] = ()
 ) -> tuple[list[tuple[int, int]], tuple[int, int]]:
-    """Square tiles of the given sides (largest first) packed row by row into one atlas: the tiles'
-    corners and the atlas size. ``new_row``: the index of a tile that starts a row, so that the
-    tiles from it on fill rows of their own (one clear covers them)."""
+    """Square tiles of the given sides packed row by row into one atlas: the tiles' corners and the
+    atlas size. ``new_rows``: indices of tiles that start a row, so that the tiles from each on
+    fill rows of their own (one clear covers them)."""
     side = max(max(sizes), 1 << math.ceil(math.log2(math.sqrt(sum(s * s for s in sizes)))))
     corners, x, y, row = [], 0, 0, 0
     for i, s in enumerate(sizes):
-        if x + s > side or (i == new_row and x > 0):
+        if x + s > side or (i in new_rows and x > 0):
             x, y, row = 0, y + row, 0
         corners.append((x, y))
         x, row = x + s, max(row, s)
@@ -309,6 +374,8 @@ class ShadowLights:
         visibility,
         light_vertices: int,
         path_vertices: int = 0,
+        environment_samples: int = 0,
+        environment_map_size: int = 0,
     ):
         self.gl, self.gpu_scene, self.visibility = gl, gpu_scene, visibility
         self.map_size, self.filter = settings.shadow_map_size, settings.shadow_filter
@@ -317,7 +384,9 @@ class ShadowLights:
         environments = [light for light in gpu_scene.scene.lights if light.kind in ("constant", "envmap")]
         self.environment = environments[0] if environments else None
         self.light_vertices = light_vertices + path_vertices
-        self.count = len(lights) + light_vertices  # the lights light_irradiance loops over (lights.glsl)
+        # The lights light_irradiance loops over (lights.glsl): the fixed lights, the environment
+        # samples, the emitter samples.
+        self.count = len(lights) + environment_samples + light_vertices
         self.records_count = records_count = self.count + path_vertices
         records, views = [], []
         for light in lights:
@@ -325,15 +394,23 @@ class ShadowLights:
             records.append(self._record(light, sum(len(v.texel) for v in views), len(view.texel)))
             views.append(view)
         fixed = Views(*(np.concatenate(field) for field in zip(*views))) if views else None
-        # The light vertices' records and views (redrawn every frame) follow these.
-        self.fixed_lights, self.fixed_views = len(records), 0 if fixed is None else len(fixed.texel)
+        # The environment samples' records and views (directional, redrawn every frame) follow the
+        # fixed lights' (drawn once for a static scene), then the light vertices' (every frame).
+        self.static_lights, self.static_views = len(records), 0 if fixed is None else len(fixed.texel)
+        self.environment_samples, self.environment_map_size = environment_samples, environment_map_size
+        self.fixed_lights = self.static_lights + environment_samples
+        self.fixed_views = self.static_views + environment_samples
         self.buffers = {}
         self.atlas = self.framebuffer = self.triangles = None
         self.facing = ()
         visibility.check(self.light_vertices)
         if records_count:
             per_vertex = visibility.tiles_per_vertex
-            texels = self.map_size**2 * len(views) + visibility.map_size**2 * per_vertex * self.light_vertices
+            texels = (
+                self.map_size**2 * self.static_views
+                + environment_map_size**2 * environment_samples
+                + visibility.map_size**2 * per_vertex * self.light_vertices
+            )
             if texels > gl.limit("GL_MAX_TEXTURE_SIZE") ** 2:  # before a list of every tile is made
                 raise LimitError(
                     f"{self.light_vertices:,} light vertices' shadow maps ({texels:,} texels) exceed the GL texture "
@@ -341,11 +418,18 @@ class ShadowLights:
                     "or their maps' size",
                     ("light_paths", visibility.map_size_setting),
                 )
-            sizes = [self.map_size] * self.fixed_views + [visibility.map_size] * (per_vertex * self.light_vertices)
-            corners, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"), new_row=self.fixed_views)
+            sizes = (
+                [self.map_size] * self.static_views
+                + [environment_map_size] * environment_samples
+                + [visibility.map_size] * (per_vertex * self.light_vertices)
+            )
+            new_rows = (self.static_views, self.fixed_views)
+            corners, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"), new_rows=new_rows)
             self.tiles = np.array(corners, dtype=np.float64).reshape(-1, 2)
-            # The light vertices' tiles fill the rows from here on (`clear_vertex_tiles`).
+            # The environment samples' tiles and the light vertices' fill rows of their own
+            # (`set_environment_samples`, `clear_vertex_tiles`).
             self.vertex_row = int(self.tiles[self.fixed_views, 1]) if self.light_vertices else atlas_size[1]
+            self.environment_row = int(self.tiles[self.static_views, 1]) if environment_samples else self.vertex_row
             self.view_records = np.zeros(len(sizes), dtype=SHADOW_VIEW)
             if fixed is not None:
                 self.set_views(0, fixed, self.map_size)
@@ -384,6 +468,30 @@ class ShadowLights:
         records["axis"] = np.column_stack([views.axis, 1.0 / views.far])
         self.view_records[rows] = records
 
+    def set_environment_samples(self, directions: np.ndarray, irradiance: np.ndarray, densities: np.ndarray) -> None:
+        """This frame's environment samples (`EnvironmentSamples.frame_samples`): directional lights
+        toward ``directions`` of ``irradiance`` and MIS densities ``densities`` (Light.shape.x), their
+        records after the fixed lights' and their maps drawn."""
+        first, count = self.static_lights, len(directions)
+        views = [
+            self._views(Light("directional", (0.0, 0.0, 0.0), direction=-d), self.environment_map_size)
+            for d in directions
+        ]
+        records = np.zeros(count, dtype=LIGHT)
+        records["position"][:, 3] = LIGHT_KINDS["environment_sample"]
+        records["direction"][:, :3] = -directions
+        records["intensity"][:, :3] = irradiance
+        records["shape"] = np.column_stack(
+            [densities, np.zeros(count), self.static_views + np.arange(count), np.ones(count)]
+        )
+        self.records[first : first + count] = records
+        self.set_views(self.static_views, Views(*(np.concatenate(f) for f in zip(*views))), self.environment_map_size)
+        self.upload()
+        width = self.atlas.size[0]
+        viewport = (0, self.environment_row, width, self.vertex_row - self.environment_row)
+        self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0, viewport=viewport)
+        self.draw(range(self.static_views, self.fixed_views))
+
     def set_light_path_densities(self, densities: np.ndarray) -> None:
         """Each fixed light's density of starting a light path (Light.paths.x, lights.glsl)."""
         self.records["paths"][: self.fixed_lights, 0] = densities
@@ -421,10 +529,10 @@ class ShadowLights:
 
     # -- views ---------------------------------------------------------------------------
 
-    def _views(self, light: Light) -> Views:
-        """The light's shadow views."""
+    def _views(self, light: Light, size: int | None = None) -> Views:
+        """The light's shadow views, ``size`` texels a side (default: the fixed lights')."""
         centre, r = self.gpu_scene.centre, self.gpu_scene.radius
-        s = self.map_size
+        s = size or self.map_size
         if light.kind == "directional":
             d = np.asarray(light.direction, dtype=np.float64)
             eye = -r * d  # relative to the bundle centre: the plane distances start from
@@ -466,7 +574,7 @@ class ShadowLights:
             return
         # The whole atlas: a triangle texel is read only where a distance is.
         self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0)
-        self.draw(range(self.fixed_views))
+        self.draw(range(self.static_views))
 
     def clear_vertex_tiles(self) -> None:
         """Clear the light vertices' tiles for their next draw: the atlas' rows from `vertex_row` on."""

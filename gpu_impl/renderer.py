@@ -129,6 +129,8 @@ class Renderer:
             visibility,
             self.strategy.light_vertices_per_frame,
             self.strategy.path_vertices_per_frame,
+            self.strategy.environment_samples_per_frame,
+            getattr(self.strategy, "environment_map_size", 0),
         )
         self.warnings = list(scene.warnings) + self.strategy.warnings
         features = self.gpu_scene.features
@@ -284,6 +286,10 @@ class Renderer:
         if shadow_maps:
             with timer.measure("shadow_maps"):
                 self.lights.render_shadow_maps()
+        if self.strategy.environment_samples_per_frame:
+            with timer.measure("environment_samples"):
+                self.lights.set_environment_samples(*self.strategy.environment_samples.frame_samples(st.seed, frame))
+            self.irradiance_of = None  # lit by this frame's environment samples
         if self.strategy.light_vertices_per_frame or self.strategy.path_vertices_per_frame:
             with timer.measure("emitter_samples" if not self.strategy.path_vertices_per_frame else "light_paths"):
                 self.lights.set_light_vertices(self.strategy.light_vertices(st.seed, frame), st.seed, frame)

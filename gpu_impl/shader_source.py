@@ -34,9 +34,15 @@ STAGES = {"VERTEX_SHADER": "vertex_shader", "FRAGMENT_SHADER": "fragment_shader"
 NODE_REFERENCES = (NODE_TRIANGLE, NODE_SPLAT_POINT)
 LIGHT_VISIBILITIES = (LIGHT_VISIBILITY_EXACT, LIGHT_VISIBILITY_IMPERFECT)
 ENVIRONMENTS = tuple(ENVIRONMENT_KINDS.values())
+ENVMAP = ENVIRONMENT_KINDS["envmap"]
 # A define that is 1 only where another one is (lazy light and light vertices need shadow-mapped lights).
 # Bidirectional paths light every hit where it lands (their connections depend on the path).
-REQUIRES = {"LAZY_LIGHTING": "SHADOW_LIGHTS", "EMITTER_SAMPLES": "SHADOW_LIGHTS", "BIDIRECTIONAL": "LAZY_LIGHTING"}
+REQUIRES = {
+    "LAZY_LIGHTING": "SHADOW_LIGHTS",
+    "EMITTER_SAMPLES": "SHADOW_LIGHTS",
+    "ENVIRONMENT_SAMPLES": "SHADOW_LIGHTS",
+    "BIDIRECTIONAL": "LAZY_LIGHTING",
+}
 # Per program: flag sets (a list), or axes (a dict of define -> the values the code sets it to),
 # with a rule that leaves out combinations no code makes (a (dict, predicate) pair).
 VARIANTS = {
@@ -82,14 +88,19 @@ VARIANTS = {
             "LAZY_LIGHTING": (0, 1),
             "EMITTER_SAMPLES": (0, 1),
             "ENVIRONMENT": ENVIRONMENTS,
+            "ENVIRONMENT_SAMPLES": (0, 1),
             "NODE_SIDES": (1, 2),
             "TEXTURES": (0, 1),
             "NODE_REFERENCE": NODE_REFERENCES,
             "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
             "BIDIRECTIONAL": (0, 1),
         },
-        # Precomputed light (shadow-mapped lights, not lazy) is splat points' only.
-        lambda d: not d["SHADOW_LIGHTS"] or d["LAZY_LIGHTING"] or d["NODE_REFERENCE"] == NODE_SPLAT_POINT,
+        # Precomputed light (shadow-mapped lights, not lazy) is splat points' only; environment
+        # samples are drawn from a map, for eye paths only.
+        lambda d: (
+            (not d["SHADOW_LIGHTS"] or d["LAZY_LIGHTING"] or d["NODE_REFERENCE"] == NODE_SPLAT_POINT)
+            and (not d["ENVIRONMENT_SAMPLES"] or (d["ENVIRONMENT"] == ENVMAP and not d["BIDIRECTIONAL"]))
+        ),
     ),
     "light_paths": {
         "BIDIRECTIONAL": (1,),

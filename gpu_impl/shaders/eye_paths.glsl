@@ -113,6 +113,10 @@ void main() {
     } else if (hit == NO_NODE) {
 #if ENVIRONMENT != ENVIRONMENT_NONE
         emitted = throughput * environment(omega);
+#if ENVIRONMENT_SAMPLES
+        // Next-event estimation of the environment could have found this direction too (lights.glsl).
+        emitted *= power_heuristic(BUNDLE_DIRECTION_PDF, environment_sample_density(omega));
+#endif
 #if BIDIRECTIONAL
         // A light path from the environment could have made this path too: along -omega to this
         // vertex, its first surface, then a connection from the one before (eye_mis; none at the

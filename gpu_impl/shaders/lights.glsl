@@ -19,15 +19,17 @@ struct Light {
     vec4 direction;  // xyz: the direction light travels (spot, directional) or the emitter's normal
                      // (emitter sample); w: cos(cutoff)
     vec4 intensity;  // rgb: W/sr (point, spot) or W/m^2 (directional); w: cos(beam width)
-    vec4 shape;      // x: cutoff (rad), or M p(y) for an emitter sample; y: 1 / (cutoff - beam width) (rad^-1);
+    vec4 shape;      // x: cutoff (rad), or M p(y) for an emitter sample, M p(omega) for an environment
+                     // sample; y: 1 / (cutoff - beam width) (rad^-1);
                      // z: first shadow view; w: views (1 or 6)
     vec4 paths;      // bidirectional paths' MIS (light_paths.glsl): a point or spot light's density of
                      // starting a light path that reaches a surface, per unit cos / distance^2 (a
                      // directional light's per unit cos), V q p(omega); a light path vertex's
                      // x: L_i, y: its depth
 };
-// Light.position.w is LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL, LIGHT_EMITTER_SAMPLE or
-// LIGHT_LIGHT_PATH_VERTEX (gpu_impl/layout.py).
+// Light.position.w is LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL, LIGHT_EMITTER_SAMPLE,
+// LIGHT_LIGHT_PATH_VERTEX or LIGHT_ENVIRONMENT_SAMPLE (a directional light for one frame, drawn
+// from the environment map: gpu_impl/lights.py: EnvironmentSamples) (gpu_impl/layout.py).
 
 // One shadow map: a tile of the atlas holding, per texel, the distance from the light to the
 // nearest surface (radial for a perspective view, along the light direction for an orthographic
@@ -193,6 +195,11 @@ vec3 light_irradiance(vec3 p, vec3 n, float eye_mis) {
         if (light.position.w == LIGHT_DIRECTIONAL) {
             to_light = -light.direction.xyz;
             arriving = light.intensity.rgb;
+        } else if (light.position.w == LIGHT_ENVIRONMENT_SAMPLE) {
+            // A direction drawn from the environment map: L / (M p), weighted against the bundle
+            // direction that could have found it (eye_paths.glsl).
+            to_light = -light.direction.xyz;
+            arriving = light.intensity.rgb * power_heuristic(light.shape.x, BUNDLE_DIRECTION_PDF);
         } else {
             vec3 v = light.position.xyz - p;
             d2 = dot(v, v);

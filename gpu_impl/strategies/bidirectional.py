@@ -70,6 +70,15 @@ class BidirectionalPaths(EyePaths):
             self.warnings.append(
                 "bidirectional paths: no light that light paths could start at, so these are eye paths"
             )
+        if self.path_vertices_per_frame and self.environment_samples is not None:
+            # Their MIS weights hold the bundle direction alone, not the environment's light paths.
+            self.environment_samples = None
+            self.pdf_buffer.release()
+            self.pdf_buffer = None
+            self.warnings.append(
+                "bidirectional paths draw no environment samples: the environment is found by the eye "
+                "paths and by its light paths (environment_samples is for eye paths)"
+            )
         self.buffers = {}  # made with the first frame, once the lights have checked that the maps fit
         self.vertex_counts = []
 

@@ -3,15 +3,21 @@ sample (shaders/primary.glsl) and each bounce takes a uniformly chosen bundle of
 next node (shaders/eye_paths.glsl), with no visibility test. Emissive triangles are found two ways,
 weighted by multiple importance sampling: by the paths hitting them, and by next-event estimation
 through ``light_samples`` points drawn on them per frame (`gpu_impl.lights.EmitterSamples`), the
-frame's light vertices, whose visibility the light visibility unit makes.
+frame's light vertices, whose visibility the light visibility unit makes. An environment map is
+found the same two ways: by the paths leaving the scene, and through ``environment_samples``
+directions drawn from it per frame (`gpu_impl.lights.EnvironmentSamples`), each a directional light
+with its own shadow map.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from evalkit.core.settings import setting
-from gpu_impl.lights import EmitterSamples, LightVertices
+from gpu_impl.layout import BINDINGS
+from gpu_impl.lights import EmitterSamples, EnvironmentSamples, LightVertices
 from gpu_impl.units import PathStrategy
 
 # Measured on cornell-box (B=3, K=32, R=128, 128x128, 32 frames x 16 paths): indirect relMSE
@@ -20,10 +26,28 @@ from gpu_impl.units import PathStrategy
 DEFAULT_LIGHT_SAMPLES = 8
 
 
+# An environment map with a sun holds much of its power in a few texels, which a frame's K bundle
+# directions almost never meet; drawn from the map, every frame's samples hold it.
+DEFAULT_ENVIRONMENT_SAMPLES = 8
+DEFAULT_ENVIRONMENT_MAP_SIZE = 512
+
+
 @dataclass(frozen=True)
 class EyeSettings:
     light_samples: int = setting(
         DEFAULT_LIGHT_SAMPLES, "points drawn on the emitters per frame for next-event estimation (0: none)", minimum=0
+    )
+    environment_samples: int = setting(
+        DEFAULT_ENVIRONMENT_SAMPLES,
+        "directions drawn from an environment map per frame for next-event estimation, each a "
+        "directional light with a shadow map of its own (0: none)",
+        minimum=0,
+    )
+    environment_map_size: int = setting(
+        DEFAULT_ENVIRONMENT_MAP_SIZE,
+        "texels per side of each environment sample's shadow map",
+        minimum=8,
+        unit="texels",
     )
 
 
@@ -36,6 +60,18 @@ class EyePaths:
         emitters = scene.features.emitters
         self.emitter_samples = (
             EmitterSamples(scene.scene, settings.light_samples) if emitters and settings.light_samples else None
+        )
+        envmap = next((light for light in scene.scene.lights if light.kind == "envmap"), None)
+        self.environment_samples = (
+            EnvironmentSamples(envmap, settings.environment_samples)
+            if envmap is not None and settings.environment_samples
+            else None
+        )
+        self.environment_map_size = settings.environment_map_size
+        self.pdf_buffer = (
+            None
+            if self.environment_samples is None
+            else renderer.gl.buffer(self.environment_samples.pdf.astype(np.float32).tobytes())
         )
         self.warnings = []
         if emitters and not settings.light_samples:
@@ -51,30 +87,47 @@ class EyePaths:
     def light_vertices_per_frame(self) -> int:
         return 0 if self.emitter_samples is None else self.emitter_samples.count
 
+    @property
+    def environment_samples_per_frame(self) -> int:
+        return 0 if self.environment_samples is None else self.environment_samples.count
+
     def light_vertices(self, seed: int, frame: int) -> LightVertices:
         """This frame's emitter samples (only called when there are some)."""
         self.emitter_samples = self.emitter_samples.posed(self.renderer.gpu_scene.scene)
         return self.emitter_samples.frame_lights(seed, frame)
 
     def defines(self) -> dict:
-        return {"EMITTER_SAMPLES": int(self.emitter_samples is not None), "BIDIRECTIONAL": 0}
+        return {
+            "EMITTER_SAMPLES": int(self.emitter_samples is not None),
+            "ENVIRONMENT_SAMPLES": int(self.environment_samples is not None),
+            "BIDIRECTIONAL": 0,
+        }
 
     def bind(self) -> None:
-        """Bind the strategy's own buffers (none)."""
+        """Bind the strategy's own buffers: the environment map's sampling density."""
+        if self.pdf_buffer is not None:
+            self.pdf_buffer.bind_to_storage_buffer(BINDINGS["ENVIRONMENT_PDF"])
 
     def stats(self) -> dict:
         """The strategy's own statistics of the render (none)."""
         return {}
 
-    nbytes = 0
+    @property
+    def nbytes(self) -> int:
+        return 0 if self.pdf_buffer is None else self.pdf_buffer.size
 
     def release(self) -> None:
-        """Free the strategy's own buffers (none)."""
+        """Free the strategy's own buffers."""
+        if self.pdf_buffer is not None:
+            self.pdf_buffer.release()
 
     def uniforms(self) -> dict:
-        if self.emitter_samples is None:
-            return {}
-        return {"emitter_sample_density": self.emitter_samples.density_scale}
+        values = {}
+        if self.emitter_samples is not None:
+            values["emitter_sample_density"] = self.emitter_samples.density_scale
+        if self.environment_samples is not None:
+            values["environment_sample_count"] = float(self.environment_samples.count)
+        return values
 
     def programs(self, defines: dict) -> dict:
         """The bounce pass's programs: lazy light (with shadow-mapped lights), and without any or
