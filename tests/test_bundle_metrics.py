@@ -319,6 +319,24 @@ def test_fine_geometry_asks_for_a_finer_bundle_resolution():
     assert coarse["cornell-box"] <= 64 and coarse["parts"] >= 256, coarse
 
 
+def test_the_probe_counts_lookups_on_parts_whose_normals_oppose_their_winding_as_any_other():
+    """Vertex normals that oppose the winding (a mesh exported with flipped normals) change nothing
+    a path meets: the probe samples those hits and judges their lookups as it does the others.
+    Measured (parts, R = 256, 1000 vertices): 1354 lookups, 0.15 % wrong, with or without the
+    normals flipped; before the landed triangle's geometric normal was compared with the hit's
+    shading normal and vertices were oriented by their geometric normal, the flipped scene had
+    122 lookups and 79.5 % of them wrong."""
+    base = load_scene("parts")
+    flipped = replace(base, meshes=[replace(m, normals=None if m.normals is None else -m.normals) for m in base.meshes])
+    rates = []
+    for scene in (base, flipped):
+        tracer = ExactTracer(scene)
+        vertices = eye_vertices(scene, tracer, 1000, seed=0)
+        r = next_hit_errors(tracer.bundles(DirectionSet.make(4, seed=0), 256), tracer, vertices, seed=0)
+        rates.append((r["lookups"], r["error_rate"]))
+    assert rates[0] == rates[1] and rates[0][1] < NEXT_HIT_ERROR_TARGET, rates
+
+
 def test_the_slope_breakdown_adds_up(gl):
     scene = load_scene("cornell-box")
     directions = DirectionSet.make(8, seed=1)

@@ -374,8 +374,12 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
     for _ in range(2):
         hits = tracer.next_hit(origins, rays)
         ok = hits.prim_id >= 0
+        # Each normal turned to face the arriving ray on its own: a mesh's vertex normals may
+        # oppose its winding, and the renderer orients the shading normal by itself
+        # (shaders/eye_paths.glsl), so such hits are sampled as paths meet them.
         facing = np.where(np.einsum("ij,ij->i", hits.geometric_normal, rays) > 0, -1.0, 1.0)[:, None]
-        ng, ns = (hits.geometric_normal * facing)[ok], (hits.normal * facing)[ok]
+        shading = np.where(np.einsum("ij,ij->i", hits.normal, rays) > 0, -1.0, 1.0)[:, None]
+        ng, ns = (hits.geometric_normal * facing)[ok], (hits.normal * shading)[ok]
         points.append(hits.point[ok]), normals.append(ns), geometric.append(ng), triangles.append(hits.prim_id[ok])
         # The next vertex: a cosine-distributed bounce about the geometric normal.
         t1 = np.cross(ng, np.where(np.abs(ng[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]]))
@@ -712,13 +716,17 @@ def next_hit_errors(
     ng = vertices["geometric"][use]
     exact = tracer.next_hit(vertices["position"][use] + tracer.epsilon * ng, omega)
     bundle_hit, exact_hit = node >= 0, exact.prim_id >= 0
-    # The landing's normal: its triangle's where the ray lands on a surface (a walk's may be another
-    # than the node's, across a concave edge too), else the node's.
+    # The landing's side against the exact hit's, like with like: its triangle's geometric normal
+    # against the hit's where the ray lands on a surface (a walk's may be another than the node's,
+    # across a concave edge too), else the node's shading normal against the hit's (vertex normals
+    # may oppose the winding, and a geometric normal against a shading one counted such lookups wrong).
     landed = look["triangle"][use]
-    normal = np.zeros((len(node), 3))
+    on = landed >= 0
+    normal, exact_normal = np.zeros((len(node), 3)), exact.normal.copy()
     normal[bundle_hit] = bundles.normal[node[bundle_hit]]
-    normal[landed >= 0] = tracer.arrays.tri_normal[landed[landed >= 0]]
-    facing = bundle_hit & (np.einsum("ij,ij->i", normal, exact.normal) > 0)
+    normal[on] = tracer.arrays.tri_normal[landed[on]]
+    exact_normal[on] = exact.geometric_normal[on]
+    facing = bundle_hit & (np.einsum("ij,ij->i", normal, exact_normal) > 0)
     distance = np.linalg.norm(np.nan_to_num(point) - exact.point, axis=1)
     cos = np.abs(np.einsum("ij,ij->i", exact.geometric_normal, omega))
     same = (
