@@ -494,7 +494,7 @@ def bundle_lookup(
                 end = ("outside",)  # or ("met", triangle, distance; -1: the node's own) or ("open",)
                 if gap * along > 0 and not own_surface(j, x, geometric[i], triangle[i], x + gap / along * o):
                     t = gap / along
-                    end = walk(j, x, o, t, triangle[i])
+                    end = walk(j, x, o, t, triangle[i], origin + depths[j] * d[i])
                 if end[0] != "outside":
                     if end[0] == "met" and (hit < 0 or end[2] < hit_t * (1 - 1e-5)):
                         hit, hit_t, hit_triangle = j, end[2], end[1]
@@ -639,7 +639,7 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
     return lambda j: small[triangles[j]]
 
 
-WALK_HOPS = 4  # shaders/bundle_step.glsl: WALK_HOPS
+WALK_REACH, MAX_WALK_HOPS = 2.0, 64  # shaders/bundle_step.glsl: how far a walk goes
 
 
 def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
@@ -647,7 +647,8 @@ def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
     walk_surface): ("met", -1, s) on the node's surface (inside its triangle, up to 1e-4 of the
     barycentrics; or, for a splat, within its radius, up to 1e-4 of its square, and its shape:
     `_SplatShapes.inside`), else, walking across its triangle's edges, ("met", triangle, distance)
-    where the ray meets a triangle within WALK_HOPS of it, ("outside",) where it passes an outline
+    where the ray meets a triangle the walk reaches (across edges within WALK_REACH pixels of the
+    line's node ``met``, at most MAX_WALK_HOPS), ("outside",) where it passes an outline
     edge (the triangle across faces the other way along o, or there is none), reaches a plane only
     behind x or the vertex's own triangle ``own``, else ("open",). The splats' shapes bring the
     scene's edge pairs."""
@@ -661,9 +662,11 @@ def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
             j, b, d2 > splats.radius**2 * (1 + 1e-4)
         )
 
-    def walk(j, x, o, s, own):
+    reach2 = (WALK_REACH * bundles.pixel_size()) ** 2
+
+    def walk(j, x, o, s, own, met):
         t = triangles[j]
-        for hop in range(WALK_HOPS + 1):
+        for hop in range(MAX_WALK_HOPS + 1):
             p0, p1, p2 = arrays.positions[arrays.faces[t]]
             b = plane_barycentrics((x + s * o)[None], p0[None], p1[None], p2[None])[0]
             w = np.array([1 - b[0] - b[1], b[0], b[1]])
@@ -672,7 +675,10 @@ def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
                 return ("met", t if hop else -1, s)
             if hop == 0 and splats is not None and within_splat(j, b, x + s * o):
                 return ("met", -1, s)
-            if hop == WALK_HOPS:
+            # The edge to cross, opposite that corner, must pass within reach of the line's node.
+            a, e = (p0, p1, p2)[(corner + 1) % 3], (p0, p1, p2)[(corner + 2) % 3] - (p0, p1, p2)[(corner + 1) % 3]
+            off = a + np.clip((met - a) @ e / max(e @ e, 1e-30), 0.0, 1.0) * e - met
+            if hop == MAX_WALK_HOPS or off @ off > reach2:
                 return ("open",)
             e = (corner + 1) % 3
             u = across[t, e]

@@ -91,10 +91,14 @@ bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
 #endif
 }
 
-// How many triangles a step walks across a met node's triangle's edges (walk_surface). On the parts
-// scene (R = 256) one left the second lookups from exact hits letting through 0.989 of the sky
-// light that rays do, four 0.999 (docs/MEASURED_FACTS.md, "Lookups walk the met surface").
-const uint WALK_HOPS = 4u;
+// How far a step walks across a met node's triangle's edges (walk_surface): across edges that pass
+// within WALK_REACH bundle pixels of where the line met the node, at most MAX_WALK_HOPS triangles. The ray's point is within a pixel and a half of the line, so the walk
+// reaches it across triangles of any size; a count of 4 triangles stopped it short on triangles
+// smaller than a pixel. (On the parts scene at R = 256, one hop left the second lookups from exact
+// hits letting through 0.989 of the sky light that rays do, four 0.999: docs/MEASURED_FACTS.md,
+// "Lookups walk the met surface".) evalkit/metrics/bundles.py mirrors both.
+const float WALK_REACH = 2.0;
+const uint MAX_WALK_HOPS = 64u;
 const uint WALK_MET = 0u, WALK_OUTSIDE = 1u, WALK_OPEN = 2u;
 struct SurfaceWalk {
     uint end;       // WALK_MET, WALK_OUTSIDE or WALK_OPEN
@@ -113,7 +117,8 @@ struct SurfaceWalk {
 //   landings, against 37 % with perfect bundles; docs/MEASURED_FACTS.md, "Splats stand for their
 //   triangles").
 // - else the walk crosses the edge of the node's triangle that the point lies beyond, to the
-//   triangle there, and takes the ray's point on that one's plane, up to WALK_HOPS triangles.
+//   triangle there, and takes the ray's point on that one's plane, as far as WALK_REACH pixels
+//   from the line's node `met` (h: a pixel).
 //   Inside one, the ray meets it there, exactly (WALK_MET). Without the walk the ray landed on a
 //   farther surface another line met, or by the lines' vote, where a line met the neighbour of
 //   the triangle the ray meets.
@@ -124,13 +129,14 @@ struct SurfaceWalk {
 //   leaves past a part's outline: the parts scene's indirect light was 0.985 of Mitsuba's
 //   (docs/MEASURED_FACTS.md, "Where perfect bundles' last indirect light on parts goes").
 // - still beyond the last triangle's edge (WALK_OPEN): undecided; the line meets a surface.
-SurfaceWalk walk_surface(uint ref, vec3 x, vec3 omega, float s, uint own) {
+SurfaceWalk walk_surface(uint ref, vec3 x, vec3 omega, float s, uint own, vec3 met, float h) {
     const SurfaceWalk outside = SurfaceWalk(WALK_OUTSIDE, NO_TRIANGLE, 0.0);
+    float reach2 = WALK_REACH * WALK_REACH * h * h;
     uint t = ref_triangle(ref);
     for (uint hop = 0u;; hop++) {
         uvec3 v = triangle_vertices(t);
-        vec3 p0 = vertex_position(v.x);
-        vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, x + s * omega);
+        vec3 p0 = vertex_position(v.x), p1 = vertex_position(v.y), p2 = vertex_position(v.z);
+        vec2 b = plane_barycentrics(p0, p1 - p0, p2 - p0, x + s * omega);
         vec3 w = vec3(1.0 - b.x - b.y, b.x, b.y);
         uint corner = w.x <= w.y && w.x <= w.z ? 0u : (w.y <= w.z ? 1u : 2u);
         // Inside, up to round-off (scene.glsl: inside_triangle); at the first, the node itself.
@@ -138,7 +144,10 @@ SurfaceWalk walk_surface(uint ref, vec3 x, vec3 omega, float s, uint own) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
         if (hop == 0u && within_splat(ref, b, x + s * omega)) return SurfaceWalk(WALK_MET, NO_TRIANGLE, s);
 #endif
-        if (hop == WALK_HOPS) return SurfaceWalk(WALK_OPEN, NO_TRIANGLE, 0.0);
+        // The edge to cross, opposite that corner, must pass within reach of the line's node.
+        vec3 a = corner == 0u ? p1 : (corner == 1u ? p2 : p0), e = (corner == 0u ? p2 : (corner == 1u ? p0 : p1)) - a;
+        vec3 off = a + clamp(dot(met - a, e) / max(dot(e, e), 1e-30), 0.0, 1.0) * e - met;
+        if (hop == MAX_WALK_HOPS || dot(off, off) > reach2) return SurfaceWalk(WALK_OPEN, NO_TRIANGLE, 0.0);
         uint across = triangle_across(t, (corner + 1u) % 3u);  // the edge opposite that corner
         if (across == NO_TRIANGLE) return outside;
         uint u = across & ~TRIANGLE_TURNED;
@@ -236,7 +245,8 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
             float gap = dot(plane_normal, origin + node_depth(node) * f.d.xyz - x), along = dot(plane_normal, omega);
             float t = gap / along;
             SurfaceWalk walk = SurfaceWalk(WALK_OUTSIDE, NO_TRIANGLE, 0.0);
-            if (gap * along > 0.0 && !own_surface(ref, x, ng, h, triangle, x + t * omega)) walk = walk_surface(ref, x, omega, t, triangle);
+            vec3 met = origin + node_depth(node) * f.d.xyz;
+            if (gap * along > 0.0 && !own_surface(ref, x, ng, h, triangle, x + t * omega)) walk = walk_surface(ref, x, omega, t, triangle, met, h);
             if (walk.end != WALK_OUTSIDE) {
                 // No nearer than the best so far (on its plane, usually): it cannot win.
                 if (walk.end == WALK_MET && (hit == NO_NODE || walk.t < hit_t * (1.0 - 1e-5))) {
