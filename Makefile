@@ -1,5 +1,5 @@
 # The two commands of the README. Both install what is missing first (scripts/setup.sh).
-.PHONY: setup setup-test demo test lint test-slow references studies fuzz fuzz-soak check
+.PHONY: setup setup-test demo teaser test lint test-slow references studies fuzz fuzz-soak check
 
 setup:
 	@scripts/setup.sh
@@ -9,6 +9,10 @@ setup-test:
 
 demo: setup
 	.venv/bin/evalkit demo --out out/demo
+
+# The README's picture, from the demo's results.
+teaser: setup
+	.venv/bin/evalkit demo --out out/demo --figure docs/images/teaser.png
 
 # The linter and formatter first (a second's work), then the suite.
 test: setup-test lint

@@ -30,7 +30,7 @@ from evalkit.core.settings import DEPTH_TOLERANCE, PRESETS, RenderSettings, decl
 from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
 from evalkit.fidelity import DEFAULT_WIDTH, TOLERANCE, check_scene, fidelity_of, summary_line
-from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png
+from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png, teaser
 from evalkit.metrics.bundles import compare_bundles, resolution_advice, scene_surfaces
 from evalkit.metrics.confidence import mean_ratio, pool_renders, render_ratio, z_test
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
@@ -93,7 +93,7 @@ def _below_advice(scene, resolution: int) -> str | None:
     return (
         f"R={resolution} is under what `evalkit scene info` advises for {scene.name}, {_advised(advice)}"
         + (f" (wrong next hits: {100 * rate:.1f} % at R={resolution})" if rate is not None else "")
-        + ': paths pass surfaces the rays meet, a bias no frame count removes (README, "Choosing R")'
+        + ': paths pass surfaces the rays meet, a bias no frame count removes (docs/guide.md, "Choosing R")'
     )
 
 
@@ -643,6 +643,9 @@ def _demo(args) -> int:
     for line in summary_lines(rows):
         print(line)
     print(f"report      {Path(args.out).resolve() / 'report.html'}")
+    if args.figure:
+        teaser(rows, Path(args.out), Path(args.figure))
+        print(f"figure      {args.figure}")
     return 0 if all(r["status"] == "ok" for r in rows) else 1
 
 
@@ -1079,6 +1082,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="the main job: the bundle methods on cornell-box against Mitsuba and Embree, every metric, a report",
     )
     p.add_argument("--out", default="out/demo", metavar="DIR", help="default: out/demo")
+    p.add_argument(
+        "--figure", metavar="PNG", help="also draw the README's picture there (make teaser: docs/images/teaser.png)"
+    )
     p.set_defaults(run=_demo)
 
     p = sub.add_parser(

@@ -53,3 +53,40 @@ def error_map_png(values: np.ndarray, path: Path, vmax: float | None = None) -> 
     rgba = matplotlib.colormaps["magma"](np.clip(values / vmax, 0, 1))
     save_png((rgba[..., :3] * 255 + 0.5).astype(np.uint8), path)
     return vmax
+
+
+def teaser(rows: list[dict], out: Path, path: Path) -> None:
+    """The README's picture, from a finished `evalkit demo` in ``out`` (its ``rows``): the perfect
+    and imperfect bundles' total images, Mitsuba's reference and the imperfect image's HDR-FLIP
+    map against it, each titled with the figures its row holds (FLIP, relMSE, time)."""
+    from evalkit.core.display import tonemap
+    from evalkit.core.exr import read_exr
+
+    by_method = {r["method"]: r for r in rows if r.get("status") == "ok"}
+    perfect, imperfect = by_method["perfect"], by_method["imperfect"]
+    reference = read_exr(Path(perfect["reference"]) / "total.exr")[0]
+    flip = np.load(Path(out) / "runs" / imperfect["run_id"] / "total_flip_map.npy")
+    panels = [
+        (read_exr(Path(out) / "runs" / r["run_id"] / "total.exr")[0], f"{r['method']} bundles\n"
+         f"FLIP {r['total_flip']:.3f}, relMSE {r['total_relmse']:.4f}, {r['wall_s']:.0f} s")
+        for r in (perfect, imperfect)
+    ]  # fmt: skip
+    panels.append((reference, f"Mitsuba 3\n{perfect['reference_spp']} spp path tracer"))
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 4, figsize=(10.4, 3.0))
+    for ax, (image, title) in zip(axes, panels):
+        ax.imshow(tonemap(image, REPORT_EXPOSURE))
+        ax.set_title(title, fontsize=9)
+    axes[3].imshow(flip, cmap="magma", vmin=0.0, vmax=1.0)
+    axes[3].set_title("HDR-FLIP, imperfect vs Mitsuba\n0 (black) to 1", fontsize=9)
+    for ax in axes:
+        ax.set_axis_off()
+    scene = perfect["scene"]
+    fig.suptitle(
+        f"{scene}, {perfect['bounces']} bounces, K={perfect['directions']}, R={perfect['resolution']}, "
+        f"{perfect['frames']} frames (made by `evalkit demo --figure`)",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    save_figure(fig, Path(path), dpi=100)
+    plt.close(fig)
