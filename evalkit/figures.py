@@ -4,6 +4,7 @@ evalkit.core.display's) and per-pixel error maps in magma. `evalkit view`, `eval
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -58,7 +59,7 @@ def error_map_png(values: np.ndarray, path: Path, vmax: float | None = None) -> 
 def teaser(rows: list[dict], out: Path, path: Path) -> None:
     """The README's picture, from a finished `evalkit demo` in ``out`` (its ``rows``): the perfect
     and imperfect bundles' total images, Mitsuba's reference and the imperfect image's HDR-FLIP
-    map against it, each titled with the figures its row holds (FLIP, relMSE, time)."""
+    map against it, each titled with the figures its row holds (FLIP, relMSE)."""
     from evalkit.core.display import tonemap
     from evalkit.core.exr import read_exr
 
@@ -68,10 +69,11 @@ def teaser(rows: list[dict], out: Path, path: Path) -> None:
     flip = np.load(Path(out) / "runs" / imperfect["run_id"] / "total_flip_map.npy")
     panels = [
         (read_exr(Path(out) / "runs" / r["run_id"] / "total.exr")[0], f"{r['method']} bundles\n"
-         f"FLIP {r['total_flip']:.3f}, relMSE {r['total_relmse']:.4f}, {r['wall_s']:.0f} s")
+         f"FLIP {r['total_flip']:.3f}, relMSE {r['total_relmse']:.4f}")
         for r in (perfect, imperfect)
     ]  # fmt: skip
-    panels.append((reference, f"Mitsuba 3\n{perfect['reference_spp']} spp path tracer"))
+    spp = json.loads((Path(perfect["reference"]) / "manifest.json").read_text())["spp"]
+    panels.append((reference, f"Mitsuba 3\n{spp} spp path tracer"))
     plt = pyplot()
     fig, axes = plt.subplots(1, 4, figsize=(10.4, 3.0))
     for ax, (image, title) in zip(axes, panels):
@@ -87,6 +89,6 @@ def teaser(rows: list[dict], out: Path, path: Path) -> None:
         f"{perfect['frames']} frames (made by `evalkit demo --figure`)",
         fontsize=9,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.92))
     save_figure(fig, Path(path), dpi=100)
     plt.close(fig)
