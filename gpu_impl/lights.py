@@ -188,8 +188,15 @@ class EnvironmentSamples:
             raise ValueError("an environment map without radiance has nothing to sample")
         self.pdf = cells / total  # per solid angle, per cell (H - 1, W)
         self.cdf = np.cumsum(power.ravel()) / total
+        self.cell_power, self.cell_solid_angle = power.ravel() / total, np.repeat(solid, w)
         self.radiance = radiance
         self.to_world = np.asarray(light.to_world, dtype=np.float64)[:3, :3]
+
+    def peak(self, share: float) -> float:
+        """The solid angle (sr) of the map's brightest cells that hold ``share`` of its power."""
+        order = np.argsort(self.cell_power / self.cell_solid_angle)[::-1]
+        held = np.searchsorted(np.cumsum(self.cell_power[order]), share) + 1
+        return float(self.cell_solid_angle[order[:held]].sum())
 
     def frame_samples(self, seed: int, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """This frame's M directions toward the environment (M, 3), stratified over its power, the

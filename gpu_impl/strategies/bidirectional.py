@@ -37,7 +37,7 @@ from evalkit.core.settings import setting
 from gpu_impl.context import set_uniforms
 from gpu_impl.layout import BINDINGS, LIGHT_PATH_START, LIGHT_PATH_VERTEX, NO_TRIANGLE
 from gpu_impl.lights import EmitterSamples, LightVertices
-from gpu_impl.strategies.eye import EyePaths, EyeSettings
+from gpu_impl.strategies.eye import EyePaths, EyeSettings, peaked_environment
 from gpu_impl.units import PathStrategy, TuneTerms
 
 DEFAULT_LIGHT_PATHS = 32
@@ -79,6 +79,8 @@ class BidirectionalPaths(EyePaths):
                 "bidirectional paths draw no environment samples: the environment is found by the eye "
                 "paths and by its light paths (environment_samples is for eye paths)"
             )
+            envmap = next(light for light in renderer.gpu_scene.scene.lights if light.kind == "envmap")
+            self.warnings += peaked_environment(envmap, renderer.settings.directions * renderer.settings.frames)
         self.buffers = {}  # made with the first frame, once the lights have checked that the maps fit
         self.vertex_counts = []
 

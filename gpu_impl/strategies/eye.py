@@ -51,6 +51,28 @@ class EyeSettings:
     )
 
 
+# A quarter of an environment map's power in a part of the sky that the frames' bundle directions
+# are expected to meet fewer times than this makes its light heavy-tailed noise: an unbiased
+# estimate whose frame-to-frame spread says little until they do.
+PEAK_SHARE, PEAK_LEAST_HITS = 0.25, 20.0
+
+
+def peaked_environment(envmap, directions: int) -> list[str]:
+    """A warning when ``directions`` bundle directions in all (K x frames) are expected to meet the
+    brightest part of ``envmap`` holding `PEAK_SHARE` of its power fewer than `PEAK_LEAST_HITS`
+    times (a direction and its opposite each land in solid angle W with probability W / 4 pi)."""
+    solid = EnvironmentSamples(envmap, 1).peak(PEAK_SHARE)
+    hits = directions * solid / (2.0 * np.pi)
+    if hits >= PEAK_LEAST_HITS:
+        return []
+    return [
+        f"the environment map holds {100 * PEAK_SHARE:.0f} % of its power in {100 * solid / (4 * np.pi):.3g} % "
+        f"of the sphere, which the render's {directions:,} bundle directions are expected to meet {hits:.2g} "
+        "times: its light is heavy-tailed noise and the images' intervals understate it; environment samples "
+        "(eye paths' --environment-samples) sample it every frame"
+    ]
+
+
 class EyePaths:
     """The eye strategy of one renderer: its light vertices per frame and its bounce passes."""
 
@@ -74,6 +96,8 @@ class EyePaths:
             else renderer.gl.buffer(self.environment_samples.pdf.astype(np.float32).tobytes())
         )
         self.warnings = []
+        if envmap is not None and self.environment_samples is None:
+            self.warnings += peaked_environment(envmap, renderer.settings.directions * renderer.settings.frames)
         if emitters and not settings.light_samples:
             self.warnings.append(
                 "next-event estimation is off (light_samples = 0): emissive triangles light only the "
