@@ -380,7 +380,7 @@ def test_a_sun_in_the_environment_map_is_sampled_where_its_power_is(gl, tmp_path
     alone = render(gl, scene, environment_samples=0, **kw)
     bundles_alone = mean_interval(alone, ref, "direct")
     assert bundles_alone["hi"] - bundles_alone["lo"] > 0.5, describe_interval(bundles_alone)
-    # and the render says so: 2048 directions are expected to meet the sun's 4 texels 0.27 times
+    # and the render says so: its 2048 directions are expected to meet the sky's brightest quarter 1.5 times
     assert any("heavy-tailed" in w for w in alone.warnings) and not any("heavy-tailed" in w for w in sampled.warnings)
 
 
