@@ -1,5 +1,5 @@
 # The two commands of the README. Both install what is missing first (scripts/setup.sh).
-.PHONY: setup setup-test demo teaser test lint test-slow references studies fuzz fuzz-soak check
+.PHONY: setup setup-test demo teaser docs test lint test-slow references studies fuzz fuzz-soak check
 
 setup:
 	@scripts/setup.sh
@@ -13,6 +13,10 @@ demo: setup
 # The README's picture, from the demo's results.
 teaser: setup
 	.venv/bin/evalkit demo --out out/demo --figure docs/images/teaser.png
+
+# The documentation site into site/ (open site/index.html from the file system), built strictly.
+docs: setup-test
+	NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict
 
 # The linter and formatter first (a second's work), then the suite.
 test: setup-test lint

@@ -24,6 +24,7 @@ _EXPORTS = {
     "compare_images": "evalkit.metrics.images",
     "mean_ratio": "evalkit.metrics.confidence",
     "render_ratio": "evalkit.metrics.confidence",
+    "check_scene": "evalkit.fidelity",
 }
 
 

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from evalkit.core.atomic import atomic_path
+from evalkit.core.display import tonemap
+from evalkit.core.exr import read_exr
 
 REPORT_EXPOSURE = 0.0
 
@@ -57,36 +59,31 @@ def error_map_png(values: np.ndarray, path: Path, vmax: float | None = None) -> 
 
 
 def teaser(rows: list[dict], out: Path, path: Path) -> None:
-    """The README's picture, from a finished `evalkit demo` in ``out`` (its ``rows``): the perfect
-    and imperfect bundles' total images, Mitsuba's reference and the imperfect image's HDR-FLIP
-    map against it, each titled with the figures its row holds (FLIP, relMSE)."""
-    from evalkit.core.display import tonemap
-    from evalkit.core.exr import read_exr
-
-    by_method = {r["method"]: r for r in rows if r.get("status") == "ok"}
-    perfect, imperfect = by_method["perfect"], by_method["imperfect"]
-    reference = read_exr(Path(perfect["reference"]) / "total.exr")[0]
-    flip = np.load(Path(out) / "runs" / imperfect["run_id"] / "total_flip_map.npy")
+    """The README's picture, from a finished `evalkit demo` in ``out`` (its ``rows``): each bundle
+    method's total image, Mitsuba's reference and the last method's HDR-FLIP map against it, each
+    titled with the figures its row holds (FLIP, relMSE)."""
+    runs = [r for r in rows if r.get("status") == "ok"]
     panels = [
         (read_exr(Path(out) / "runs" / r["run_id"] / "total.exr")[0], f"{r['method']} bundles\n"
          f"FLIP {r['total_flip']:.3f}, relMSE {r['total_relmse']:.4f}")
-        for r in (perfect, imperfect)
+        for r in runs
     ]  # fmt: skip
-    spp = json.loads((Path(perfect["reference"]) / "manifest.json").read_text())["spp"]
-    panels.append((reference, f"Mitsuba 3\n{spp} spp path tracer"))
+    first, last = runs[0], runs[-1]
+    spp = json.loads((Path(first["reference"]) / "manifest.json").read_text())["spp"]
+    panels.append((read_exr(Path(first["reference"]) / "total.exr")[0], f"Mitsuba 3\n{spp} spp path tracer"))
+    flip = np.load(Path(out) / "runs" / last["run_id"] / "total_flip_map.npy")
     plt = pyplot()
-    fig, axes = plt.subplots(1, 4, figsize=(10.4, 3.0))
+    fig, axes = plt.subplots(1, len(panels) + 1, figsize=(2.6 * (len(panels) + 1), 3.0))
     for ax, (image, title) in zip(axes, panels):
         ax.imshow(tonemap(image, REPORT_EXPOSURE))
         ax.set_title(title, fontsize=9)
-    axes[3].imshow(flip, cmap="magma", vmin=0.0, vmax=1.0)
-    axes[3].set_title("HDR-FLIP, imperfect vs Mitsuba\n0 (black) to 1", fontsize=9)
+    axes[-1].imshow(flip, cmap="magma", vmin=0.0, vmax=1.0)
+    axes[-1].set_title(f"HDR-FLIP, {last['method']} vs Mitsuba\n0 (black) to 1", fontsize=9)
     for ax in axes:
         ax.set_axis_off()
-    scene = perfect["scene"]
     fig.suptitle(
-        f"{scene}, {perfect['bounces']} bounces, K={perfect['directions']}, R={perfect['resolution']}, "
-        f"{perfect['frames']} frames (made by `evalkit demo --figure`)",
+        f"{first['scene']}, {first['bounces']} bounces, K={first['directions']}, R={first['resolution']}, "
+        f"{first['frames']} frames (made by `evalkit demo --figure`)",
         fontsize=9,
     )
     fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.92))

@@ -161,6 +161,29 @@ def relmse(test: np.ndarray, ref: np.ndarray, eps: float = 0.01) -> float:
     return metric(np.asarray(test, dtype=np.float64), np.asarray(ref, dtype=np.float64), eps).value
 
 
+CHROMIUM, DRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """Headless Chromium driven by Selenium (Debian's chromium and chromium-driver, which `make
+    test` installs), keeping the pages' console messages (``driver.get_log("browser")``)."""
+    if not (CHROMIUM.is_file() and DRIVER.is_file()):
+        pytest.fail("chromium and chromium-driver are missing: `make test` (scripts/setup.sh test) installs them")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    options = Options()
+    options.binary_location = str(CHROMIUM)
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1280,1000"):
+        options.add_argument(arg)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(service=Service(str(DRIVER)), options=options)
+    yield driver
+    driver.quit()
+
+
 def pytest_sessionfinish(session, exitstatus):
     """Every shader variant the suite compiled must be one that SHADER_VARIANTS lists
     (gpu_impl/shader_source.py), so the test that compiles them all compiles what runs."""

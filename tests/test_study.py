@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 from conftest import run_evalkit
+from PIL import Image
 from test_bundles import edge_gain
 
 from evalkit.core.errors import InputError
@@ -253,11 +254,13 @@ def test_the_dask_executor_gives_the_same_rows_as_the_local_one(tiny_study, tmp_
 
 
 def test_the_demo_renders_compares_and_reports(tmp_path):
-    r = run_evalkit("demo", "--out", str(tmp_path / "demo"))
+    figure = tmp_path / "teaser.png"
+    r = run_evalkit("demo", "--out", str(tmp_path / "demo"), "--figure", str(figure))
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
-    assert lines[-1] == f"report      {tmp_path / 'demo' / 'report.html'}"
-    assert lines[-3].split()[0] == "perfect" and lines[-2].split()[0] == "imperfect"
+    assert lines[-2] == f"report      {tmp_path / 'demo' / 'report.html'}" and lines[-1] == f"figure      {figure}"
+    assert lines[-4].split()[0] == "perfect" and lines[-3].split()[0] == "imperfect"
+    assert Image.open(figure).size == (1040, 300)  # the README's picture: four panels
     with open(tmp_path / "demo" / "results.csv") as f:
         rows = {row["method"]: row for row in csv.DictReader(f)}
     # The committed 16384-spp reference; 512 paths per pixel put the indirect relMSE near 0.09.

@@ -20,30 +20,12 @@ from evalkit.study.run import versions
 from evalkit.study.spec import study_from_dict
 from references.mitsuba import load_reference
 
-CHROMIUM, DRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
 STUDY = {
     "name": "viewer",
     "defaults": {"scene": "lit-room", "bounces": 1, "directions": 4, "resolution": 32, "frames": 2, "spp": 2},
     "grid": [{"method": ["perfect", "imperfect"], "width": 48}],
     "measure": {"images": ["indirect", "total"], "metrics": ["relmse", "flip"], "reference_spp": 64},
 }
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if not (CHROMIUM.is_file() and DRIVER.is_file()):
-        pytest.fail("chromium and chromium-driver are missing: `make test` (scripts/setup.sh test) installs them")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.options import Options
-    from selenium.webdriver.chrome.service import Service
-
-    options = Options()
-    options.binary_location = str(CHROMIUM)
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1280,1000"):
-        options.add_argument(arg)
-    driver = webdriver.Chrome(service=Service(str(DRIVER)), options=options)
-    yield driver
-    driver.quit()
 
 
 @pytest.fixture(scope="module")
