@@ -122,6 +122,11 @@ def _scene_check(args) -> int:
             height=args.height,
             seed=args.seed,
             tolerance=args.tolerance,
+            bundles=None
+            if args.render is None
+            else RenderSettings(
+                method=args.render, directions=args.directions, resolution=args.resolution, frames=args.frames
+            ),
             progress=bar,
         )
     finally:
@@ -140,6 +145,9 @@ def _scene_check(args) -> int:
         )
     for w in result["approximations"]:
         print(f"import      {w}")
+    if result["bundles"] is not None:
+        ratios = "  ".join(f"{name} {_ratio_text(r)}" for name, r in result["bundles"]["ratio"].items())
+        print(f"bundles     {args.render} bundles' image means over Mitsuba's render of the file: {ratios}")
     print(summary_line(result) + f" (tolerance {100 * result['tolerance']:g} %)")
     if args.json:
         print(json.dumps(result))
@@ -871,6 +879,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=None)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--tolerance", type=float, default=TOLERANCE, help="of the total image's mean, per channel")
+    p.add_argument(
+        "--render",
+        choices=METHODS.names,
+        help="also render the import with these bundles and compare it with Mitsuba's render of the file",
+    )
+    p.add_argument("--directions", type=int, default=64, help="K of --render")
+    p.add_argument("--resolution", type=int, default=128, help="R of --render")
+    p.add_argument("--frames", type=int, default=32, help="frames of --render")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_scene_check)
 

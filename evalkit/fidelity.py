@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -26,9 +27,10 @@ from evalkit.core import cache
 from evalkit.core.errors import InputError
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.mitsuba_io import load_mitsuba_original, sensor_dict, to_mitsuba_dict
-from evalkit.core.settings import IMAGES
-from evalkit.metrics.confidence import render_ratio, z_test
+from evalkit.core.settings import IMAGES, RenderSettings
+from evalkit.metrics.confidence import mean_ratio, render_ratio, z_test
 from evalkit.metrics.images import relmse
+from gpu_impl.api import render
 from references.mitsuba import chunk_images, chunk_seed, path_integrators
 
 TOLERANCE = 0.01  # the image mean, per channel
@@ -46,12 +48,17 @@ def check_scene(
     seed: int = 0,
     tolerance: float = TOLERANCE,
     variant: str | None = None,
+    bundles: RenderSettings | None = None,
     progress=None,
 ) -> dict:
     """Renders the Mitsuba file at ``path`` and the toolkit's import of it with Mitsuba (``spp``
-    samples per pixel in ``chunks`` chunks) and compares them (module docstring). Returns the
-    figures, the settings and versions that made them, and ``passed``; the result is stored in the
-    user cache under the imported scene's content, where `fidelity_of` finds it."""
+    samples per pixel in ``chunks`` chunks) and compares them (module docstring). With ``bundles``
+    (render settings; the film's size and the bounces are the check's), the import is rendered with
+    ray bundles too, and each image's mean over the original's Mitsuba render is reported with its
+    95 % interval (``bundles`` in the result: the toolkit against the file, end to end). Returns
+    the figures, the settings and versions that made them, and ``passed`` (the import's fidelity);
+    the result is stored in the user cache under the imported scene's content, where `fidelity_of`
+    finds it."""
     if not str(path).lower().endswith(".xml"):
         raise InputError(str(path), "the import check compares a Mitsuba XML file with its import")
     if chunks < 2 or spp % chunks:
@@ -71,10 +78,11 @@ def check_scene(
         runs["imported"].append(chunk_images(mi, imported, integrators, bounces, s))
         progress(f"chunk {chunk + 1}/{chunks}: {per_chunk} spp of both, {time.perf_counter() - start:.1f} s")
     a, b = np.stack(runs["imported"]), np.stack(runs["original"])  # (C, 3 images, H, W, 3)
-    images = {}
+    images, originals = {}, {}
     for i, name in enumerate(IMAGES):
         test, ref = a[:, i].mean(axis=0), b[:, i].mean(axis=0)
         test_var, ref_var = a[:, i].var(axis=0, ddof=1) / chunks, b[:, i].var(axis=0, ddof=1) / chunks
+        originals[name] = (ref, ref_var)
         ratio = render_ratio(a[:, i].mean(axis=(1, 2)), b[:, i].mean(axis=(1, 2)))
         z = z_test(test, test_var, ref, ref_var)
         images[name] = {
@@ -83,6 +91,14 @@ def check_scene(
             "z_outside_share": z["outside_share"],
             "z_tested": z["tested"],
         }
+    if bundles is not None:
+        h, w = test.shape[:2]
+        settings = replace(bundles, width=w, height=h, bounces=bounces)
+        rendered_by = render(scene, settings)
+        rendered = {
+            name: _interval(mean_ratio(rendered_by.frame_means[name], *originals[name])["all"]) for name in IMAGES
+        }
+        bundle_check = {"settings": rendered_by.params, "ratio": rendered, "warnings": rendered_by.warnings}
     total = images["total"]
     within = all(_within(r, tolerance) for r in total["ratio"])
     z_ok = not total["z_outside_share"] > 1.0 - Z_SHARE  # NaN (nothing tested: a black image) passes
@@ -96,6 +112,7 @@ def check_scene(
         "images": images,
         "approximations": list(scene.warnings),
         "passed": bool(within and z_ok),
+        "bundles": bundle_check if bundles is not None else None,
         "mitsuba": mi.__version__,
         "variant": mi.variant(),
         "evalkit": importlib.metadata.version("raybundle-evalkit"),
