@@ -167,8 +167,9 @@ class BundleTracer:
 
     @property
     def irradiance_items(self) -> int:
-        """The items precomputed node light is stored per (shaders/irradiance.glsl)."""
-        raise NotImplementedError
+        """The items precomputed node light is stored per (shaders/irradiance.glsl): none for a
+        method whose light is computed where each path lands."""
+        return 0
 
     @property
     def fixed_bytes(self) -> int:

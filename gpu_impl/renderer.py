@@ -130,7 +130,7 @@ class Renderer:
             self.strategy.light_vertices_per_frame,
             self.strategy.path_vertices_per_frame,
             self.strategy.environment_samples_per_frame,
-            getattr(self.strategy, "environment_map_size", 0),
+            self.strategy.environment_map_size,
         )
         self.warnings = list(scene.warnings) + self.strategy.warnings
         features = self.gpu_scene.features

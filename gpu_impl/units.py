@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 from evalkit.core.settings import RenderSettings, check_settings, declared
 
@@ -87,10 +87,113 @@ class Unit:
         return " ".join([self.name, *short])
 
 
+# What the renderer (gpu_impl/renderer.py, gpu_impl/lights.py) uses of the objects a unit makes:
+# every member, so that a new unit knows what it owes. tests/test_units.py checks each registered
+# unit's objects against these.
+
+
+@runtime_checkable
+class Tracer(Protocol):
+    """What a bundle method's ``tracer(...)`` makes (`gpu_impl.bundles.BundleTracer` is the shared
+    core): it builds a frame's bundles on the GPU and says what they cost."""
+
+    defines: dict  # its shader variant's defines (NODE_REFERENCE: what a node's reference is)
+    lighting: str  # where node light is computed: "auto", "precomputed" or "lazy"
+    irradiance_items: int  # how many precomputed irradiance records (per node or per splat point)
+    stats: dict  # the last build's statistics (nodes, memory, pass times)
+
+    def build(self, directions) -> dict:
+        """Build the frame's lists for a `DirectionSet`; returns the build's statistics."""
+
+    def memory_limit(self) -> tuple[int, str]:
+        """The most it may hold in bytes (the node budget, or the memory free), and that in words."""
+
+    def bind(self) -> None:
+        """Bind its buffers for the path passes."""
+
+    def uniforms(self) -> dict:
+        """The path passes' uniforms it sets (resolution, radius, splat radius ...)."""
+
+    def params(self) -> dict:
+        """Its settings as they went into the build, for provenance."""
+
+    @property
+    def gpu_bytes(self) -> int:
+        """Bytes it holds on the GPU."""
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes of nodes the last build used."""
+
+    def release(self) -> None:
+        """Free its GPU objects."""
+
+
+@runtime_checkable
+class ShadowMaps(Protocol):
+    """What a light visibility's ``maps(...)`` makes: the shadow maps of a frame's light vertices,
+    drawn into `gpu_impl.lights.ShadowLights`' atlas after its fixed lights' views."""
+
+    tiles_per_vertex: int  # atlas tiles per light vertex (6 cube faces, 1 paraboloid map ...)
+    map_size: int  # texels per tile side
+    map_size_setting: str  # the setting that gives map_size (named in limit errors)
+    nbytes: int  # bytes it holds beside the atlas
+
+    def defines(self) -> dict:
+        """Its shader variant's defines (LIGHT_VISIBILITY)."""
+
+    def check(self, light_vertices: int) -> None:
+        """Raise a `LimitError` when this many light vertices cannot be drawn."""
+
+    def render(self, lights, positions, normals, seed: int, frame: int) -> None:
+        """Draw the vertices' maps into ``lights``' atlas (positions relative to the bundle centre)."""
+
+    def release(self) -> None:
+        """Free its GPU objects."""
+
+
+@runtime_checkable
+class Paths(Protocol):
+    """What a path strategy's ``paths(...)`` makes: a frame's light vertices and bounce passes."""
+
+    warnings: list  # what the render's outputs should say about it
+    lazy_lighting_only: bool  # whether node light must be computed where each path lands
+    light_vertices_per_frame: int  # emitter samples per frame
+    path_vertices_per_frame: int  # light path vertices per frame (bidirectional paths)
+    environment_samples_per_frame: int  # directions drawn from an environment map per frame
+    environment_map_size: int  # texels per side of each environment sample's shadow map
+    environment_samples: Any  # the `EnvironmentSamples` (None without)
+    nbytes: int  # bytes it holds on the GPU
+
+    def light_vertices(self, seed: int, frame: int):
+        """The frame's `LightVertices` (only called when it has some)."""
+
+    def defines(self) -> dict:
+        """Its shader variants' defines (EMITTER_SAMPLES, ENVIRONMENT_SAMPLES, BIDIRECTIONAL)."""
+
+    def uniforms(self) -> dict:
+        """The bounce passes' uniforms it sets."""
+
+    def programs(self, defines: dict) -> dict:
+        """Its bounce passes' programs, by name."""
+
+    def bind(self) -> None:
+        """Bind its own buffers."""
+
+    def bounce(self, j: int, frame: int, lazy: bool) -> None:
+        """Every path from vertex j - 1 to vertex j."""
+
+    def stats(self) -> dict:
+        """Its own statistics of the render."""
+
+    def release(self) -> None:
+        """Free its GPU objects."""
+
+
 @dataclass(frozen=True)
 class BundleMethod(Unit):
     """A way to build ray bundles on the GPU. ``tracer(gl, gpu_scene, render_settings, **extra)``
-    makes its `gpu_impl.bundles.BundleTracer` (``extra``: the tracer's test and study hooks)."""
+    makes its `Tracer` (``extra``: the tracer's test and study hooks)."""
 
     kind: ClassVar[str] = "bundle method"
     tracer: Callable = None
@@ -99,11 +202,8 @@ class BundleMethod(Unit):
 @dataclass(frozen=True)
 class LightVisibility(Unit):
     """How light vertices (emitter samples, light-path vertices) see the scene: shadow maps of one
-    kind. ``maps(gl, gpu_scene, its_settings)`` makes the object that draws them each frame
-    (`gpu_impl.visibility`): its ``tiles_per_vertex`` and ``map_size`` in the shadow atlas (and the
-    setting that gives it, ``map_size_setting``), the
-    ``nbytes`` it holds beside the atlas, ``defines()``, ``check(V)``, ``render(...)`` and
-    ``release()``."""
+    kind. ``maps(gl, gpu_scene, its_settings)`` makes the `ShadowMaps` that draw them each frame
+    (`gpu_impl.visibility`)."""
 
     kind: ClassVar[str] = "light visibility"
     maps: Callable = None
@@ -111,8 +211,8 @@ class LightVisibility(Unit):
 
 @dataclass(frozen=True)
 class PathStrategy(Unit):
-    """How a frame's paths are made and weighted. ``paths(renderer, its_settings)`` makes the object
-    that runs them each frame (`gpu_impl.strategies`); ``light_vertices``: whether they start at the
+    """How a frame's paths are made and weighted. ``paths(renderer, its_settings)`` makes the `Paths`
+    that run them each frame (`gpu_impl.strategies`); ``light_vertices``: whether they start at the
     lights, so that every scene's frames have light vertices and their maps (otherwise only the
     emitter samples of emissive triangles have them)."""
 

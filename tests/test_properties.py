@@ -13,6 +13,7 @@ from test_stress import transformed
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import Mesh
 from evalkit.metrics.bundles import compare_bundles
+from gpu_impl.registry import METHODS
 from references.embree import ExactTracer
 
 EXAMPLES = settings(max_examples=6)
@@ -107,7 +108,7 @@ def test_splitting_triangles_in_two_keeps_coverage_watertight(gl, triangle, t):
 
 
 @EXAMPLES
-@given(seed=st.integers(0, 2**31 - 1), method=st.sampled_from(["perfect", "imperfect"]))
+@given(seed=st.integers(0, 2**31 - 1), method=st.sampled_from(METHODS.names))
 def test_the_same_seed_gives_the_same_bundles(gl, seed, method):
     scene = nested_boxes()
     a = build(gl, scene, method, K=4, R=32, seed=seed, points=2048)

@@ -22,7 +22,7 @@ from evalkit.core.scene.tessellate import box, unit_sphere
 from evalkit.core.settings import RenderSettings
 from evalkit.metrics.confidence import mean_ratio
 from gpu_impl.lights import EmitterSamples
-from gpu_impl.registry import resolve
+from gpu_impl.registry import METHODS, resolve
 from references.mitsuba import reference
 
 
@@ -454,7 +454,7 @@ def test_bounce_accounting_matches_mitsubas_max_depth(gl, tmp_path):
 # -- determinism, outputs and the CLI ------------------------------------------------------------
 
 
-@pytest.mark.parametrize("method", ["perfect", "imperfect"])
+@pytest.mark.parametrize("method", METHODS.names)
 def test_same_seed_same_image_and_a_new_seed_changes_it(gl, method):
     scene = load_scene("cornell-box")
     kw = dict(method=method, bounces=2, directions=8, resolution=32, points=4096, frames=2, width=32, height=32)
@@ -501,7 +501,7 @@ def test_imperfect_bundles_render_the_furnace_close_to_its_value(gl):
 
 @pytest.mark.parametrize("name", ["cornell-box", "furnace", "atrium"])
 def test_cli_renders_every_builtin_scene_both_ways(tmp_path, name):
-    for method in ("perfect", "imperfect"):
+    for method in METHODS.names:
         out = tmp_path / method
         r = run_evalkit(
             "render",

@@ -18,6 +18,7 @@ from evalkit.core.scene import Material, Mesh, assemble, load_scene
 from evalkit.core.scene.builtin import BUILTIN_SCENES
 from evalkit.core.scene.tessellate import box
 from evalkit.metrics.bundles import compare_bundles
+from gpu_impl.registry import METHODS
 from references.embree import ExactTracer
 
 TINY_RENDER = dict(bounces=1, directions=8, resolution=64, width=32, height=32, frames=2, spp=2, seed=5)
@@ -207,7 +208,7 @@ def test_lists_of_every_length_sort_and_merge_in_either_pass(gl):
 @pytest.mark.parametrize("name", sorted(BUILTIN_SCENES))
 def test_outputs_are_finite_and_non_negative(gl, name):
     scene = load_scene(name)
-    for method in ("perfect", "imperfect"):
+    for method in METHODS.names:
         images = render(gl, scene, method, points=4096, bounces=2)
         for key, image in images.items():
             assert np.isfinite(image).all() and (image >= 0).all(), (name, method, key)
