@@ -15,7 +15,7 @@ __version__ = "0.1.0"
 
 # What `import evalkit` offers, and the module each comes from (loaded at first use).
 _EXPORTS = {
-    "render": "gpu_impl.api",
+    "render": "evalkit.advice",
     "trace_bundles": "gpu_impl.api",
     "RenderSettings": "evalkit.core.settings",
     "load_scene": "evalkit.core.scene",

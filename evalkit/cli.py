@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from evalkit.advice import advised, cached_resolution_advice, render
 from evalkit.check import calibrate, evaluate, junit_xml
-from evalkit.core import cache
 from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.display import tonemap
 from evalkit.core.errors import InputError, check_output
@@ -31,14 +31,14 @@ from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
 from evalkit.fidelity import DEFAULT_WIDTH, TOLERANCE, check_scene, fidelity_of, summary_line
 from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png, teaser
-from evalkit.metrics.bundles import compare_bundles, resolution_advice, scene_surfaces
-from evalkit.metrics.confidence import mean_ratio, pool_renders, render_ratio, z_test
+from evalkit.metrics.bundles import compare_bundles, scene_surfaces
+from evalkit.metrics.confidence import confidence, pool_renders
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 from evalkit.tune import CALIBRATION_SHARE, Candidate, bias_text, settings_text, tune
-from gpu_impl.api import render, trace_bundles
+from gpu_impl.api import trace_bundles
 from gpu_impl.bundles import format_bytes
 from gpu_impl.registry import KINDS, METHODS, all_units, owners, resolve
 from gpu_impl.renderer import write_render
@@ -54,60 +54,6 @@ def _doctor(args) -> int:
     if args.json:
         print(json.dumps({"ok": ok, **results}))
     return 0 if ok else 1
-
-
-ADVICE_SOURCES = [
-    Path(__file__).parent / "metrics" / "bundles.py",
-    Path(__file__).parent.parent / "references" / "embree.py",
-]
-
-
-def _resolution_advice(scene, seed: int = 0, probe: bool = True) -> dict | None:
-    """`resolution_advice` for ``scene``, from the user cache where it is; else probed and cached
-    (``probe``) or None. Embree's probes grow with the scene and the R it needs (16 s on atrium on
-    2 cores, a render alongside): they are kept by the scene's content and the code that makes
-    the advice."""
-    key = f"advice-{scene.content_hash()}-seed{seed}-{cache.code_hash(*ADVICE_SOURCES)}"
-    advice = cache.load("facts", key)
-    if advice is None and probe:
-        advice = resolution_advice(scene, ExactTracer(scene), seed=seed)
-        cache.store("facts", key, advice)
-    return advice
-
-
-def _advised(advice: dict) -> str:
-    """The advice in a few words: the least R, or that none probed was enough."""
-    recommended = advice["recommended"]
-    return f"R >= {recommended}" if recommended else f"more than R={max(advice['error_rate'])}"
-
-
-def _below_advice(scene, resolution: int) -> str | None:
-    """A warning when ``resolution`` is under the R that `evalkit scene info` advised for ``scene``
-    (its default seed's advice, when cached: a render does not wait for the probe)."""
-    advice = _resolution_advice(scene, probe=False)
-    if advice is None:
-        return None
-    if advice["recommended"] is not None and resolution >= advice["recommended"]:
-        return None
-    rate = advice["error_rate"].get(resolution)
-    return (
-        f"R={resolution} is under what `evalkit scene info` advises for {scene.name}, {_advised(advice)}"
-        + (f" (wrong next hits: {100 * rate:.1f} % at R={resolution})" if rate is not None else "")
-        + ': paths pass surfaces the rays meet, a bias no frame count removes (docs/guide.md, "Choosing R")'
-    )
-
-
-def _record_fidelity(scene, result) -> None:
-    """Puts the import check's figures, where `evalkit scene check` has run on this scene, in the
-    render's statistics (timings.json), and a warning when the check failed."""
-    fidelity = fidelity_of(scene)
-    if fidelity is None:
-        return
-    result.stats["import_fidelity"] = {
-        k: fidelity[k] for k in ("passed", "tolerance", "settings", "mitsuba", "evalkit")
-    } | {"total": fidelity["images"]["total"]}
-    if not fidelity["passed"]:
-        result.warnings.append(summary_line(fidelity))
 
 
 def _scene_check(args) -> int:
@@ -193,10 +139,10 @@ def _scene_info(args) -> int:
         f"features    textures={f['textures']} emitters={f['emitters']} environment={f['environment']} "
         f"lights={','.join(f['light_types']) or '-'}"
     )
-    advice = _resolution_advice(scene, args.seed)
+    advice = cached_resolution_advice(scene, args.seed)
     probed = ", ".join(f"{100 * e:.1f} % at R={r}" for r, e in advice["error_rate"].items())
     print(
-        f"resolution  {_advised(advice)}: wrong next hits {probed} "
+        f"resolution  {advised(advice)}: wrong next hits {probed} "
         f'(target {100 * advice["target"]:.0f} %, docs/MEASURED_FACTS.md "Choosing R")'
     )
     info["resolution"] = advice
@@ -428,10 +374,6 @@ def _render(args) -> int:
         raise InputError("evalkit render", str(e)) from None
     finally:
         bar.close()
-    below = _below_advice(scene, settings.resolution)
-    if below:
-        result.warnings.append(below)
-    _record_fidelity(scene, result)
     written = write_render(result, args.out)
     p, t = result.params, result.timings
     print(
@@ -524,29 +466,28 @@ def _test_image(paths: list[str]) -> tuple[np.ndarray, np.ndarray | None, dict]:
 
 
 def _confidence(ref_path, test, test_variance, test_meta, ref, ref_meta) -> dict:
-    """The mean ratio with its interval and the z-test (both variances), as far as the files
-    allow. The ratio's interval takes the test's frame means and, for a Mitsuba reference, the
-    variance beside it (its ``_variance.exr`` sibling); against another of the toolkit's renders,
-    that render's frame means (`render_ratio`: paired frame by frame where the counts match)."""
+    """`evalkit.metrics.confidence.confidence` as far as the files allow, printed. The ratio's
+    interval takes the test's frame means and, for a Mitsuba reference, the variance beside it (its
+    ``_variance.exr`` sibling); against another of the toolkit's renders, that render's frame means
+    (`render_ratio`: paired frame by frame where the counts match)."""
     ref_variance = _variance_of(ref_path)
-    out = {}
-    frame_means = test_meta.get("frame_means")
-    if frame_means and ref_meta.get("frame_means"):
-        # Never from a render's per-pixel variances: they would make its image mean look surer than it is.
-        r = out["render_ratio"] = render_ratio(np.asarray(frame_means), np.asarray(ref_meta["frame_means"]))
-        counted = f"{r['frames'][0]} frame pairs" if r["paired"] else "unpaired: {} and {} frames".format(*r["frames"])
-    elif frame_means and ref_variance is not None:
-        r = out["mean_ratio"] = mean_ratio(np.asarray(frame_means), ref, ref_variance)
-        counted = f"{r['frames']} frames"
-    if out:
+    out = confidence(
+        test, test_variance, test_meta.get("frame_means"), ref, ref_variance, ref_meta.get("frame_means") or None
+    )
+    r = out.get("render_ratio") or out.get("mean_ratio")
+    if r is not None:
+        if "render_ratio" in out:
+            counted = (
+                f"{r['frames'][0]} frame pairs" if r["paired"] else "unpaired: {} and {} frames".format(*r["frames"])
+            )
+        else:
+            counted = f"{r['frames']} frames"
         channels = ", ".join(_interval(c) for c in r["per_channel"])
         print(f"mean ratio  {_interval(r['all'])} ({r['level']:.0%} interval, {counted}); rgb {channels}")
     if ref_variance is None:
-        print(f"{'z-test' if out else 'confidence':12}none: the reference has no _variance.exr beside it")
-        return out
-    if test_variance is not None:
-        z = z_test(test, test_variance, ref, ref_variance)
-        out["z_test"] = {k: v for k, v in z.items() if k != "map"}
+        print(f"{'z-test' if r is not None else 'confidence':12}none: the reference has no _variance.exr beside it")
+    elif "z_test" in out:
+        z = out["z_test"]
         print(
             f"z-test      {z['outside_share']:.3%} of {z['tested']:,} values outside |z| > {z['threshold']:.2f} "
             f"(alpha {z['alpha']:g}, Sidak)"

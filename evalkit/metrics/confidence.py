@@ -189,3 +189,27 @@ def z_test(test: np.ndarray, test_variance: np.ndarray, ref: np.ndarray, ref_var
         "outside_share": outside / n if n else math.nan,
         "map": np.abs(z).max(axis=2),
     }
+
+
+def confidence(
+    test: np.ndarray,
+    test_variance: np.ndarray | None,
+    frame_means: np.ndarray | None,
+    ref: np.ndarray,
+    ref_variance: np.ndarray | None,
+    ref_frame_means: np.ndarray | None = None,
+) -> dict:
+    """How sure the comparison of a render's image with a reference is, as far as what is known
+    allows; what `evalkit compare` prints and a study's rows hold. ``render_ratio`` where the
+    reference is another render with its frames' means (never from a render's per-pixel variances:
+    they would make its image mean look surer than it is), else ``mean_ratio`` where the test has
+    frame means and the reference a variance; ``z_test`` (without its map) where both have a
+    variance. Keys are left out where their inputs are missing."""
+    out = {}
+    if frame_means is not None and ref_frame_means is not None:
+        out["render_ratio"] = render_ratio(np.asarray(frame_means), np.asarray(ref_frame_means))
+    elif frame_means is not None and ref_variance is not None:
+        out["mean_ratio"] = mean_ratio(np.asarray(frame_means), ref, ref_variance)
+    if test_variance is not None and ref_variance is not None:
+        out["z_test"] = {k: v for k, v in z_test(test, test_variance, ref, ref_variance).items() if k != "map"}
+    return out

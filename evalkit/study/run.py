@@ -22,7 +22,7 @@ from evalkit.core.errors import LimitError
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene, load_scene
 from evalkit.metrics.bundles import compare_bundles, eye_vertices, next_hit_errors, scene_surfaces
-from evalkit.metrics.confidence import mean_ratio, z_test
+from evalkit.metrics.confidence import confidence
 from evalkit.metrics.images import compare_images
 from evalkit.study.artefacts import exact_bundles, exact_tracer, film_size, reference_for
 from evalkit.study.spec import render_settings, run_id
@@ -120,15 +120,16 @@ def _confidence(name: str, result, ref) -> dict:
     """How sure the comparison of one image is: the ratio of its mean to the reference's with the
     95 % interval, and the share of pixels the z-test finds outside the noise
     (`evalkit.metrics.confidence`)."""
-    ratio = mean_ratio(result.frame_means[name], ref.images[name], ref.variances[name])["all"]
+    variance = None if result.variances is None else result.variances[name]
+    c = confidence(result.images[name], variance, result.frame_means[name], ref.images[name], ref.variances[name])
+    ratio = c["mean_ratio"]["all"]
     row = {
         f"{name}_mean_ratio": ratio["ratio"],
         f"{name}_mean_ratio_lo": ratio["lo"],
         f"{name}_mean_ratio_hi": ratio["hi"],
     }
-    if result.variances is not None:
-        z = z_test(result.images[name], result.variances[name], ref.images[name], ref.variances[name])
-        row[f"{name}_z_outside"] = z["outside_share"]
+    if "z_test" in c:
+        row[f"{name}_z_outside"] = c["z_test"]["outside_share"]
     return row
 
 
