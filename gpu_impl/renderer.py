@@ -190,6 +190,7 @@ class Renderer:
             "camera_origin": tuple(self.camera["origin"]),
             "camera_to_world": tuple(self.camera["to_world"].T.ravel()),
             "tan_half_fov": tuple(self.camera["tan_half"]),
+            "orthographic": self.camera["orthographic"],
             **self.strategy.uniforms(),
         }
         for program in self.programs.values():
@@ -460,6 +461,19 @@ def gbuffer_projection(cam: dict, size: tuple[int, int], subpixel: np.ndarray) -
     tx, ty = cam["tan_half"]
     w, h = size
     n, f = cam["near"], cam["far"]
+    if cam["orthographic"]:
+        # film u = 1/2 - x / (2 tan_x) at any depth z (camera space, the plane's units), z from 0.
+        return (
+            np.array(
+                [
+                    [-1.0 / tx, 0.0, 0.0, (1.0 - 2.0 * subpixel[0]) / w],
+                    [0.0, -1.0 / ty, 0.0, (1.0 - 2.0 * subpixel[1]) / h],
+                    [0.0, 0.0, 2.0 / f, -1.0],
+                    [0.0, 0.0, 0.0, 1.0],
+                ]
+            )
+            @ to_camera
+        )
     # film u = 1/2 - x / (2 z tan_x) and v = 1/2 - y / (2 z tan_y); the rasterizer samples pixel
     # centres, so pixel x's centre x + 1/2 must sit at u w = x + subpixel_x.
     proj = np.array(

@@ -16,7 +16,16 @@ from evalkit.reference_docs import commands
 from gpu_impl.registry import all_units
 
 REPO = Path(__file__).resolve().parent.parent
-PAGES = ("index", "guide", "method", "ARCHITECTURE", "reference/cli", "reference/settings", "reference/api", "changelog")
+PAGES = (
+    "index",
+    "guide",
+    "method",
+    "ARCHITECTURE",
+    "reference/cli",
+    "reference/settings",
+    "reference/api",
+    "changelog",
+)
 
 
 @pytest.fixture(scope="module")

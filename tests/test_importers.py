@@ -400,7 +400,11 @@ def test_instances_cylinders_and_flipped_shapes_import_as_mitsuba_sees_them(mi, 
             '<shape type="bsplinecurve"><string name="filename" value="c.txt"/></shape>',
             "plugin BSplineCurve is not supported",
         ),
-        ('<sensor type="orthographic"/>', "sensor plugin OrthographicCamera is not supported"),
+        (
+            '<sensor type="radiancemeter"><film type="hdrfilm"><integer name="width" value="1"/>'
+            '<integer name="height" value="1"/></film></sensor>',
+            "sensor plugin RadianceMeter is not supported",
+        ),
         (
             '<emitter type="spot"><texture type="bitmap" name="texture"><string name="filename" value="tex.png"/>'
             "</texture></emitter>",

@@ -8,6 +8,7 @@ comments give the measured values.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -671,3 +672,14 @@ def test_contact_shadows_match_mitsuba(gl, tmp_path, images, light, view):
     assert direct["hi"] - direct["lo"] < 0.03, describe_interval(direct)  # enough frames to see a leak
     if not direct["lo"] <= 1.0 <= direct["hi"]:
         pytest.fail(images.keep("direct", result.images["direct"], ref.images["direct"], describe_interval(direct)))
+
+
+def test_an_orthographic_camera_sees_what_mitsubas_does(gl, tmp_path):
+    # Measured (this test's settings): direct relMSE 0.012 against Mitsuba's 256 spp; 0.33 and 0.17
+    # with the render mirrored left to right or top to bottom.
+    scene = load_scene(str(Path(__file__).parent / "data" / "import_corpus" / "orthographic.xml"))
+    assert scene.camera.orthographic
+    ref = reference(scene, bounces=1, spp=256, width=48, height=32, store=tmp_path, progress=lambda line: None)
+    result = render(gl, scene, bounces=1, directions=16, resolution=128, frames=8, width=48, height=32)
+    a, b = result.images["direct"], ref.images["direct"]
+    assert relmse(a, b) < 0.04 and min(relmse(a[:, ::-1], b), relmse(a[::-1], b)) > 0.1

@@ -68,6 +68,7 @@ from evalkit.core.scene.edges import (
     splat_cuts,
     triangle_neighbours,
 )
+from evalkit.core.scene.model import camera_rays
 from evalkit.core.settings import DEPTH_TOLERANCE, RenderSettings
 
 DEFAULT_SELF_HIT_BIAS = RenderSettings().self_hit_bias
@@ -366,10 +367,7 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
     w, h = scene.camera.film_size(width, height)
     cam = scene.camera.frame(np.zeros(3), w, h)
     film = rng.random((count, 2))
-    tx, ty = cam["tan_half"]
-    local = np.stack([(0.5 - film[:, 0]) * 2 * tx, (0.5 - film[:, 1]) * 2 * ty, np.ones(count)], axis=1)
-    origins = np.broadcast_to(cam["origin"], (count, 3))
-    rays = local @ cam["to_world"].T
+    origins, rays = camera_rays(cam, film)
     points, normals, geometric, triangles = [], [], [], []
     for _ in range(2):
         hits = tracer.next_hit(origins, rays)

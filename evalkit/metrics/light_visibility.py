@@ -16,6 +16,7 @@ import numpy as np
 
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import Scene
+from evalkit.core.scene.model import camera_rays
 from evalkit.core.settings import RenderSettings
 from gpu_impl.context import GLContext, set_uniforms
 from gpu_impl.layout import BINDINGS
@@ -45,10 +46,7 @@ def camera_points(scene: Scene, count: int, seed: int) -> tuple[np.ndarray, np.n
     uniformly drawn film positions (by Embree rays), and their shading normals turned to the camera."""
     camera = scene.camera.frame(np.zeros(3), *scene.camera.film_size(None, None))
     film = np.random.default_rng([seed, 4]).random((count, 2))
-    tan_x, tan_y = camera["tan_half"]
-    local = np.stack([(1 - 2 * film[:, 0]) * tan_x, (1 - 2 * film[:, 1]) * tan_y, np.ones(count)], axis=1)
-    directions = local @ camera["to_world"].T
-    origins = np.broadcast_to(camera["origin"], directions.shape)
+    origins, directions = camera_rays(camera, film)
     hits = ExactTracer(scene).next_hit(origins, directions)
     seen = hits.prim_id >= 0
     normals = hits.normal[seen] * -np.sign(np.einsum("ij,ij->i", hits.normal[seen], directions[seen]))[:, None]

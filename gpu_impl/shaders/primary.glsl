@@ -19,7 +19,8 @@ uniform ivec2 gbuffer_size;     // W s x H s
 uniform uint paths_per_sample;
 uniform vec3 camera_origin;     // relative to the bundle centre
 uniform mat3 camera_to_world;   // Mitsuba's camera space: +x left, +y up, +z forward
-uniform vec2 tan_half_fov;      // along x and y
+uniform vec2 tan_half_fov;      // along x and y; an orthographic camera's half extent at its plane
+uniform bool orthographic;      // rays along camera_to_world's +z from points of its plane
 uniform vec2 subpixel;          // this frame's sample position inside each G-buffer pixel, in [0, 1)^2
 
 void main() {
@@ -28,7 +29,9 @@ void main() {
     uint s = id / paths_per_sample;
     ivec2 xy = ivec2(s % uint(gbuffer_size.x), s / uint(gbuffer_size.x));
     vec2 film = (vec2(xy) + subpixel) / vec2(gbuffer_size);  // (0, 0) is the image's top left
-    vec3 dir = normalize(camera_to_world * vec3((1.0 - 2.0 * film.x) * tan_half_fov.x, (1.0 - 2.0 * film.y) * tan_half_fov.y, 1.0));
+    vec2 at = (1.0 - 2.0 * film) * tan_half_fov;
+    vec3 eye = orthographic ? camera_origin + camera_to_world * vec3(at, 0.0) : camera_origin;
+    vec3 dir = normalize(camera_to_world * (orthographic ? vec3(0.0, 0.0, 1.0) : vec3(at, 1.0)));
     uint visible = texelFetch(gbuffer, xy, 0).r;
     // A sample's paths share its first vertex, so what it sees and what reaches it through shadow maps
     // and connections is the same for each: the first path gathers that once, counted for all of
@@ -46,7 +49,7 @@ void main() {
         uvec3 v = triangle_vertices(t);
         vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;
         // Moller-Trumbore: the camera ray meets the triangle's plane at depth, barycentrics (b1, b2).
-        vec3 so = camera_origin - p0, pv = cross(dir, e2), qv = cross(so, e1);
+        vec3 so = eye - p0, pv = cross(dir, e2), qv = cross(so, e1);
         float inv = 1.0 / dot(e1, pv);
         float b1 = dot(so, pv) * inv, b2 = dot(dir, qv) * inv, depth = dot(e2, qv) * inv;
         vec3 n = shading_normal(t, v, b1, b2);
@@ -57,13 +60,13 @@ void main() {
             else n = -n;
             vec3 albedo = material_albedo(m, surface_uv(v, b1, b2));
 #if SHADOW_LIGHTS
-            if (gathers) direct += albedo * INV_PI * light_irradiance(camera_origin + depth * dir, n, 0.0);
+            if (gathers) direct += albedo * INV_PI * light_irradiance(eye + depth * dir, n, 0.0);
 #endif
 #if BIDIRECTIONAL
             // Connections from the first eye vertex to light path vertices are indirect light.
-            if (gathers) sums[id].indirect.rgb += share * albedo * INV_PI * connections(camera_origin + depth * dir, n, 0, 0.0);
+            if (gathers) sums[id].indirect.rgb += share * albedo * INV_PI * connections(eye + depth * dir, n, 0, 0.0);
 #endif
-            path = Path(camera_origin + depth * dir, encode_normal(n), vec3(1.0), PATH_FROM_CAMERA, albedo,
+            path = Path(eye + depth * dir, encode_normal(n), vec3(1.0), PATH_FROM_CAMERA, albedo,
                         dot(triangle_normal(t), dir) < 0.0 ? t : t | PATH_BACK);
             atomicAdd(alive_paths, 1u);
         }

@@ -11,6 +11,7 @@ import numpy as np
 
 from evalkit.core.errors import InputError
 from evalkit.core.scene.model import (
+    CAMERA_KINDS,
     FILTER_TYPES,
     FOV_AXES,
     LIGHT_KINDS,
@@ -251,10 +252,14 @@ def _validate_light(source: str, light: Light) -> None:
 
 
 def _validate_camera(source: str, camera: Camera) -> None:
+    if camera.kind not in CAMERA_KINDS:
+        raise InputError(source, f"camera kind '{camera.kind}' is not one of {CAMERA_KINDS}")
     if camera.fov_axis not in FOV_AXES:
         raise InputError(source, f"camera fov axis '{camera.fov_axis}' is not one of {FOV_AXES}")
-    if not 0 < camera.fov < 180:
+    if not camera.orthographic and not 0 < camera.fov < 180:
         raise InputError(source, f"camera fov {camera.fov} is outside (0, 180) degrees")
+    if camera.orthographic and not abs(np.linalg.det(camera.to_world[:3, :3])) > 0:
+        raise InputError(source, "the orthographic camera's transform is singular: it sees nothing")
     if camera.width < 1 or camera.height < 1:
         raise InputError(source, f"camera resolution {camera.width}x{camera.height} is empty")
     _check_finite(source, "camera transform", camera.to_world)

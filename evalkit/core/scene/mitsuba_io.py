@@ -13,6 +13,7 @@ Import rules:
   other BSDF is approximated as diffuse with a warning, once per BSDF, recorded in the scene;
 - emitters: area (uniform radiance), point, spot (without a projected texture), directional,
   constant and envmap; media are named in a warning;
+- sensors: perspective and orthographic;
 - anything the toolkit cannot represent is refused in one line that names it (another shape or
   sensor plugin, a textured area emitter or spot light, vertex and face colours), never dropped;
 - the scene's integrator, its sensor's sampler and its film (but the film's width and height) are
@@ -462,18 +463,20 @@ def _unit(v) -> np.ndarray:
 
 def _camera(mi, sensor, source: str) -> Camera:
     kind = sensor.class_name()
-    if kind != "PerspectiveCamera":
-        raise InputError(source, f"sensor plugin {kind} is not supported (only a pinhole perspective camera)")
+    if kind not in ("PerspectiveCamera", "OrthographicCamera"):
+        raise InputError(source, f"sensor plugin {kind} is not supported (only perspective and orthographic)")
     p = mi.traverse(sensor)
     width, height = (int(x) for x in sensor.film().size())
+    orthographic = kind == "OrthographicCamera"
     return Camera(
-        _matrix(p["to_world"]),
-        fov=float(_np(p["x_fov"]).ravel()[0]),
+        _matrix(p["to_world"]),  # an orthographic camera's scale is how much it sees
+        fov=0.0 if orthographic else float(_np(p["x_fov"]).ravel()[0]),
         fov_axis="x",  # Mitsuba stores every fov axis as x_fov once loaded
         width=width,
         height=height,
         near_clip=float(_np(p["near_clip"]).ravel()[0]),
         far_clip=float(_np(p["far_clip"]).ravel()[0]),
+        kind="orthographic" if orthographic else "perspective",
     )
 
 
@@ -523,10 +526,10 @@ def sensor_dict(camera: Camera, mi, spp: int, width: int | None, height: int | N
     width, height = camera.film_size(width, height)
     to_world = camera.to_world.copy()
     to_world[:3, 3] += np.asarray(offset, dtype=np.float64)
+    lens = {"fov": camera.fov, "fov_axis": camera.fov_axis} if not camera.orthographic else {}
     return {
-        "type": "perspective",
-        "fov": camera.fov,
-        "fov_axis": camera.fov_axis,
+        "type": camera.kind,
+        **lens,
         "near_clip": camera.near_clip,
         "far_clip": camera.far_clip,
         "to_world": mi.ScalarTransform4f(to_world.tolist()),

@@ -130,12 +130,17 @@ class Light:
     to_world: np.ndarray | None = None
 
 
+CAMERA_KINDS = ("perspective", "orthographic")  # Mitsuba's sensors of the same names
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
-    """A pinhole perspective camera.
+    """A pinhole perspective camera, or an orthographic one, as Mitsuba's sensors of those names.
 
     ``to_world`` (4x4 float64) maps camera space (looking along +z, +y up) to scene space. ``fov``
-    is in degrees along ``fov_axis`` ('x' or 'y').
+    is in degrees along ``fov_axis`` ('x' or 'y'). An orthographic camera has no fov: its rays
+    start at camera-space points (x, y, 0), x from 1 to -1 across the film and y from 1 / aspect to
+    -1 / aspect down it, through ``to_world``, whose scale sets how much it sees.
     """
 
     to_world: np.ndarray
@@ -145,6 +150,11 @@ class Camera:
     height: int
     near_clip: float = 1e-3
     far_clip: float = 1e4
+    kind: str = "perspective"
+
+    @property
+    def orthographic(self) -> bool:
+        return self.kind == "orthographic"
 
     @property
     def position(self) -> np.ndarray:
@@ -163,18 +173,38 @@ class Camera:
 
     def frame(self, centre: np.ndarray, width: int, height: int) -> dict:
         """The camera relative to ``centre`` for a ``width`` x ``height`` film: origin, to_world
-        (3x3, Mitsuba's camera space: +x left, +y up, +z forward), tan of the half field of view
-        along x and y, near and far."""
+        (3x3, Mitsuba's camera space: +x left, +y up, +z forward), the film's half extent along x
+        and y in camera space at unit depth (perspective: the tans of the half field of view) or at
+        the camera plane (orthographic: 1 and 1 / aspect), near, far and whether it is orthographic."""
         aspect = width / height
-        t = math.tan(math.radians(self.fov) / 2.0)
-        tan_half = (t, t / aspect) if self.fov_axis == "x" else (t * aspect, t)
+        if self.orthographic:
+            tan_half = (1.0, 1.0 / aspect)
+        else:
+            t = math.tan(math.radians(self.fov) / 2.0)
+            tan_half = (t, t / aspect) if self.fov_axis == "x" else (t * aspect, t)
         return {
             "origin": self.to_world[:3, 3] - centre,
             "to_world": self.to_world[:3, :3],
             "tan_half": tan_half,
             "near": self.near_clip,
             "far": self.far_clip,
+            "orthographic": self.orthographic,
         }
+
+
+def camera_rays(frame: dict, film: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The camera rays of a `Camera.frame` through film positions (N, 2) in [0, 1]^2 ((0, 0) the
+    image's top left): origins and directions (N, 3), as shaders/primary.glsl makes them; the
+    directions are not normalized (a perspective ray's reaches the film at unit depth)."""
+    tx, ty = frame["tan_half"]
+    local = np.stack([(1.0 - 2.0 * film[:, 0]) * tx, (1.0 - 2.0 * film[:, 1]) * ty, np.zeros(len(film))], axis=1)
+    if frame["orthographic"]:
+        origins = frame["origin"] + local @ frame["to_world"].T
+        directions = np.broadcast_to(frame["to_world"][:, 2], origins.shape)
+    else:
+        origins = np.broadcast_to(frame["origin"], local.shape)
+        directions = (local + [0.0, 0.0, 1.0]) @ frame["to_world"].T
+    return origins, directions
 
 
 @dataclass(frozen=True)
@@ -350,4 +380,6 @@ class Scene:
             )
         c = self.camera
         put(c.to_world, c.fov, c.fov_axis, c.width, c.height, c.near_clip, c.far_clip)
+        if c.orthographic:  # a perspective camera keeps the hashes of stored references
+            put(c.kind)
         return h.hexdigest()
