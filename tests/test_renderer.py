@@ -8,6 +8,7 @@ comments give the measured values.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -683,3 +684,10 @@ def test_an_orthographic_camera_sees_what_mitsubas_does(gl, tmp_path):
     result = render(gl, scene, bounces=1, directions=16, resolution=128, frames=8, width=48, height=32)
     a, b = result.images["direct"], ref.images["direct"]
     assert relmse(a, b) < 0.04 and min(relmse(a[:, ::-1], b), relmse(a[::-1], b)) > 0.1
+
+
+def test_a_black_environment_map_renders_black_without_samples_to_draw(gl):
+    scene = sun_box()
+    black = replace(scene, lights=[replace(scene.lights[0], envmap=np.zeros_like(scene.lights[0].envmap))])
+    result = render(gl, black, bounces=1, directions=4, resolution=32, frames=1, width=8, height=6)
+    assert all(not image.any() for image in result.images.values())

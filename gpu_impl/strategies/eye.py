@@ -73,6 +73,10 @@ def peaked_environment(envmap, directions: int) -> list[str]:
     ]
 
 
+def _emits(light) -> bool:
+    return bool(np.any(light.envmap > 0) and max(light.intensity) > 0)
+
+
 class EyePaths:
     """The eye strategy of one renderer: its light vertices per frame and its bounce passes."""
 
@@ -83,7 +87,8 @@ class EyePaths:
         self.emitter_samples = (
             EmitterSamples(scene.scene, settings.light_samples) if emitters and settings.light_samples else None
         )
-        envmap = next((light for light in scene.scene.lights if light.kind == "envmap"), None)
+        # An environment map that emits: a black one has nothing to sample.
+        envmap = next((light for light in scene.scene.lights if light.kind == "envmap" and _emits(light)), None)
         self.environment_samples = (
             EnvironmentSamples(envmap, settings.environment_samples)
             if envmap is not None and settings.environment_samples
