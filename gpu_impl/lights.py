@@ -173,7 +173,7 @@ class EnvironmentSamples:
     """
 
     def __init__(self, light: Light, count: int):
-        self.light, self.count = light, int(count)
+        self.count = int(count)
         radiance = np.asarray(light.envmap, dtype=np.float64) * np.asarray(light.intensity)
         h, w = radiance.shape[:2]
         lum = radiance.mean(axis=2)
@@ -404,7 +404,7 @@ class ShadowLights:
         # The environment samples' records and views (directional, redrawn every frame) follow the
         # fixed lights' (drawn once for a static scene), then the light vertices' (every frame).
         self.static_lights, self.static_views = len(records), 0 if fixed is None else len(fixed.texel)
-        self.environment_samples, self.environment_map_size = environment_samples, environment_map_size
+        self.environment_map_size = environment_map_size
         self.fixed_lights = self.static_lights + environment_samples
         self.fixed_views = self.static_views + environment_samples
         self.buffers = {}
