@@ -314,16 +314,16 @@ def _material(mi, bsdf, shape_name: str, emission, warnings: list[str], source: 
     texture, albedo, off = _reflectance(mi, bsdf, params)
     notes = []
     if not diffuse:
-        notes.append(f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo {_rounded(albedo)}")
-        if max(albedo) > 1.0:
-            # A conductor's "diffuse reflectance" is its specular one, up to 6 or more: a diffuse
-            # surface with it would create energy.
-            notes[-1] += f" (its diffuse reflectance {_rounded(albedo)} clamped to 1)"
-            albedo = tuple(min(a, 1.0) for a in albedo)
-            if texture.get("texture") is not None:
-                texture["texture"] = np.minimum(texture["texture"], 1.0)
-        else:
-            notes[-1] += " (its diffuse reflectance)"
+        # A rough conductor's "diffuse reflectance" reads as 20 or more: a diffuse surface with it
+        # would create energy.
+        clamped = tuple(min(a, 1.0) for a in albedo)
+        reflectance = "its diffuse reflectance" + ("" if clamped == albedo else f" {_rounded(albedo)}, clamped to 1")
+        notes.append(
+            f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo {_rounded(clamped)} ({reflectance})"
+        )
+        if texture.get("texture") is not None:
+            texture["texture"] = np.minimum(texture["texture"], 1.0)
+        albedo = clamped
     if off > TEXTURE_TOLERANCE:
         notes.append(
             f"BSDF '{name}': its reflectance texture is baked to a {_shape(texture)} bitmap, "
