@@ -55,7 +55,7 @@ CAPACITY_SLACK = 1.125
 FRAMES_BYTES = BUNDLE_FRAME.itemsize * MAX_DIRECTIONS
 # The share of the free memory a build may take: the rest is for the process and the driver. On
 # llvmpipe the raster pass of atrium-dense (2.4 M triangles, K=256, R=1024) took 1.4 GiB beyond
-# its buffers, and with 80 % the memory cgroup killed it (docs/MEASURED_FACTS.md).
+# its buffers, and with 80 % the memory cgroup killed it (docs/platform.md).
 MEMORY_HEADROOM = 0.5
 SCAN_BLOCK = SCAN_PER_THREAD * LOCAL_SIZE  # values one workgroup of shaders/prefix_sum.glsl scans
 

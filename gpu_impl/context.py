@@ -188,7 +188,7 @@ class GLContext:
     # map waits for the passes before it, and a buffer the CPU keeps touching may be moved to
     # system memory, where every atomic of the next pass crosses the bus (on an H100 a perfect
     # frame of parts at K=64, R=512 took 1.7 s with maps and 0.04 s without,
-    # docs/MEASURED_FACTS.md). llvmpipe's buffers are system memory either way.
+    # docs/platform.md). llvmpipe's buffers are system memory either way.
     def fill(self, buffer, value: int = 0) -> None:
         """Every 32-bit word of ``buffer`` set to ``value``, by the GL (glClearNamedBufferData)."""
         if buffer.size % 4:

@@ -12,7 +12,7 @@ import glob
 import os
 import re
 
-# Checked to work (docs/MEASURED_FACTS.md); newer ones are tried after it, older ones are known to fail.
+# Checked to work (docs/platform.md); newer ones are tried after it, older ones are known to fail.
 MIN_LLVM_MAJOR = 17
 PREFERRED_LLVM_MAJOR = 19
 
@@ -80,7 +80,7 @@ def cuda_usable() -> bool:
 def default_variant() -> str:
     """``cuda_ad_rgb`` where a GPU driver is there, else ``llvm_ad_rgb`` when a working LLVM is
     there, else ``scalar_rgb`` (no LLVM, about half the speed). With the independent sampler the
-    same seed gives the same image on llvm and scalar (docs/MEASURED_FACTS.md).
+    same seed gives the same image on llvm and scalar (docs/platform.md).
 
     ``EVALKIT_MITSUBA_VARIANT`` overrides the choice.
     """

@@ -23,7 +23,7 @@ from evalkit.core.scene.model import (
     Scene,
 )
 
-# Embree silently ignores primitives with coordinates above about 1.8e18 (docs/MEASURED_FACTS.md).
+# Embree silently ignores primitives with coordinates above about 1.8e18 (docs/platform.md).
 MAX_COORDINATE = 1e18
 # A triangle is degenerate when its area is below this fraction of its longest edge squared: the
 # sine of its largest angle is then at float64 round-off level and no rasterizer or ray tracer can

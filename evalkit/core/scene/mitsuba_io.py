@@ -488,7 +488,7 @@ def to_mitsuba_dict(scene: Scene, mi, spp: int = 64, width: int | None = None, h
 
     ``mi`` is the Mitsuba module with the variant to build for (the meshes are Mitsuba objects).
     The sensor uses a box pixel filter and a float32 film, which is what comparisons with the
-    rasterizer need (docs/MEASURED_FACTS.md). Positions are in scene space (recentred).
+    rasterizer need (docs/platform.md). Positions are in scene space (recentred).
     """
     d: dict = {"type": "scene", "sensor": sensor_dict(scene.camera, mi, spp, width, height)}
     bsdfs = [mi.load_dict(_bsdf_dict(mi, m)) for m in scene.materials]
