@@ -8,6 +8,7 @@ import json
 import math
 import os
 import shutil
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -18,6 +19,8 @@ from test_bundles import edge_gain
 from evalkit.core.errors import InputError
 from evalkit.core.lock import LOCK_NAME, folder_lock
 from evalkit.core.scene import load_scene
+from evalkit.demo import DEMO_STUDY
+from evalkit.figures import teaser
 from evalkit.report import findings, matched_time_rows, versus_rows
 from evalkit.study.executors import run_study
 from evalkit.study.spec import RUN_DEFAULTS, load_study, run_id, study_from_dict
@@ -253,6 +256,7 @@ def test_the_dask_executor_gives_the_same_rows_as_the_local_one(tiny_study, tmp_
         assert row["indirect_relmse"] == local[row["run_id"]]["indirect_relmse"]  # bitwise: same seed, same image
 
 
+@pytest.mark.slow
 def test_the_demo_renders_compares_and_reports(tmp_path):
     figure = tmp_path / "teaser.png"
     r = run_evalkit("demo", "--out", str(tmp_path / "demo"), "--figure", str(figure))
@@ -270,6 +274,24 @@ def test_the_demo_renders_compares_and_reports(tmp_path):
         assert float(row["total_delta_e2000"]) > 0
     assert float(rows["perfect"]["hole_rate"]) < 1e-3 < float(rows["imperfect"]["hole_rate"])
     assert "Images" in (tmp_path / "demo" / "report.html").read_text()
+
+
+def test_the_demo_study_at_two_frames_runs_every_stage_and_draws_the_figure(tmp_path):
+    # The demo's own study (evalkit/demo.toml) with 2 frames of 4 paths per pixel in place of 32 of
+    # 16: the same scene, bundles, Embree comparison, committed reference, report and figure, in
+    # the time the default suite allows (the full demo is the slow test above).
+    with open(DEMO_STUDY, "rb") as f:
+        spec = tomllib.load(f)
+    spec["defaults"].update(frames=2, spp=4)
+    rows = {r["method"]: r for r in run_study(study_from_dict(spec), tmp_path / "demo", progress=lambda line: None)}
+    assert set(rows) == {"perfect", "imperfect"}
+    for row in rows.values():
+        assert "b3_128x128_spp16384_seed0" in row["reference"]
+        assert math.isfinite(float(row["indirect_relmse"])) and float(row["total_delta_e2000"]) > 0
+    assert float(rows["perfect"]["hole_rate"]) < 1e-3 < float(rows["imperfect"]["hole_rate"])
+    assert "Images" in (tmp_path / "demo" / "report.html").read_text()
+    teaser(list(rows.values()), tmp_path / "demo", tmp_path / "teaser.png")
+    assert Image.open(tmp_path / "teaser.png").size == (1040, 300)
 
 
 def test_runs_build_imperfect_bundles_with_their_own_sampler(tmp_path):

@@ -17,7 +17,20 @@ CASES = load_thresholds(DEFAULT_THRESHOLDS)
 ARTIFACTS = os.path.join(REPO, "out", "thresholds")
 
 
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+# The cases that take 25 s or more on 2 cores (sweeps, converged relMSE) run with the slow tests
+# and in `make check`, which runs every case.
+SLOW_CASES = {
+    "furnace-indirect-error-falls-with-R",
+    "cornell-perfect-indirect-relmse",
+    "cornell-bidirectional-indirect-relmse",
+    "cornell-indirect-error-falls-with-K",
+}
+assert {c.name for c in CASES} >= SLOW_CASES, SLOW_CASES
+
+
+@pytest.mark.parametrize(
+    "case", [pytest.param(c, id=c.name, marks=pytest.mark.slow if c.name in SLOW_CASES else ()) for c in CASES]
+)
 def test_declared_threshold(case):
     outcome = evaluate(case, ARTIFACTS)
     assert outcome.passed, (
