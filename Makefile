@@ -18,16 +18,19 @@ teaser: setup
 docs: setup-test
 	NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict
 
-# The linter and formatter first (a second's work), then the suite.
+# The linter and formatter first (a second's work), then the suite in TEST_WORKERS processes
+# (pytest-xdist): a test spends much of its time in one thread (Python, Mitsuba, Embree), so two
+# processes keep both cores of a small machine busy.
+TEST_WORKERS = 2
 test: setup-test lint
-	.venv/bin/python -m pytest -m "not slow" -q
+	.venv/bin/python -m pytest -m "not slow" -q -n $(TEST_WORKERS)
 
 lint: setup
 	.venv/bin/ruff check .
 	.venv/bin/ruff format --check .
 
 test-slow: setup-test
-	.venv/bin/python -m pytest -m slow -q
+	.venv/bin/python -m pytest -m slow -q -n $(TEST_WORKERS)
 
 # The small references committed for CI (references/store); about 10 minutes on 2 cores.
 CI_REFERENCES = cornell-box furnace

@@ -184,10 +184,25 @@ def browser():
     driver.quit()
 
 
+# Shader variants compiled by pytest-xdist's workers (make test runs two), gathered as each worker
+# finishes and reported with the controller's own.
+WORKER_VARIANTS: list = []
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    WORKER_VARIANTS.extend(node.workeroutput.get("unlisted_variants", []))
+
+
 def pytest_sessionfinish(session, exitstatus):
     """Every shader variant the suite compiled must be one that SHADER_VARIANTS lists
     (gpu_impl/shader_source.py), so the test that compiles them all compiles what runs."""
     unlisted = unlisted_variants()
+    workeroutput = getattr(session.config, "workeroutput", None)
+    if workeroutput is not None:  # a worker: its controller reports
+        workeroutput["unlisted_variants"] = [(name, [list(d) for d in defines]) for name, defines in unlisted]
+        return
+    unlisted = sorted({*unlisted, *((name, tuple(map(tuple, d))) for name, d in WORKER_VARIANTS)})
     if unlisted:
         reporter = session.config.pluginmanager.get_plugin("terminalreporter")
         lines = "\n".join(f"  {name} {dict(defines)}" for name, defines in unlisted)
