@@ -24,6 +24,7 @@ from dataclasses import replace
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
 from evalkit.core.settings import RenderSettings
+from evalkit.records import write_record
 from gpu_impl.api import bundle_tracer
 from gpu_impl.bundles import format_bytes
 from gpu_impl.context import GLContext
@@ -201,6 +202,7 @@ def main() -> None:
     parser.add_argument("--raster-splatter", action="store_true", help="also time the rasterizer's splats")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--record", metavar="JSON", help="also save the report with its command and versions there")
     args = parser.parse_args()
     report = run(
         scenes=args.scenes,
@@ -213,6 +215,8 @@ def main() -> None:
         repeats=args.repeats,
         seed=args.seed,
     )
+    if args.record:
+        write_record(args.record, report)
     print_table(report)
     print(json.dumps(report))
 

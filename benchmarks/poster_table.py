@@ -19,6 +19,7 @@ import json
 
 from evalkit.core.scene import load_scene
 from evalkit.core.settings import PRESETS, RenderSettings
+from evalkit.records import write_record
 from gpu_impl.api import render
 from gpu_impl.context import GLContext
 from gpu_impl.methods import imperfect, perfect
@@ -111,6 +112,7 @@ def main() -> None:
     parser.add_argument(
         "--full", action="store_true", default=None, help=f"the poster's preset {PRESETS['paper']} even without a GPU"
     )
+    parser.add_argument("--record", metavar="JSON", help="also save the report with its command and versions there")
     args = parser.parse_args()
     report = run(
         scene_name=args.scene,
@@ -121,6 +123,8 @@ def main() -> None:
         frames=args.frames,
         seed=args.seed,
     )
+    if args.record:
+        write_record(args.record, report)
     print_table(report)
     print(json.dumps(report))
 

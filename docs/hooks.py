@@ -1,11 +1,15 @@
 """MkDocs hooks (mkdocs.yml): the reference pages generated from the code (evalkit/reference_docs.py)
-are added to the site at build time, never written into the checkout."""
+and the results pages generated from the committed data files in docs/results/data/
+(evalkit/results_docs.py) are added to the site at build time, never written into the checkout."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 from mkdocs.structure.files import File
 
 from evalkit.reference_docs import cli_markdown, settings_markdown
+from evalkit.results_docs import results_pages
 
 GENERATED = {"reference/cli.md": cli_markdown, "reference/settings.md": settings_markdown}
 
@@ -13,4 +17,7 @@ GENERATED = {"reference/cli.md": cli_markdown, "reference/settings.md": settings
 def on_files(files, config):
     for path, make in GENERATED.items():
         files.append(File.generated(config, path, content=make()))
+    docs = Path(config["docs_dir"])
+    for path, content in results_pages(docs / "results" / "data", docs).items():
+        files.append(File.generated(config, path, content=content))
     return files

@@ -12,7 +12,10 @@ from pathlib import Path
 import pytest
 
 from evalkit.core.settings import RenderSettings, declared
+from evalkit.records import read_record, write_record
 from evalkit.reference_docs import commands
+from evalkit.results_docs import PAGES as RESULT_PAGES
+from evalkit.results_docs import results_pages
 from gpu_impl.registry import all_units
 
 REPO = Path(__file__).resolve().parent.parent
@@ -24,6 +27,7 @@ PAGES = (
     "reference/cli",
     "reference/settings",
     "reference/api",
+    "results/bundles",
     "changelog",
 )
 
@@ -62,3 +66,27 @@ def test_the_pages_open_from_the_file_system_without_console_errors(site, browse
         assert browser.title, page
         severe = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
         assert not severe, (page, severe)
+
+
+def test_every_results_page_comes_from_a_data_file_that_names_its_command_and_versions(site):
+    data = sorted((REPO / "docs" / "results" / "data").glob("*.json"))
+    assert {read_record(path)["benchmark"] for path in data} == set(RESULT_PAGES)  # one file per page kind
+    nav = (REPO / "mkdocs.yml").read_text()
+    for path in data:
+        record = read_record(path)
+        assert f"results/{path.stem}.md" in nav, path  # every data file's page is in the navigation
+        page = (site / "results" / f"{path.stem}.html").read_text()
+        assert f"docs/results/data/{path.name}" in page and record["record"]["command"] in page
+        assert record["record"]["versions"]["mitsuba"] in page
+
+
+def test_a_record_keeps_its_command_and_versions_and_a_file_without_them_is_refused(tmp_path):
+    report = {"benchmark": "bundles", "x": 1.5}
+    path = write_record(tmp_path / "data" / "b.json", report, ["benchmarks/b.py", "--k", "8"])
+    record = read_record(path)
+    assert record["x"] == 1.5 and record["record"]["command"].endswith("benchmarks/b.py --k 8")
+    assert record["record"]["versions"]["python"]
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "c.json").write_text('{"benchmark": "bundles"}')
+    with pytest.raises(ValueError, match="c.json: not a results record"):
+        results_pages(tmp_path / "bad", tmp_path)

@@ -1,0 +1,120 @@
+"""The documentation site's results pages, generated at build time from the committed data files
+in docs/results/data/ (benchmark reports saved with ``--record``: evalkit/records.py), so every
+number on them comes from a file that says which command and versions made it (docs/hooks.py puts
+them in the site)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from evalkit.records import read_record
+
+
+def _table(header: list[str], rows: list[list]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---:" if i else "---" for i in range(len(header))) + "|"]
+    return lines + ["| " + " | ".join(str(v) for v in row) + " |" for row in rows]
+
+
+def _provenance(data: dict, source: str) -> list[str]:
+    record = data["record"]
+    versions = ", ".join(f"{k} {v}" for k, v in record["versions"].items() if v)
+    return [
+        f"Data: `{source}`, written on {record['date']} by",
+        "",
+        f"    {record['command']}",
+        "",
+        f"on {data['device']} (OpenGL {data['gl_version']}; times are {data['timing']}). Versions: {versions}.",
+        "",
+    ]
+
+
+def _ms(v: float) -> str:
+    return f"{v:.1f}"
+
+
+def bundles_markdown(data: dict, source: str) -> str:
+    """benchmarks/bundles.py: perfect against imperfect bundle builds, side by side."""
+    lines = [
+        "# Bundle build speed",
+        "",
+        f"One bundle build per row, K = {data['directions']} directions of R = {data['resolution']} lines a side, "
+        f"imperfect bundles from N = {data['points']} {data['sampler']} points per direction at splat scale "
+        f"s = {data['splat_scale']}; median of {data['repeats']} builds after a warm-up. *raw* is the perfect "
+        "bundles' geometry drawn with an empty fragment shader: what the rasterizer costs before any list is written.",
+        "",
+        *_provenance(data, source),
+    ]
+    rows = []
+    for name, r in data["scenes"].items():
+        m = r["median_ms"]
+        rows.append(
+            [name, f"{r['triangles']:,}", _ms(m["perfect"]), _ms(m["imperfect"]), _ms(m["raw"]),
+             f"{r['perfect_over_imperfect']:.2f}", f"{r['perfect_over_raw']:.2f}",
+             f"{r['nodes']['perfect']:,}", f"{r['nodes']['imperfect']:,}"]
+        )  # fmt: skip
+    header = ["scene", "triangles", "perfect ms", "imperfect ms", "raw ms", "perfect / imperfect", "perfect / raw",
+              "nodes perfect", "nodes imperfect"]  # fmt: skip
+    lines += _table(header, rows) + ["", "## Passes", ""]
+    pass_rows = []
+    for name, r in data["scenes"].items():
+        for method, passes in r["passes_median_ms"].items():
+            pass_rows.append([name, method, ", ".join(f"{p} {_ms(v)}" for p, v in passes.items())])
+        nodes = f"{r['raw_nodes']['imperfect']:,} written, {r['nodes']['imperfect']:,} kept"
+        pass_rows.append([name, "imperfect nodes", nodes])
+    lines += _table(["scene", "method", "ms per pass"], pass_rows)
+    lines += ["", "## Targets", ""]
+    lines += _table(["target", "met"], [[t, "yes" if met else "**no**"] for t, met in data["targets_met"].items()])
+    return "\n".join(lines) + "\n"
+
+
+def poster_table_markdown(data: dict, source: str) -> str:
+    """benchmarks/poster_table.py: the poster's per-frame pass times, perfect and imperfect, 1 and 3 bounces."""
+    size = f"{data['width']} x {data['height']}, {data['supersampling']} x {data['supersampling']} supersampling"
+    reduced = "" if data["full_preset"] else " (reduced from the poster's 1920 x 1024 with 2 x 2 supersampling)"
+    lines = [
+        "# The poster's table",
+        "",
+        f"Per-frame pass times of eye paths on `{data['scene']}` at {size}{reduced}, with the poster's bundles "
+        f"(K = {data['directions']}, R = {data['resolution']}, N = {data['points']}); medians over {data['frames']} "
+        "frames of one render.",
+        "",
+        *_provenance(data, source),
+    ]
+    configs = list(data["results"])
+    passes = [p for p in data["results"][configs[-1]]["median_ms"] if p != "frame"]
+    rows = [[p, *(("-" if (v := data["results"][c]["median_ms"].get(p)) is None else _ms(v)) for c in configs)]
+            for p in [*passes, "frame"]]  # fmt: skip
+    rows.append(["others (frame - bundles)", *(_ms(data["results"][c]["others_ms"]) for c in configs)])
+    rows.append(["nodes per frame", *(f"{data['results'][c]['nodes']:,}" for c in configs)])
+    lines += _table(["pass (ms)", *configs], rows)
+    frame3 = {m: data["results"][f"{m} B=3"]["median_ms"]["frame"] for m in ("perfect", "imperfect")}
+    poster = data["poster_ms"]
+    lines += [
+        "",
+        f"Perfect over imperfect bundle build: {data['perfect_over_imperfect_bundles']:.2f}x (the poster: "
+        f"{poster['perfect bundles'] / poster['imperfect bundles']:.2f}x); the 3-bounce frame: "
+        f"{frame3['perfect'] / frame3['imperfect']:.2f}x.",
+        "",
+        "The poster's figures (Radeon HD 6990, full preset): "
+        + ", ".join(f"{k} {v:g} ms" for k, v in poster.items())
+        + ".",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+# A results page per data file, by the benchmark that wrote it.
+PAGES: dict[str, Callable[[dict, str], str]] = {"bundles": bundles_markdown, "poster_table": poster_table_markdown}
+
+
+def results_pages(folder: str | Path, docs_root: str | Path) -> dict[str, str]:
+    """Every data file in ``folder`` (``NAME.json``) as its page ``results/NAME.md``; refuses a file
+    whose benchmark has no page."""
+    pages = {}
+    for path in sorted(Path(folder).glob("*.json")):
+        data = read_record(path)
+        make = PAGES.get(data.get("benchmark"))
+        if make is None:
+            raise ValueError(f"{path}: no results page for benchmark {data.get('benchmark')!r} ({', '.join(PAGES)})")
+        pages[f"results/{path.stem}.md"] = make(data, path.relative_to(Path(docs_root).parent).as_posix())
+    return pages
