@@ -5,6 +5,7 @@ open from the file system in a real browser without console errors."""
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -22,6 +23,7 @@ REPO = Path(__file__).resolve().parent.parent
 PAGES = (
     "index",
     "guide",
+    "howto",
     "method",
     "ARCHITECTURE",
     "reference/cli",
@@ -90,3 +92,15 @@ def test_a_record_keeps_its_command_and_versions_and_a_file_without_them_is_refu
     (tmp_path / "bad" / "c.json").write_text('{"benchmark": "bundles"}')
     with pytest.raises(ValueError, match="c.json: not a results record"):
         results_pages(tmp_path / "bad", tmp_path)
+
+
+HOWTO_BLOCKS = re.findall(r"```python\n(.*?)```", (REPO / "docs" / "howto.md").read_text(), re.S)
+
+
+@pytest.mark.parametrize("block", range(len(HOWTO_BLOCKS)))
+def test_the_how_to_pages_python_blocks_run_as_written(tmp_path, block):
+    (tmp_path / "block.py").write_text(HOWTO_BLOCKS[block])
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    r = subprocess.run([sys.executable, "block.py"], cwd=tmp_path, capture_output=True, text=True, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.stdout.strip(), "every block prints what it found"
