@@ -1,5 +1,5 @@
 # The two commands of the README. Both install what is missing first (scripts/setup.sh).
-.PHONY: setup setup-test demo teaser docs test lint test-slow references studies fuzz fuzz-soak check
+.PHONY: setup setup-test demo teaser docs test lint test-long test-slow references studies fuzz fuzz-soak check
 
 setup:
 	@scripts/setup.sh
@@ -23,7 +23,11 @@ docs: setup-test
 # processes keep both cores of a small machine busy.
 TEST_WORKERS = 2
 test: setup-test lint
-	.venv/bin/python -m pytest -m "not slow" -q -n $(TEST_WORKERS)
+	.venv/bin/python -m pytest -m "not slow and not long" -q -n $(TEST_WORKERS)
+
+# The tests of 25 s or more (converged images, sweeps, the full demo), which CI runs after make test.
+test-long: setup-test
+	.venv/bin/python -m pytest -m long -q -n $(TEST_WORKERS)
 
 lint: setup
 	.venv/bin/ruff check .

@@ -44,7 +44,7 @@ from gpu_impl.visibility.imperfect import DEFAULT_ISM_POINTS
 from references.embree import ExactTracer
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_bidirectional_paths_converge_on_cornell_box_with_less_noise_than_eye_paths(gl):
     # Measured with the test's settings (B=1, K=64, R=128, 128x128, 32 frames x 1 path, seed 0,
     # V=32): indirect relMSE eye paths 0.0108, bidirectional 0.00089 (12x lower), in 4.1 and 7.3 s;
@@ -446,7 +446,7 @@ def test_bidirectional_furnace_matches_the_analytic_radiance(gl, bounces):
     assert whole["lo"] >= 0.99 and whole["hi"] <= 1.01, describe_interval(whole)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_bidirectional_images_stay_finite_where_vertices_nearly_meet(gl):
     # Seeds 0-2 of this render (the bidirectional study's cornell-box runs) had 1 to 6 NaN pixels
     # by the ceiling's light: MIS weights of the form 1 / (1 + (c / d^2)^2 E) times a geometry term

@@ -172,7 +172,7 @@ def test_lookups_land_where_the_ray_meets_the_surface(gl, rng, method):
     assert not (look["on_surface"] & (exact.prim_id < 0)).any()
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_lookups_between_small_parts_leave_the_scene_as_often_as_their_rays():
     """Where the ray passes between the surfaces the four lines meet, the lines vote (shaders/
     bundle_step.glsl). The parts scene's pegs and balls are a few bundle pixels wide: the sky light
@@ -195,7 +195,7 @@ def test_lookups_between_small_parts_leave_the_scene_as_often_as_their_rays():
     assert lookup_sky == pytest.approx(ray_sky, rel=0.005), lookup_sky / ray_sky
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_lookups_in_a_closed_box_rarely_leave_it_and_more_rarely_as_r_grows():
     """Inside the furnace every ray meets a wall. A lookup leaves only where the lines' vote goes
     wrong by a concave edge; a line that passes under the vertex's surface and meets nothing (under

@@ -175,7 +175,7 @@ def test_every_small_surface_has_a_point_in_every_direction(gl, sampler):
         assert abs((1 - has_point.mean()) - math.exp(-2)) < 0.03, 1 - has_point.mean()
 
 
-@pytest.mark.parametrize("subdivisions", [1, pytest.param(12, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("subdivisions", [1, pytest.param(12, marks=pytest.mark.long)])
 def test_splats_end_at_their_triangles_sharp_edges(gl, subdivisions):
     """A splat ends at the lines that cut it (shaders/scene.glsl: SplatShape): its triangle's sharp
     edges and its flat neighbours', in both splatters alike. No node of a box's splats lies beyond

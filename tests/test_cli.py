@@ -62,7 +62,7 @@ def test_libllvm_choice_prefers_19_and_never_15_or_16(tmp_path):
 
 @pytest.mark.parametrize(
     "name, min_triangles",
-    [("cornell-box", 36), ("furnace", 192), pytest.param("atrium", 250_000, marks=pytest.mark.slow), ("lit-room", 500)],
+    [("cornell-box", 36), ("furnace", 192), pytest.param("atrium", 250_000, marks=pytest.mark.long), ("lit-room", 500)],
 )
 def test_scene_info_builtin(name, min_triangles):
     done = run_evalkit("scene", "info", name, "--json")

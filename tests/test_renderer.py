@@ -76,7 +76,7 @@ def interval(frame_ratios) -> dict:
     return mean_ratio(frames, ones, 0 * ones)["all"]
 
 
-@pytest.mark.parametrize("bounces", [1, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("bounces", [1, pytest.param(3, marks=pytest.mark.long)])
 def test_furnace_matches_the_analytic_radiance(gl, bounces):
     # The bundles' transport alone: paths find the emitting walls by hitting them.
     ratios = furnace_ratio(gl, 128, 1024, bounces)
@@ -127,7 +127,7 @@ def test_no_light_is_lost_behind_concave_edges(gl, resolution):
 CORNELL_BLOCK_RELMSE = 0.015
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_cornell_box_converges_to_the_mitsuba_reference(gl, images):
     scene, ref = cornell_reference(3)
     errors = {}

@@ -57,7 +57,7 @@ def test_bounces_stop_once_every_path_has_ended_and_the_image_is_the_same(gl):
     assert lit.stats["bounce_passes_skipped"] == 0
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_fixed_directions_reuse_bundles_on_static_scenes_and_the_change_is_bounded(gl, images):
     scene, ref = cornell_reference(3)
     settings = RenderSettings(bounces=3, directions=32, resolution=128, width=128, height=128, frames=8, spp=8)

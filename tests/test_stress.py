@@ -205,9 +205,9 @@ def test_lists_of_every_length_sort_and_merge_in_either_pass(gl):
         assert merged.node_count + merged.stats["redundant_nodes"] == merged.stats["raw_nodes"]
 
 
-# The 2.4 M-triangle scene takes a minute on 2 cores: with the slow tests.
+# The 2.4 M-triangle scene takes a minute on 2 cores: with the long tests.
 @pytest.mark.parametrize(
-    "name", [pytest.param(n, marks=pytest.mark.slow) if n == "atrium-dense" else n for n in sorted(BUILTIN_SCENES)]
+    "name", [pytest.param(n, marks=pytest.mark.long) if n == "atrium-dense" else n for n in sorted(BUILTIN_SCENES)]
 )
 def test_outputs_are_finite_and_non_negative(gl, name):
     scene = load_scene(name)

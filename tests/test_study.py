@@ -256,7 +256,7 @@ def test_the_dask_executor_gives_the_same_rows_as_the_local_one(tiny_study, tmp_
         assert row["indirect_relmse"] == local[row["run_id"]]["indirect_relmse"]  # bitwise: same seed, same image
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_the_demo_renders_compares_and_reports(tmp_path):
     figure = tmp_path / "teaser.png"
     r = run_evalkit("demo", "--out", str(tmp_path / "demo"), "--figure", str(figure))
@@ -279,7 +279,7 @@ def test_the_demo_renders_compares_and_reports(tmp_path):
 def test_the_demo_study_at_two_frames_runs_every_stage_and_draws_the_figure(tmp_path):
     # The demo's own study (evalkit/demo.toml) with 2 frames of 4 paths per pixel in place of 32 of
     # 16: the same scene, bundles, Embree comparison, committed reference, report and figure, in
-    # the time the default suite allows (the full demo is the slow test above).
+    # the time the default suite allows (the full demo is the long test above).
     with open(DEMO_STUDY, "rb") as f:
         spec = tomllib.load(f)
     spec["defaults"].update(frames=2, spp=4)

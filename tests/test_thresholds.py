@@ -17,19 +17,19 @@ CASES = load_thresholds(DEFAULT_THRESHOLDS)
 ARTIFACTS = os.path.join(REPO, "out", "thresholds")
 
 
-# The cases that take 25 s or more on 2 cores (sweeps, converged relMSE) run with the slow tests
+# The cases that take 25 s or more on 2 cores (sweeps, converged relMSE) run with the long tests
 # and in `make check`, which runs every case.
-SLOW_CASES = {
+LONG_CASES = {
     "furnace-indirect-error-falls-with-R",
     "cornell-perfect-indirect-relmse",
     "cornell-bidirectional-indirect-relmse",
     "cornell-indirect-error-falls-with-K",
 }
-assert {c.name for c in CASES} >= SLOW_CASES, SLOW_CASES
+assert {c.name for c in CASES} >= LONG_CASES, LONG_CASES
 
 
 @pytest.mark.parametrize(
-    "case", [pytest.param(c, id=c.name, marks=pytest.mark.slow if c.name in SLOW_CASES else ()) for c in CASES]
+    "case", [pytest.param(c, id=c.name, marks=pytest.mark.long if c.name in LONG_CASES else ()) for c in CASES]
 )
 def test_declared_threshold(case):
     outcome = evaluate(case, ARTIFACTS)

@@ -471,7 +471,7 @@ def test_bad_tune_input_is_one_line(tmp_path, args, said):
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and said in r.stderr and "Traceback" not in r.stderr
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_tune_recommends_the_candidate_with_the_least_measured_error(tmp_path):
     """The whole chain on cornell-box at 1 s: calibration, refinement, a check of each method's
     optimum, --json's last line, tune.json and report.html. One path per pixel a frame, so that a
@@ -559,7 +559,7 @@ def test_a_candidates_calibration_is_its_methods_runs_with_the_other_units_setti
     assert axes(ISM).keys() == {"directions", "resolution", "spp", "light_paths", "ism_points", "ism_size"}
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_tune_chooses_between_strategies_on_a_room_lit_only_after_a_bounce(tmp_path):
     """`--strategy both --shadow-maps both` calibrates, refines and checks eye and bidirectional
     paths alike, with the eye paths per pixel tuned too (`--spp tune`), and the light vertices'
@@ -608,7 +608,7 @@ def test_tune_chooses_between_strategies_on_a_room_lit_only_after_a_bounce(tmp_p
     assert "(ism_points, ism_size)" in report
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_under_a_metric_that_does_not_square_errors_the_maps_keep_their_defaults(tmp_path):
     """Under SMAPE renders cannot measure the maps' bias: nothing is rendered to measure it, and
     the maps' settings of every candidate keep their defaults, with a warning saying why."""
