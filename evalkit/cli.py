@@ -11,6 +11,7 @@ import json
 import math
 import os
 import re
+import shlex
 import signal
 import sys
 import traceback
@@ -34,6 +35,7 @@ from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png, teaser
 from evalkit.metrics.bundles import compare_bundles, scene_surfaces
 from evalkit.metrics.confidence import confidence, pool_renders
 from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
+from evalkit.records import study_record, write_record
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
@@ -515,6 +517,9 @@ def _study(args) -> int:
     print(f"study       {study.name}: {ok} of {len(rows)} runs ok")
     print(f"results     {out}/results.csv")
     print(f"report      {out}/report.html")
+    if args.record:
+        command = "evalkit " + shlex.join(sys.argv[1:])
+        print(f"record      {write_record(args.record, study_record(study, rows, out), command)}")
     return 0 if ok == len(rows) else 1
 
 
@@ -941,6 +946,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask: an existing scheduler, e.g. tcp://host:8786")
     p.add_argument("--wait", action="store_true", help="wait for another study writing to --out, rather than refuse")
+    p.add_argument(
+        "--record", metavar="JSON", help="also save the rows with the command and versions there (docs/results/data/)"
+    )
     p.set_defaults(run=_study)
 
     p = sub.add_parser(
@@ -1088,7 +1096,7 @@ OUTPUTS = {
     _bundles: [("out", False)],
     _render: [("out", True)],
     _compare: [("maps", True)],
-    _study: [("out", True)],
+    _study: [("out", True), ("record", False)],
     _check: [("out", True), ("junit", False)],
     _tune: [("out", True)],
     _demo: [("out", True)],

@@ -14,13 +14,15 @@ from pathlib import Path
 from evalkit.study.run import versions
 
 
-def write_record(path: str | os.PathLike, report: dict, argv: list[str] | None = None) -> Path:
+def write_record(path: str | os.PathLike, report: dict, command: str | None = None) -> Path:
     """``report`` with ``record`` (the command line, the UTC date and the package versions) into
-    ``path`` as indented JSON; returns the path."""
-    argv = sys.argv if argv is None else argv
-    script = os.path.relpath(argv[0]) if os.path.exists(argv[0]) else argv[0]
+    ``path`` as indented JSON; returns the path. ``command``: by default this process's, a script
+    run by Python."""
+    if command is None:
+        script = os.path.relpath(sys.argv[0]) if os.path.exists(sys.argv[0]) else sys.argv[0]
+        command = "python " + shlex.join([script, *sys.argv[1:]])
     record = {
-        "command": "python " + shlex.join([script, *argv[1:]]),
+        "command": command,
         "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d"),
         "versions": versions(),
     }
@@ -28,6 +30,27 @@ def write_record(path: str | os.PathLike, report: dict, argv: list[str] | None =
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps({"record": record, **report}, indent=1) + "\n")
     return path
+
+
+def study_record(study, rows: list[dict], out: str | os.PathLike) -> dict:
+    """A study's results as a report for `write_record`: its name, title, description and what
+    was reduced, the run parameters that vary, every row's scalar values, and the hole model's fits
+    when its report made them (``hole_model.json`` in ``out``)."""
+    keys = dict.fromkeys(k for run in study.runs for k in run)
+    varying = [k for k in keys if len({repr(run.get(k)) for run in study.runs}) > 1]
+    scalar = (str, int, float, bool, type(None))
+    report = {
+        "study": study.name,
+        "title": study.title,
+        "description": study.description,
+        "reduced": study.reduced,
+        "varying": varying,
+        "rows": [{k: v for k, v in row.items() if isinstance(v, scalar)} for row in rows],
+    }
+    fits = Path(out) / "hole_model.json"
+    if fits.is_file():
+        report["hole_model"] = json.loads(fits.read_text())
+    return report
 
 
 def read_record(path: str | os.PathLike) -> dict:

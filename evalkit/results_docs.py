@@ -19,14 +19,50 @@ def _table(header: list[str], rows: list[list]) -> list[str]:
 def _provenance(data: dict, source: str) -> list[str]:
     record = data["record"]
     versions = ", ".join(f"{k} {v}" for k, v in record["versions"].items() if v)
+    device = (
+        f"on {data['device']} (OpenGL {data['gl_version']}; times are {data['timing']}). " if "device" in data else ""
+    )
     return [
         f"Data: `{source}`, written on {record['date']} by",
         "",
         f"    {record['command']}",
         "",
-        f"on {data['device']} (OpenGL {data['gl_version']}; times are {data['timing']}). Versions: {versions}.",
+        f"{device}Versions: {versions}.",
         "",
     ]
+
+
+def _value(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return "-" if v is None else str(v)
+
+
+# A study page's columns after the parameters that vary: the measures a row has, in this order.
+STUDY_MEASURES = (
+    "hole_rate", "leak_rate", "redundant_rate", "nodes_per_crossing", "next_hit_error_rate",
+    "indirect_relmse", "indirect_flip", "total_relmse", "build_ms", "wall_s",
+)  # fmt: skip
+
+
+def study_markdown(data: dict, source: str) -> str:
+    """A study's rows (`evalkit study FILE --record`): its parameters that vary and its measures,
+    and the hole model's fits where the study made them."""
+    rows = [r for r in data["rows"] if r.get("status") == "ok"]
+    lines = [f"# {data['title']}", "", data["description"], "", f"Reduced from the paper: {data['reduced']}", ""]
+    lines += _provenance(data, source)
+    failed = len(data["rows"]) - len(rows)
+    if failed:
+        lines += [f"{failed} of {len(data['rows'])} runs failed and are not shown.", ""]
+    fits = data.get("hole_model")
+    if fits:
+        keys = list(fits[0])
+        lines += ["## The hole model's fits", ""]
+        lines += _table(keys, [[_value(f.get(k)) for k in keys] for f in fits]) + [""]
+    measures = [m for m in STUDY_MEASURES if any(m in r for r in rows)]
+    columns = [*data["varying"], *measures]
+    lines += ["## Runs", ""] + _table(columns, [[_value(r.get(c)) for c in columns] for r in rows])
+    return "\n".join(lines) + "\n"
 
 
 def _ms(v: float) -> str:
@@ -115,12 +151,12 @@ PAGES: dict[str, Callable[[dict, str], str]] = {"bundles": bundles_markdown, "po
 
 
 def results_pages(folder: str | Path, docs_root: str | Path) -> dict[str, str]:
-    """Every data file in ``folder`` (``NAME.json``) as its page ``results/NAME.md``; refuses a file
-    whose benchmark has no page."""
+    """Every data file in ``folder`` (``NAME.json``) as its page ``results/NAME.md``: a study's
+    rows, or a benchmark's report by its page maker (`PAGES`); refuses a benchmark without one."""
     pages = {}
     for path in sorted(Path(folder).glob("*.json")):
         data = read_record(path)
-        make = PAGES.get(data.get("benchmark"))
+        make = study_markdown if "study" in data else PAGES.get(data.get("benchmark"))
         if make is None:
             raise ValueError(f"{path}: no results page for benchmark {data.get('benchmark')!r} ({', '.join(PAGES)})")
         pages[f"results/{path.stem}.md"] = make(data, path.relative_to(Path(docs_root).parent).as_posix())

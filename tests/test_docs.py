@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import run_evalkit
 
 from evalkit.core.settings import RenderSettings, declared
 from evalkit.records import read_record, write_record
@@ -84,7 +85,7 @@ def test_every_results_page_comes_from_a_data_file_that_names_its_command_and_ve
 
 def test_a_record_keeps_its_command_and_versions_and_a_file_without_them_is_refused(tmp_path):
     report = {"benchmark": "bundles", "x": 1.5}
-    path = write_record(tmp_path / "data" / "b.json", report, ["benchmarks/b.py", "--k", "8"])
+    path = write_record(tmp_path / "data" / "b.json", report, "python benchmarks/b.py --k 8")
     record = read_record(path)
     assert record["x"] == 1.5 and record["record"]["command"].endswith("benchmarks/b.py --k 8")
     assert record["record"]["versions"]["python"]
@@ -104,3 +105,26 @@ def test_the_how_to_pages_python_blocks_run_as_written(tmp_path, block):
     r = subprocess.run([sys.executable, "block.py"], cwd=tmp_path, capture_output=True, text=True, env=env, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout.strip(), "every block prints what it found"
+
+
+def test_a_study_recorded_with_its_command_becomes_a_results_page(tmp_path):
+    study = tmp_path / "splats.toml"
+    study.write_text(
+        'name = "splats"\ntitle = "Holes against splat scale"\ndescription = "A test study."\nreduced = "K=4."\n'
+        '[defaults]\nscene = "cornell-box"\nmethod = "imperfect"\ndirections = 4\nresolution = 64\npoints = 4096\n'
+        "[[grid]]\nsplat_scale = [1.2, 1.8]\n"
+        "[measure]\nbundles = true\nrender = false\nimages = []\neye_vertices = 256\n"
+    )
+    data = tmp_path / "docs" / "results" / "data"
+    r = run_evalkit("study", str(study), "--out", str(tmp_path / "out"), "--record", str(data / "splats.json"))
+    assert r.returncode == 0, r.stderr
+    record = read_record(data / "splats.json")
+    command = f"evalkit study {study} --out {tmp_path / 'out'} --record {data / 'splats.json'}"
+    assert record["record"]["command"] == command
+    assert record["varying"] == ["splat_scale"] and len(record["rows"]) == 2
+    page = results_pages(data, tmp_path / "docs")["results/splats.md"]
+    assert page.startswith("# Holes against splat scale") and "docs/results/data/splats.json" in page
+    header = next(line for line in page.splitlines() if line.startswith("| splat_scale"))
+    assert "hole_rate" in header and "nodes_per_crossing" in header
+    holes = {row["splat_scale"]: row["hole_rate"] for row in record["rows"]}
+    assert f"| 1.2 | {holes[1.2]:.4g} |" in page  # each row's value as the study measured it
