@@ -45,6 +45,14 @@ STUDY_MEASURES = (
 )  # fmt: skip
 
 
+# The hole model's fits as a study page shows them: per group, P(hole) = h0 + (1 - h0) exp(-c s^q) and the
+# splat scale the model recommends (evalkit/metrics/hole_model.py has every column).
+HOLE_FIT_COLUMNS = (
+    "scene", "sampler", "points", "samples", "c", "q", "h0", "median_ratio_error", "splat_scale",
+    "predicted_hole_rate", "predicted_nodes_per_crossing", "measured_best_scale",
+)  # fmt: skip
+
+
 def study_markdown(data: dict, source: str) -> str:
     """A study's rows (`evalkit study FILE --record`): its parameters that vary and its measures,
     and the hole model's fits where the study made them."""
@@ -56,7 +64,7 @@ def study_markdown(data: dict, source: str) -> str:
         lines += [f"{failed} of {len(data['rows'])} runs failed and are not shown.", ""]
     fits = data.get("hole_model")
     if fits:
-        keys = list(fits[0])
+        keys = [k for k in HOLE_FIT_COLUMNS if k in fits[0]]
         lines += ["## The hole model's fits", ""]
         lines += _table(keys, [[_value(f.get(k)) for k in keys] for f in fits]) + [""]
     measures = [m for m in STUDY_MEASURES if any(m in r for r in rows)]
