@@ -11,6 +11,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from evalkit.core.atomic import write_text
 from evalkit.study.run import versions
 
 
@@ -28,7 +29,7 @@ def write_record(path: str | os.PathLike, report: dict, command: str | None = No
     }
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"record": record, **report}, indent=1) + "\n")
+    write_text(path, json.dumps({"record": record, **report}, indent=1) + "\n")  # whole or not at all
     return path
 
 
