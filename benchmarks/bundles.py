@@ -26,8 +26,7 @@ from evalkit.core.scene import load_scene
 from evalkit.core.settings import RenderSettings
 from evalkit.records import write_record
 from gpu_impl.api import bundle_tracer
-from gpu_impl.bundles import format_bytes
-from gpu_impl.context import GLContext
+from gpu_impl.context import GLContext, format_bytes
 from gpu_impl.layout import SAMPLERS
 from gpu_impl.methods import imperfect, perfect
 from gpu_impl.scene_buffers import GpuScene

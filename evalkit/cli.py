@@ -41,7 +41,7 @@ from evalkit.study.spec import load_study
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 from evalkit.tune import CALIBRATION_SHARE, Candidate, bias_text, settings_text, tune
 from gpu_impl.api import trace_bundles
-from gpu_impl.bundles import format_bytes
+from gpu_impl.context import format_bytes
 from gpu_impl.registry import KINDS, METHODS, all_units, owners, resolve
 from gpu_impl.renderer import write_render
 from references.embree import ExactTracer

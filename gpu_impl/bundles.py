@@ -28,7 +28,7 @@ import numpy as np
 from evalkit.core.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet, bundle_params
 from evalkit.core.errors import InputError, LimitError
 from evalkit.core.settings import RenderSettings
-from gpu_impl.context import GLContext, set_uniforms
+from gpu_impl.context import MEMORY_HEADROOM, GLContext, format_bytes, set_uniforms
 from gpu_impl.layout import (
     BINDINGS,
     BUNDLE_FRAME,
@@ -53,10 +53,6 @@ from gpu_impl.timing import PassTimer
 CAPACITY_SLACK = 1.125
 # The frames' uniform block is always its whole size, MAX_DIRECTIONS frames (shaders/bundle.glsl).
 FRAMES_BYTES = BUNDLE_FRAME.itemsize * MAX_DIRECTIONS
-# The share of the free memory a build may take: the rest is for the process and the driver. On
-# llvmpipe the raster pass of atrium-dense (2.4 M triangles, K=256, R=1024) took 1.4 GiB beyond
-# its buffers, and with 80 % the memory cgroup killed it (docs/platform.md).
-MEMORY_HEADROOM = 0.5
 SCAN_BLOCK = SCAN_PER_THREAD * LOCAL_SIZE  # values one workgroup of shaders/prefix_sum.glsl scans
 
 
@@ -614,10 +610,3 @@ def decode_normals(packed: np.ndarray) -> np.ndarray:
     sign = np.where(e[back] >= 0.0, 1.0, -1.0)
     n[back, :2] = (1.0 - np.abs(e[back][:, ::-1])) * sign
     return (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
-
-
-def format_bytes(n: int) -> str:
-    for unit, size in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
-        if n >= size:
-            return f"{n / size:.2f} {unit}"
-    return f"{n} B"

@@ -26,6 +26,12 @@ GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
 GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX = 0x9049  # in KiB
 GL_CLIP_DISTANCE0 = 0x3000
 GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT = 0x8236, 0x8D94, 0x1405
+# The share of the free memory a build or a shadow atlas may take: the rest is for the process and
+# the driver. On llvmpipe the raster pass of atrium-dense (2.4 M triangles, K=256, R=1024) took
+# 1.4 GiB beyond its buffers, and with 80 % the memory cgroup killed it (docs/platform.md).
+MEMORY_HEADROOM = 0.5
+GL_RED, GL_RG, GL_FLOAT, GL_DEPTH_COMPONENT, GL_DEPTH_COMPONENT24 = 0x1903, 0x8227, 0x1406, 0x1902, 0x81A6
+GL_TEXTURE_2D_ARRAY, GL_COLOR_ATTACHMENT0, GL_DEPTH_ATTACHMENT = 0x8C1A, 0x8CE0, 0x8D00
 
 
 def _default_raster_threads() -> int:
@@ -168,6 +174,16 @@ class GLContext:
         texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
         return texture
 
+    def texture_array(self, size: tuple[int, int], layers: int, components: int, dtype: str):
+        texture = self.ctx.texture_array((*size, layers), components, dtype=dtype)
+        texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return texture
+
+    def layer_targets(self, color: list) -> LayerTargets:
+        """A framebuffer per layer of the texture arrays ``color`` (all of one size), with a depth
+        array of its own; the caller owns the arrays and the targets."""
+        return LayerTargets(self, color)
+
     def depth_renderbuffer(self, size: tuple[int, int]):
         return self.ctx.depth_renderbuffer(size)
 
@@ -259,6 +275,74 @@ class GLContext:
 
     def __exit__(self, *exc) -> None:
         self.release()
+
+
+class LayerTargets:
+    """Draw targets for texture arrays drawn a layer at a time: ``framebuffers[i]`` draws into
+    layer i of every array of ``color`` and of a 24-bit depth array made here (as moderngl's depth
+    renderbuffers are). moderngl attaches only whole 2-D textures, so the framebuffers and the
+    depth array are made through the GL and wrapped (`moderngl.Context.detect_framebuffer`)."""
+
+    def __init__(self, gl: GLContext, color: list):
+        self.color = list(color)
+        width, height, layers = self.color[0].size
+        make_textures = _required_gl_function(
+            "glCreateTextures", ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_uint)
+        )
+        storage = _required_gl_function(
+            "glTextureStorage3D", ctypes.c_uint, ctypes.c_int, ctypes.c_uint, ctypes.c_int, ctypes.c_int, ctypes.c_int
+        )
+        make_framebuffers = _required_gl_function("glCreateFramebuffers", ctypes.c_int, ctypes.POINTER(ctypes.c_uint))
+        attach = _required_gl_function(
+            "glNamedFramebufferTextureLayer", ctypes.c_uint, ctypes.c_uint, ctypes.c_uint, ctypes.c_int, ctypes.c_int
+        )
+        draw_buffers = _required_gl_function(
+            "glNamedFramebufferDrawBuffers", ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_uint)
+        )
+        depth = ctypes.c_uint(0)
+        make_textures(GL_TEXTURE_2D_ARRAY, 1, ctypes.byref(depth))
+        storage(depth.value, 1, GL_DEPTH_COMPONENT24, width, height, layers)
+        self.depth = depth.value
+        names = (ctypes.c_uint * layers)()
+        make_framebuffers(layers, names)
+        self.names = list(names)
+        outputs = (ctypes.c_uint * len(self.color))(*(GL_COLOR_ATTACHMENT0 + i for i in range(len(self.color))))
+        self.framebuffers = []
+        for layer, name in enumerate(self.names):
+            for i, texture in enumerate(self.color):
+                attach(name, GL_COLOR_ATTACHMENT0 + i, texture.glo, 0, layer)
+            attach(name, GL_DEPTH_ATTACHMENT, self.depth, 0, layer)
+            draw_buffers(name, len(self.color), outputs)
+            framebuffer = gl.ctx.detect_framebuffer(name)
+            framebuffer.viewport = (0, 0, width, height)
+            self.framebuffers.append(framebuffer)
+
+    def clear(self, layer: int, viewport: tuple[int, int, int, int], color: list) -> None:
+        """Set ``viewport`` (x, y, width, height) of ``layer``: each colour array to its value of
+        ``color`` (floats for a float array, an integer for an integer one), the depth to 1."""
+        clear = _required_gl_function(
+            "glClearTexSubImage",
+            ctypes.c_uint, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+            ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p,
+        )  # fmt: skip
+        x, y, w, h = viewport
+        if w <= 0 or h <= 0:
+            return
+        for texture, value in zip(self.color, color):
+            if texture.dtype.startswith("u"):
+                data, fmt, kind = (ctypes.c_uint32 * 1)(int(value) & 0xFFFFFFFF), GL_RED_INTEGER, GL_UNSIGNED_INT
+            else:
+                values = np.atleast_1d(np.asarray(value, dtype=np.float32))
+                data, fmt, kind = (ctypes.c_float * len(values))(*values), (GL_RED, GL_RG)[len(values) - 1], GL_FLOAT
+            clear(texture.glo, 0, x, y, layer, w, h, 1, fmt, kind, data)
+        clear(self.depth, 0, x, y, layer, w, h, 1, GL_DEPTH_COMPONENT, GL_FLOAT, (ctypes.c_float * 1)(1.0))
+
+    def release(self) -> None:
+        delete_framebuffers = _required_gl_function("glDeleteFramebuffers", ctypes.c_int, ctypes.POINTER(ctypes.c_uint))
+        delete_textures = _required_gl_function("glDeleteTextures", ctypes.c_int, ctypes.POINTER(ctypes.c_uint))
+        delete_framebuffers(len(self.names), (ctypes.c_uint * len(self.names))(*self.names))
+        delete_textures(1, (ctypes.c_uint * 1)(self.depth))
+        self.names, self.framebuffers = [], []
 
 
 def system_free_memory(proc: str = "/proc", cgroups: str = "/sys/fs/cgroup") -> tuple[int, str] | None:
@@ -357,3 +441,10 @@ def set_uniforms(program, values: dict) -> None:
     for name, value in values.items():
         if name in program:
             program[name] = value
+
+
+def format_bytes(n: int) -> str:
+    for unit, size in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= size:
+            return f"{n / size:.2f} {unit}"
+    return f"{n} B"

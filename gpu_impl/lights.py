@@ -1,12 +1,13 @@
 """Shadow-mapped lights and the environment on the GPU (shaders/lights.glsl, shadow_maps.glsl).
 
-Point, spot and directional lights (the fixed lights) get shadow maps in one atlas: a directional
+Point, spot and directional lights (the fixed lights) get shadow maps in one atlas (a stack of
+pages, the layers of a texture array, as many as its tiles need: `pack_tiles`): a directional
 light one orthographic view fitted to the bounding sphere, a spot light one perspective view over
 its cone (six when the cone is wider than a cube face), a point light six cube faces. Each cube
 face is widened by two texels so that filtering near a face's edge reads rendered texels. A view
 draws only the clusters of triangles (runs of the scene's order) whose boxes reach into it
 (`view_clusters`): a cube face sees a sixth of the space around its light. Every view of a pass
-is drawn by one indirect multi-draw (shaders/shadow_maps.glsl).
+is drawn by one indirect multi-draw per atlas page (shaders/shadow_maps.glsl).
 
 Light vertices are points that light the scene for one frame, each a point light whose intensity
 falls as the cosine to its surface's normal: the path strategy says which (the eye paths' emitter
@@ -26,7 +27,7 @@ import numpy as np
 from evalkit.core.errors import LimitError
 from evalkit.core.scene.model import Light
 from evalkit.core.settings import RenderSettings
-from gpu_impl.context import GLContext, set_uniforms
+from gpu_impl.context import MEMORY_HEADROOM, GLContext, format_bytes, set_uniforms
 from gpu_impl.layout import BINDINGS, ENVIRONMENT_KINDS, FACING_IMAGE_UNITS, LIGHT, LIGHT_KINDS, SHADOW_VIEW
 from gpu_impl.scene_buffers import CLUSTER_TRIANGLES, GpuScene
 
@@ -235,27 +236,61 @@ def _face_normals(triangles: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
-def pack_tiles(
-    sizes: list[int], max_side: int, new_rows: tuple[int, ...] = ()
-) -> tuple[list[tuple[int, int]], tuple[int, int]]:
-    """Square tiles of the given sides packed row by row into one atlas: the tiles' corners and the
-    atlas size. ``new_rows``: indices of tiles that start a row, so that the tiles from each on
-    fill rows of their own (one clear covers them)."""
-    side = max(max(sizes), 1 << math.ceil(math.log2(math.sqrt(sum(s * s for s in sizes)))))
+class Atlas(NamedTuple):
+    """Where `pack_tiles` put the tiles: each tile's corner (x, y), the page size (width, height)
+    and how many pages. The atlas is a stack of pages, the layers of a texture array, and a tile's
+    y counts down the whole stack: its page is y // height (shaders/lights.glsl: atlas_texel)."""
+
+    corners: list[tuple[int, int]]
+    page: tuple[int, int]
+    pages: int
+
+
+def pack_tiles(sizes: list[int], max_side: int, new_rows: tuple[int, ...] = (), max_pages: int = 1) -> Atlas:
+    """Square tiles of the given sides packed row by row into pages of at most ``max_side`` texels
+    a side: one page where they fit one, else as few square pages as leave the least unused (of
+    sides ``max_side``, its half and its quarter), at most ``max_pages``. ``new_rows``: indices of
+    tiles that start a row, so that the tiles from each on fill rows of their own (one clear
+    covers them)."""
+    largest = max(sizes)
+    if largest > max_side:
+        raise LimitError(f"a shadow map of {largest} texels a side exceeds the GL texture limit {max_side}", ())
+    side = max(largest, 1 << math.ceil(math.log2(math.sqrt(sum(s * s for s in sizes)))))
+    if side <= max_side:
+        corners, height = _pack_rows(sizes, side, new_rows)
+        if height <= max_side:
+            return Atlas(corners, (side, height), 1)
+    best = None
+    for side in (max_side, max_side // 2, max_side // 4):
+        if side >= largest:
+            corners, height = _pack_rows(sizes, side, new_rows, page=side)
+            pages = -(-height // side)
+            if best is None or pages * side * side < best.pages * best.page[0] ** 2:
+                best = Atlas(corners, (side, side), pages)
+    if best.pages > max_pages:
+        raise LimitError(
+            f"{len(sizes)} shadow views ({sum(s * s for s in sizes):,} texels) need {best.pages} atlas pages of "
+            f"{best.page[0]} texels a side, over the GL's {max_pages}; lower the shadow map sizes, the light "
+            "samples or the light paths",
+            ("light_paths",),
+        )
+    return best
+
+
+def _pack_rows(
+    sizes: list[int], side: int, new_rows: tuple[int, ...], page: int | None = None
+) -> tuple[list[tuple[int, int]], int]:
+    """Tiles in rows ``side`` texels wide; a tile that would run past the bottom of its page of
+    ``page`` rows starts the next page. The corners and the rows used."""
     corners, x, y, row = [], 0, 0, 0
     for i, s in enumerate(sizes):
         if x + s > side or (i in new_rows and x > 0):
             x, y, row = 0, y + row, 0
+        if page is not None and y % page + s > page:
+            x, y, row = 0, (y // page + 1) * page, 0
         corners.append((x, y))
         x, row = x + s, max(row, s)
-    size = (side, y + row)
-    if max(size) > max_side:
-        raise LimitError(
-            f"{len(sizes)} shadow views ({sum(s * s for s in sizes):,} texels) exceed the GL texture "
-            f"limit {max_side}; lower the shadow map sizes, the light samples or the light paths",
-            ("light_paths",),
-        )
-    return corners, size
+    return corners, y + row
 
 
 class Views(NamedTuple):
@@ -408,20 +443,21 @@ class ShadowLights:
         self.fixed_lights = self.static_lights + environment_samples
         self.fixed_views = self.static_views + environment_samples
         self.buffers = {}
-        self.atlas = self.framebuffer = self.triangles = None
+        self.atlas = self.targets = self.triangles = None
         self.facing = ()
         visibility.check(self.light_vertices)
         if records_count:
             per_vertex = visibility.tiles_per_vertex
+            side, max_pages = gl.limit("GL_MAX_TEXTURE_SIZE"), gl.limit("GL_MAX_ARRAY_TEXTURE_LAYERS")
             texels = (
                 self.map_size**2 * self.static_views
                 + environment_map_size**2 * environment_samples
                 + visibility.map_size**2 * per_vertex * self.light_vertices
             )
-            if texels > gl.limit("GL_MAX_TEXTURE_SIZE") ** 2:  # before a list of every tile is made
+            if texels > max_pages * side**2:  # before a list of every tile is made
                 raise LimitError(
-                    f"{self.light_vertices:,} light vertices' shadow maps ({texels:,} texels) exceed the GL texture "
-                    f"limit of {gl.limit('GL_MAX_TEXTURE_SIZE')} a side; lower the light samples, the light paths "
+                    f"{self.light_vertices:,} light vertices' shadow maps ({texels:,} texels) exceed the GL's "
+                    f"{max_pages} texture layers of {side} texels a side; lower the light samples, the light paths "
                     "or their maps' size",
                     ("light_paths", visibility.map_size_setting),
                 )
@@ -431,11 +467,18 @@ class ShadowLights:
                 + [visibility.map_size] * (per_vertex * self.light_vertices)
             )
             new_rows = (self.static_views, self.fixed_views)
-            corners, atlas_size = pack_tiles(sizes, gl.limit("GL_MAX_TEXTURE_SIZE"), new_rows=new_rows)
-            self.tiles = np.array(corners, dtype=np.float64).reshape(-1, 2)
+            atlas = pack_tiles(sizes, side, new_rows=new_rows, max_pages=max_pages)
+            # Each texel's two nearest surfaces that face the light, which the raster pass keeps
+            # and `second_surfaces` reads and clears again (shaders/shadow_second_surface.glsl);
+            # a scene whose every triangle bounds a solid has no second surfaces to keep.
+            facing = not gpu_scene.solids().all()
+            self._check_memory(atlas, bool(path_vertices), facing, visibility.map_size_setting)
+            self.tiles = np.array(atlas.corners, dtype=np.float64).reshape(-1, 2)
+            self.page_size, self.pages = atlas.page, atlas.pages
             # The environment samples' tiles and the light vertices' fill rows of their own
-            # (`set_environment_samples`, `clear_vertex_tiles`).
-            self.vertex_row = int(self.tiles[self.fixed_views, 1]) if self.light_vertices else atlas_size[1]
+            # (`set_environment_samples`, `clear_vertex_tiles`); rows count down the stack of pages.
+            self.rows = atlas.pages * atlas.page[1]
+            self.vertex_row = int(self.tiles[self.fixed_views, 1]) if self.light_vertices else self.rows
             self.environment_row = int(self.tiles[self.static_views, 1]) if environment_samples else self.vertex_row
             self.view_records = np.zeros(len(sizes), dtype=SHADOW_VIEW)
             if fixed is not None:
@@ -445,17 +488,13 @@ class ShadowLights:
                 self.records[i] = record
             self.buffers["LIGHTS"] = gl.buffer(self.records.tobytes())
             self.buffers["SHADOW_VIEWS"] = gl.buffer(self.view_records.tobytes())
-            self.atlas = gl.texture(atlas_size, 2, dtype="f4")  # the first surface, the second
-            self.depth = gl.depth_renderbuffer(self.atlas.size)
+            self.atlas = gl.texture_array(atlas.page, atlas.pages, 2, "f4")  # the first surface, the second
             if path_vertices:
-                self.triangles = gl.texture(atlas_size, 1, dtype="u4")
-            self.framebuffer = gl.framebuffer([self.atlas, *([self.triangles] if path_vertices else [])], self.depth)
-            # Each texel's two nearest surfaces that face the light, which the raster pass keeps
-            # and `second_surfaces` reads and clears again (shaders/shadow_second_surface.glsl);
-            # a scene whose every triangle bounds a solid has no second surfaces to keep.
+                self.triangles = gl.texture_array(atlas.page, atlas.pages, 1, "u4")
+            self.targets = gl.layer_targets([self.atlas, *([self.triangles] if path_vertices else [])])
             self.second_surfaces = None
-            if not gpu_scene.solids().all():
-                self.facing = tuple(gl.texture(atlas_size, 1, dtype="u4") for _ in FACING_IMAGE_UNITS)
+            if facing:
+                self.facing = tuple(gl.texture_array(atlas.page, atlas.pages, 1, "u4") for _ in FACING_IMAGE_UNITS)
                 for texture in self.facing:
                     gl.fill_texture(texture, NO_SURFACE_BITS)  # then kept so by the second-surface pass
                 self.second_surfaces = gl.program("shadow_second_surface")
@@ -494,9 +533,7 @@ class ShadowLights:
         self.records[first : first + count] = records
         self.set_views(self.static_views, Views(*(np.concatenate(f) for f in zip(*views))), self.environment_map_size)
         self.upload()
-        width = self.atlas.size[0]
-        viewport = (0, self.environment_row, width, self.vertex_row - self.environment_row)
-        self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0, viewport=viewport)
+        self.clear_rows(self.environment_row, self.vertex_row)
         self.draw(range(self.static_views, self.fixed_views))
 
     def set_light_path_densities(self, densities: np.ndarray) -> None:
@@ -577,21 +614,36 @@ class ShadowLights:
 
     def render_shadow_maps(self) -> None:
         """Draw the scene into the tile of every shadow view of the point, spot and directional lights."""
-        if self.framebuffer is None:
+        if self.targets is None:
             return
-        # The whole atlas: a triangle texel is read only where a distance is.
-        self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0)
+        self.clear_rows(0, self.rows)  # the whole atlas: a triangle texel is read only where a distance is
         self.draw(range(self.static_views))
 
     def clear_vertex_tiles(self) -> None:
         """Clear the light vertices' tiles for their next draw: the atlas' rows from `vertex_row` on."""
-        width, height = self.atlas.size
-        viewport = (0, self.vertex_row, width, height - self.vertex_row)
-        self.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0, viewport=viewport)
+        self.clear_rows(self.vertex_row, self.rows)
+
+    def clear_rows(self, first: int, end: int) -> None:
+        """Clear the atlas' rows ``first`` to ``end`` (counted down the stack of pages) to no surface."""
+        width, height = self.page_size
+        for page in range(first // height, -(-end // height)):
+            lo, hi = max(first - page * height, 0), min(end - page * height, height)
+            self.targets.clear(page, (0, lo, width, hi - lo), [(NO_SURFACE, NO_SURFACE), 0])
+
+    def view_pages(self, views) -> np.ndarray:
+        """The atlas page each of ``views`` lies on."""
+        return self.view_records["tile"][np.asarray(views, dtype=np.int64), 1].astype(np.int64) // self.page_size[1]
+
+    def read_atlas(self, channels: int = 2) -> np.ndarray:
+        """The atlas' distances (``channels`` 2: first surface, second) or, with ``channels`` 1, the
+        triangles texture, as one image of the stacked pages: (rows, width, channels) (tests, benchmarks)."""
+        texture, dtype = (self.atlas, np.float32) if channels == 2 else (self.triangles, np.uint32)
+        width, height = self.page_size
+        return np.frombuffer(texture.read(), dtype=dtype).reshape(self.pages * height, width, channels)
 
     def draw(self, views) -> None:
-        """Draw the scene into the given views' tiles (cleared before) in one indirect multi-draw,
-        then find their texels' second surfaces."""
+        """Draw the scene into the given views' tiles (cleared before; in increasing order) in one
+        indirect multi-draw per atlas page, then find their texels' second surfaces."""
         views = np.asarray(views, dtype=np.int64)
         if not len(views):
             return
@@ -605,13 +657,20 @@ class ShadowLights:
         self.commands.write(commands.tobytes())
         for texture, unit in zip(self.facing, FACING_IMAGE_UNITS):
             texture.bind_to_image(unit, read=True, write=True)
-        self.framebuffer.viewport = (0, 0, *self.atlas.size)
         # Per draw: the context caches one program per variant for every atlas it draws into.
-        self.program["atlas_size"] = self.atlas.size
-        if len(commands):
-            draw = (self.commands, len(commands), 0)
+        self.program["atlas_size"] = self.page_size
+        # The commands follow the views, so each page's are a run.
+        pages = self.view_pages(commands["base_instance"])
+        for page in np.unique(pages):
+            first, last = np.searchsorted(pages, page), np.searchsorted(pages, page, side="right")
+            set_uniforms(self.program, {"atlas_page": int(page)})  # used where second surfaces are kept
             self.gl.draw(
-                self.vao, moderngl.TRIANGLES, self.framebuffer, depth_test=True, commands=draw, clip_distances=4
+                self.vao,
+                moderngl.TRIANGLES,
+                self.targets.framebuffers[page],
+                depth_test=True,
+                commands=(self.commands, last - first, first),
+                clip_distances=4,
             )
         if self.second_surfaces is None:
             return
@@ -690,11 +749,22 @@ class ShadowLights:
                 values["environment_to_local"] = tuple(to_local.T.ravel())  # column-major
         set_uniforms(program, values)
 
+    def _check_memory(self, atlas: Atlas, triangles: bool, facing: bool, map_size_setting: str) -> None:
+        """Refuse an atlas past half the memory free now (the bundles' headroom), before it is made."""
+        room = self.gl.free_memory()
+        needed = atlas.pages * atlas.page[0] * atlas.page[1] * _texel_bytes(triangles, facing)
+        if room is not None and needed > room[0] * MEMORY_HEADROOM:
+            raise LimitError(
+                f"{self.light_vertices:,} light vertices' shadow maps need {format_bytes(needed)} in {atlas.pages} "
+                f"atlas pages, over half of the {format_bytes(room[0])} free by {room[1]}; lower the light samples, "
+                "the light paths or their maps' size",
+                ("light_paths", map_size_setting),
+            )
+
     @property
     def nbytes(self) -> int:
-        # RG32F + depth (+ R32UI triangles) (+ 2 R32UI facing surfaces)
-        texel = 12 + 4 * (self.triangles is not None) + 4 * len(self.facing)
-        atlas = 0 if self.atlas is None else self.atlas.size[0] * self.atlas.size[1] * texel
+        texel = _texel_bytes(self.triangles is not None, bool(self.facing))
+        atlas = 0 if self.atlas is None else self.pages * self.page_size[0] * self.page_size[1] * texel
         views = 0 if self.atlas is None else self.view_indices.size
         return sum(b.size for b in self.buffers.values()) + views + atlas + self.visibility.nbytes
 
@@ -703,15 +773,21 @@ class ShadowLights:
             buffer.release()
         self.buffers.clear()
         self.visibility.release()
-        if self.framebuffer is not None:
+        if self.targets is not None:
             self.vao.release()
             self.view_indices.release()
-            self.framebuffer.release()
+            self.targets.release()
             self.atlas.release()
             for texture in self.facing:
                 texture.release()
-            self.depth.release()
             if self.triangles is not None:
                 self.triangles.release()
             if self.commands is not None:
                 self.commands.release()
+
+
+def _texel_bytes(triangles: bool, facing: bool) -> int:
+    """An atlas texel's bytes: RG32F distances and 24-bit depth (stored in 32), the triangle seen
+    (R32UI, with light paths) and two facing surfaces (R32UI each, where not every triangle bounds
+    a solid)."""
+    return 12 + 4 * triangles + 8 * facing

@@ -36,8 +36,8 @@ from evalkit.core.errors import LimitError
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene
 from evalkit.core.settings import IMAGES, RenderSettings
-from gpu_impl.bundles import CAPACITY_SLACK, NodeBudgetExceeded, format_bytes
-from gpu_impl.context import GLContext, set_uniforms
+from gpu_impl.bundles import CAPACITY_SLACK, NodeBudgetExceeded
+from gpu_impl.context import GLContext, format_bytes, set_uniforms
 from gpu_impl.layout import BINDINGS, LOCAL_SIZE, PATH, PATH_SUMS
 from gpu_impl.lights import ShadowLights
 from gpu_impl.registry import resolve

@@ -121,24 +121,69 @@ def test_bad_bidirectional_settings_are_one_line_errors(tmp_path, flags, message
     assert len(lines) == 1 and message in lines[0], result.stderr
 
 
-def test_light_vertices_past_the_texture_limit_are_refused_before_anything_is_made(gl):
-    """A shadow atlas that cannot fit the GL texture limit is a `LimitError` (what `evalkit tune`
-    takes as the renderer's refusal, tests/test_tune.py) from the renderer's constructor, with the
-    vertices, the texels, the limit and the settings at fault named; half as many are made (the
-    tiles are packed in rows, so not every texel of the limit is used)."""
+def test_atlas_tiles_fill_one_page_where_they_fit_and_pages_of_their_own_past_it():
+    """`pack_tiles`: one page as before where the tiles fit the texture limit; past it, square
+    pages of the limit or less, no tile across a page's edge or over another, the rows asked for
+    started afresh, and a refusal past the GL's layers."""
+    sizes = [16] * 3 + [64] * 2 + [32] * 40
+    one = gpu_lights.pack_tiles(sizes, 1024, new_rows=(3, 5))
+    assert one.pages == 1 and one.page[0] == 256  # the power of two past the tiles' area, as before
+    paged = gpu_lights.pack_tiles(sizes, 64, new_rows=(3, 5), max_pages=64)
+    assert paged.pages > 1 and paged.page == (64, 64)
+    height = paged.page[1]
+    covered = np.zeros((paged.pages * height, 64), dtype=int)
+    for (x, y), s in zip(paged.corners, sizes):
+        assert x + s <= 64 and y // height == (y + s - 1) // height  # within one page
+        covered[y : y + s, x : x + s] += 1
+    assert covered.max() == 1 and covered.sum() == sum(s * s for s in sizes)
+    assert paged.corners[3][0] == 0 and paged.corners[5][0] == 0  # rows of their own
+    with pytest.raises(LimitError, match="atlas pages of 64 texels a side, over the GL's 2"):
+        gpu_lights.pack_tiles(sizes, 64, max_pages=2)
+
+
+@pytest.mark.parametrize("visibility", ["exact", "imperfect"])
+def test_light_vertices_past_one_texture_render_as_they_do_in_one(gl, monkeypatch, visibility):
+    """Light vertices' shadow maps past the GL texture limit go on more atlas pages: a render whose
+    maps fill several pages (the limit lowered to 128 texels) is the render with one page, bit for
+    bit. lit-room: a spot light's map, light paths' triangles and second surfaces (not every
+    triangle bounds a solid) on page 0 and the light vertices' maps on 2 to 5 pages; the imperfect
+    maps with pull-push."""
+    scene = load_scene("lit-room")
+    settings = dict(method="perfect", strategy="bidirectional", bounces=2, directions=8, resolution=32, frames=2)
+    settings.update(width=16, height=16, spp=2, light_paths=8, shadow_map_size=64, light_visibility=visibility)
+    settings.update(light_sample_map_size=32, ism_size=32, ism_points=512, ism_pull_push=True, seed=3)
+    one = render_with(gl, scene, **settings)
+    limit = gl.limit
+    monkeypatch.setattr(gl, "limit", lambda name: 128 if name == "GL_MAX_TEXTURE_SIZE" else limit(name))
+    with Renderer(gl, scene, resolve(RenderSettings(**settings), "drop").settings) as renderer:
+        pages = renderer.lights.pages
+    paged = render_with(gl, scene, **settings)
+    assert pages > 1
+    for name, image in one.images.items():
+        assert np.array_equal(image, paged.images[name]), f"{name} differs on {pages} pages"
+
+
+def test_light_vertices_past_half_the_free_memory_are_refused_before_anything_is_made(gl, monkeypatch):
+    """A shadow atlas past half the memory free is a `LimitError` (what `evalkit tune` takes as the
+    renderer's refusal, tests/test_tune.py) from the renderer's constructor, naming the vertices,
+    the bytes, the pages and the settings at fault; past one texture but within the memory it is
+    made."""
     side, size = gl.limit("GL_MAX_TEXTURE_SIZE"), 1024
-    fits = side * side // (6 * size * size)  # cube maps of `size` texels a face
+    fits = side * side // (6 * size * size)  # cube maps of `size` texels a face in one texture
     settings = dict(method="perfect", strategy="bidirectional", bounces=1, directions=4, resolution=16, frames=1)
     settings.update(width=8, height=8, light_sample_map_size=size, shadow_map_size=16)
     scene = load_scene("lit-room")  # one spot light: a single fixed view of 16 texels a side
+    monkeypatch.setattr(gl, "free_memory", lambda: (2**28, "a test"))
     with pytest.raises(
-        LimitError, match=rf"light vertices' shadow maps \([\d,]+ texels\) exceed the GL texture limit of {side}"
+        LimitError,
+        match=r"2 light vertices' shadow maps need [\d.]+ MiB in 1 atlas pages, over half of the 256.00 MiB free by a",
     ) as refused:
-        Renderer(gl, scene, RenderSettings(**settings, light_paths=fits + 1))
+        Renderer(gl, scene, RenderSettings(**settings, light_paths=2))
     # The tuner passes over these light paths and maps of this size, and more of either.
     assert refused.value.settings == ("light_paths", "light_sample_map_size")
-    with Renderer(gl, scene, RenderSettings(**settings, light_paths=fits // 2)) as renderer:
-        assert renderer.lights.light_vertices == fits // 2
+    monkeypatch.setattr(gl, "free_memory", lambda: None)  # where the driver does not say
+    with Renderer(gl, scene, RenderSettings(**settings, light_paths=fits + 1)) as renderer:
+        assert renderer.lights.light_vertices == fits + 1 and renderer.lights.pages > 1
 
 
 def test_imperfect_shadow_maps_agree_with_exact_maps_and_rays_on_most_connections(gl):
@@ -191,7 +236,7 @@ def centre_surfaces(gl, scene, positions: np.ndarray, normals: np.ndarray) -> np
     m = len(positions)
     vertices = LightVertices(positions, normals, np.ones((m, 3)), np.ones(m))
     with vertex_maps(gl, scene, exact_settings(), vertices) as lights:
-        atlas = np.frombuffer(lights.atlas.read(), dtype=np.float32).reshape(*lights.atlas.size[::-1], 2)
+        atlas = lights.read_atlas()
         tiles = lights.view_records["tile"][lights.fixed_views : lights.fixed_views + 6 * m]
         return np.array([atlas[int(y + size // 2), int(x + size // 2)] for x, y, size, _ in tiles]).reshape(m, 6, 2)
 
@@ -294,11 +339,9 @@ def test_every_shadow_view_of_a_draw_stays_in_its_own_tile(gl):
         views = [*range(lights.fixed_views), *(lights.fixed_views + np.flatnonzero(faces_front(normals)))]
         drawn = 0
         for view in views:
-            lights.framebuffer.clear(red=NO_SURFACE, green=NO_SURFACE, depth=1.0)
+            lights.clear_rows(0, lights.rows)
             lights.draw([view])
-            first = (
-                np.frombuffer(lights.atlas.read(), dtype=np.float32).reshape(*lights.atlas.size[::-1], 2)[..., 0].copy()
-            )
+            first = lights.read_atlas()[..., 0].copy()
             x, y, size, _ = lights.view_records["tile"][view].astype(int)
             inside = first[y : y + size, x : x + size].copy()
             first[y : y + size, x : x + size] = NO_SURFACE
@@ -319,7 +362,7 @@ def test_a_light_vertex_s_maps_never_hold_its_own_surface(gl):
     vertices = frame_light_vertices(gl, scene, settings, 64)
     a = scene.arrays()
     with vertex_maps(gl, scene, settings, vertices) as lights:
-        seen = np.frombuffer(lights.triangles.read(), np.uint32).reshape(lights.atlas.size[::-1])
+        seen = lights.read_atlas(channels=1)[..., 0]
         tiles = lights.view_records["tile"][lights.fixed_views :]
         own, covered = 0, 0
         for k, (x, y, size, _) in enumerate(tiles[: 6 * len(vertices.positions)]):
@@ -398,7 +441,7 @@ def test_pull_push_fills_every_hole_of_sparse_imperfect_shadow_maps_and_keeps_wh
         )  # fmt: skip
         with vertex_maps(gl, scene, resolved.settings, vertices) as lights:
             # The atlas' first surfaces; imperfect maps and their filling keep no second ones.
-            atlas = np.frombuffer(lights.atlas.read(), dtype=np.float32).reshape(*lights.atlas.size[::-1], 2)
+            atlas = lights.read_atlas()
             tiles = lights.view_records["tile"][lights.fixed_views : lights.fixed_views + count]
         tile_maps = np.stack([atlas[int(y) : int(y) + 64, int(x) : int(x) + 64] for x, y, _, _ in tiles])
         assert (tile_maps[..., 1] == np.finfo(np.float32).max).all()

@@ -357,7 +357,7 @@ def test_settings_the_renderer_refused_are_passed_over_with_all_that_hold_more()
             best = min(best, float(error_model.predict({**x, "frames": frames})))
     assert found.settings["light_paths"] < V and found.predicted_error == pytest.approx(best)
 
-    class Studies:  # a renderer that refuses the free optimum's V and more, as a texture limit would
+    class Studies:  # a renderer that refuses the free optimum's V and more, as the memory ceiling would
         runs = []
 
         def run(self, name, grid, refusals=False):

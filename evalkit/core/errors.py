@@ -20,7 +20,7 @@ class InputError(Exception):
 
 class LimitError(ValueError):
     """Settings past what the renderer's index types or the GL context hold (a shadow atlas past
-    the texture limit, more eye paths than a 32-bit index counts, ...): refused before anything is
+    half the free memory, more eye paths than a 32-bit index counts, ...): refused before anything is
     rendered. ``settings`` names the render settings whose values went past it, so that a caller
     that chooses settings (`evalkit tune`) can leave out those values and any larger ones."""
 

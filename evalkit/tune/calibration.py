@@ -402,7 +402,7 @@ def pins(scene: str, candidates: list[Candidate], pin: dict) -> dict:
 
 def _rendered_optima(studies: TunerStudies, name: str, optima: list, run, optimum, refused: dict) -> tuple[list, list]:
     """The candidates' ``optima`` rendered (each as ``run(optimum)``) in the tuner's study ``name``.
-    Where the renderer refuses one (a `LimitError`: a shadow atlas past the GL texture limit, say),
+    Where the renderer refuses one (a `LimitError`: a shadow atlas past half the free memory, say),
     the values of the settings at fault join ``refused`` and the candidate's next best,
     ``optimum(candidate)``, is rendered instead. Returns the optima rendered and their rows."""
     while True:

@@ -29,7 +29,7 @@ uniform uint points_per_map;     // P
 uniform uint seed;
 uniform uint frame;
 uniform float splat_radius;      // in scene units
-uniform vec2 atlas_size;         // in texels
+uniform vec2 atlas_size;         // a page's, in texels
 
 #if defined VERTEX_SHADER
 
@@ -60,7 +60,8 @@ void main() {
     vec3 d = p - view.origin.xyz;
     float dist = length(d);
     vec3 local = paraboloid_local(view.axis.xyz, d / max(dist, 1e-30));
-    v_tile = vec4(view.tile.xy, view.tile.xy + view.tile.z);
+    vec2 corner = vec2(atlas_texel(ivec2(view.tile.xy), int(atlas_size.y)).xy);  // in its page
+    v_tile = vec4(corner, corner + view.tile.z);
     v_centre = d;
     v_normal = normalize(cross(e1, e2));
     SplatShape shape = splat_shape(triangle, triangle_cut_lines(triangle));
@@ -87,7 +88,7 @@ void main() {
         gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // outside the clip volume
         return;
     }
-    vec2 texel = view.tile.xy + (paraboloid_position(local) * 0.5 + 0.5) * view.tile.z;
+    vec2 texel = corner + (paraboloid_position(local) * 0.5 + 0.5) * view.tile.z;
     gl_Position = vec4(texel / atlas_size * 2.0 - 1.0, clamp(dist * view.axis.w, 0.0, 1.0) * 2.0 - 1.0, 1.0);
     // A disk of radius r at distance dist spans at most 2 asin(r / dist) radians, and a radian at
     // angle theta 1 / (1 + cos theta) of the map's [-1, 1]; a texel more for the scale's change

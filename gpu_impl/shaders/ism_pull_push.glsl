@@ -18,7 +18,7 @@
 #if defined COMPUTE_SHADER
 
 layout(local_size_x = LOCAL_SIZE) in;
-layout(rg32f, binding = 0) uniform image2D atlas;
+layout(rg32f, binding = 0) uniform image2DArray atlas;
 layout(std430, binding = BINDING_ISM_PYRAMID) buffer Pyramid { float pyramid[]; };
 
 uniform uint invocations;   // maps x texels of this level
@@ -33,13 +33,18 @@ uniform uint map_stride;    // floats of one map's pyramid
 // is that, and a distance past HOLE is one.
 #define HOLE 3.0e38
 
+// Texel xy of map m's tile in the atlas.
+ivec3 map_texel(uint m, ivec2 xy) {
+    return atlas_texel(ivec2(shadow_views[first_view + int(m)].tile.xy) + xy, imageSize(atlas).y);
+}
+
 float texel_at(uint m, int l, int size, int offset, ivec2 xy) {
-    if (l == 0) return imageLoad(atlas, ivec2(shadow_views[first_view + int(m)].tile.xy) + xy).r;
+    if (l == 0) return imageLoad(atlas, map_texel(m, xy)).r;
     return pyramid[m * map_stride + uint(offset + xy.y * size + xy.x)];
 }
 
 void store(uint m, int l, int size, int offset, ivec2 xy, float value) {
-    if (l == 0) imageStore(atlas, ivec2(shadow_views[first_view + int(m)].tile.xy) + xy, vec4(value, NO_SURFACE, 0.0, 0.0));
+    if (l == 0) imageStore(atlas, map_texel(m, xy), vec4(value, NO_SURFACE, 0.0, 0.0));
     else pyramid[m * map_stride + uint(offset + xy.y * size + xy.x)] = value;
 }
 

@@ -50,7 +50,7 @@ layout(local_size_x = LOCAL_SIZE) in;
 #define INV_PI 0.3183098861837907
 
 uniform uint invocations;       // V
-uniform usampler2D shadow_triangles;  // the triangle + 1 each shadow texel saw
+uniform usampler2DArray shadow_triangles;  // the triangle + 1 each shadow texel saw
 uniform int direction_count;    // K
 uniform uint seed;
 uniform uint frame;
@@ -75,7 +75,7 @@ Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
     if (any(greaterThan(abs(ndc), vec2(1.0)))) return s;
     int size = int(view.tile.z);
     ivec2 texel = clamp(ivec2((ndc * 0.5 + 0.5) * view.tile.z), ivec2(0), ivec2(size - 1));
-    ivec2 at = ivec2(view.tile.xy) + texel;
+    ivec3 at = atlas_texel(ivec2(view.tile.xy) + texel, textureSize(shadow_atlas, 0).y);
     uint seen = texelFetch(shadow_triangles, at, 0).r;
     if (seen == 0u || texelFetch(shadow_atlas, at, 0).r * view.axis.w >= 1.0) return s;  // nothing there
     uint t = seen - 1u;

@@ -31,12 +31,19 @@ struct Light {
 // LIGHT_LIGHT_PATH_VERTEX or LIGHT_ENVIRONMENT_SAMPLE (a directional light for one frame, drawn
 // from the environment map: gpu_impl/lights.py: EnvironmentSamples) (gpu_impl/layout.py).
 
+// The shadow atlas is a stack of pages, the layers of a texture array: a tile's y counts down the
+// whole stack, so that its page is y / the page's height and a tile is one corner wherever it lies
+// (gpu_impl/lights.py: pack_tiles). The texel `at` of the stack in a page of `page_height` rows:
+ivec3 atlas_texel(ivec2 at, int page_height) {
+    return ivec3(at.x, at.y % page_height, at.y / page_height);
+}
+
 // One shadow map: a tile of the atlas holding, per texel, the distance from the light to the
 // nearest surface (radial for a perspective view, along the light direction for an orthographic
 // one), and to the second: the nearest behind it that faces the light (NO_SURFACE where none is).
 struct ShadowView {
     mat4 to_clip;    // position relative to the bundle centre -> clip space of this view
-    vec4 tile;       // xy: the tile's first texel in the atlas, z: its size in texels, w: see texel_size
+    vec4 tile;       // xy: the tile's first texel in the atlas' stack of pages, z: its size in texels, w: see texel_size
     vec4 origin;     // xyz: the light position (perspective) or the plane distances start from
                      // (orthographic); w: 1 perspective, 0 orthographic
     vec4 axis;       // xyz: the light direction (orthographic), the emitter's normal (an emitter
@@ -47,7 +54,7 @@ layout(std430, binding = BINDING_LIGHTS) readonly buffer Lights { Light lights[]
 layout(std430, binding = BINDING_SHADOW_VIEWS) readonly buffer ShadowViews { ShadowView shadow_views[]; };
 
 uniform int light_count;          // the point, spot and directional lights and the emitter samples
-uniform sampler2D shadow_atlas;   // RG32F light distances: the first surface, the second (shadow_maps.glsl)
+uniform sampler2DArray shadow_atlas;  // RG32F light distances: the first surface, the second (shadow_maps.glsl)
 uniform float shadow_bias;        // constant depth bias, in texels
 uniform float shadow_slope_bias;  // slope-scaled depth bias, in texels per unit tan(angle to the light)
 uniform int shadow_filter;        // PCF: shadow_filter x shadow_filter bilinear taps, one texel apart
@@ -112,7 +119,7 @@ float depth_bias_texels(float slope) {
 // after Woo 1992), where the gap is wider than `resolved` x 2 (SECOND_SURFACE_MARGIN): a point on
 // the ceiling above a light that hangs a hair under it is in shadow however wide the bias is.
 float lit_tap(ivec2 at, float dist, float bias, float resolved) {
-    vec2 surfaces = texelFetch(shadow_atlas, at, 0).rg;
+    vec2 surfaces = texelFetch(shadow_atlas, atlas_texel(at, textureSize(shadow_atlas, 0).y), 0).rg;
     float half_gap = 0.5 * (surfaces.y - surfaces.x);
     return surfaces.x >= dist - (half_gap > resolved ? min(bias, half_gap) : bias) ? 1.0 : 0.0;
 }

@@ -30,7 +30,8 @@
 #define SCENE_MATERIALS_ONLY
 #include "scene.glsl"
 
-uniform vec2 atlas_size;  // in texels
+uniform vec2 atlas_size;  // a page's, in texels
+uniform int atlas_page;   // the page this draw's views lie on (the framebuffer's layer)
 
 #if defined VERTEX_SHADER
 
@@ -60,8 +61,9 @@ void main() {
     gl_ClipDistance[1] = clip.w - clip.x;
     gl_ClipDistance[2] = clip.w + clip.y;
     gl_ClipDistance[3] = clip.w - clip.y;
-    // The view's [-1, 1] in x and y onto its tile's texels of the atlas' [-1, 1].
-    vec2 scale = view.tile.z / atlas_size, offset = (2.0 * view.tile.xy + view.tile.z) / atlas_size - 1.0;
+    // The view's [-1, 1] in x and y onto its tile's texels of the page's [-1, 1].
+    vec2 corner = vec2(atlas_texel(ivec2(view.tile.xy), int(atlas_size.y)).xy);
+    vec2 scale = view.tile.z / atlas_size, offset = (2.0 * corner + view.tile.z) / atlas_size - 1.0;
     gl_Position = vec4(clip.xy * scale + clip.w * offset, clip.zw);
 }
 
@@ -77,8 +79,8 @@ layout(location = 0) out vec2 out_distance;  // the first surface; the second co
 layout(location = 1) out uint out_triangle;
 // Distances as uint bits (a non-negative float orders as its bits do); cleared to NO_SURFACE's.
 #if SECOND_SURFACES
-layout(r32ui, binding = FACING_IMAGE_NEAREST) uniform coherent uimage2D facing_nearest;
-layout(r32ui, binding = FACING_IMAGE_NEXT) uniform coherent uimage2D facing_next;
+layout(r32ui, binding = FACING_IMAGE_NEAREST) uniform coherent uimage2DArray facing_nearest;
+layout(r32ui, binding = FACING_IMAGE_NEXT) uniform coherent uimage2DArray facing_next;
 #endif
 
 void main() {
@@ -99,7 +101,7 @@ void main() {
     // least reaches `facing_next` once, in any order, so that ends as the second least.
     vec3 to_light = view.origin.w > 0.5 ? view.origin.xyz - v_position : -view.axis.xyz;
     if (dot(triangle_normal(t), to_light) > 0.0) {
-        ivec2 at = ivec2(gl_FragCoord.xy);
+        ivec3 at = ivec3(ivec2(gl_FragCoord.xy), atlas_page);
         uint bits = floatBitsToUint(dist);
         imageAtomicMin(facing_next, at, max(bits, imageAtomicMin(facing_nearest, at, bits)));
     }

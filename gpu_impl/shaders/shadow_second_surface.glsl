@@ -12,9 +12,9 @@
 #if defined COMPUTE_SHADER
 
 layout(local_size_x = LOCAL_SIZE) in;
-layout(rg32f, binding = 0) uniform image2D atlas;
-layout(r32ui, binding = FACING_IMAGE_NEAREST) uniform uimage2D facing_nearest;
-layout(r32ui, binding = FACING_IMAGE_NEXT) uniform uimage2D facing_next;
+layout(rg32f, binding = 0) uniform image2DArray atlas;
+layout(r32ui, binding = FACING_IMAGE_NEAREST) uniform uimage2DArray facing_nearest;
+layout(r32ui, binding = FACING_IMAGE_NEXT) uniform uimage2DArray facing_next;
 
 uniform uint invocations;  // the tiles' texels
 uniform int first_view;    // the run's first view
@@ -28,7 +28,8 @@ void main() {
     uint id = linear_id();
     if (id >= invocations) return;
     int texels = width * width, texel = int(id) % texels;
-    ivec2 at = ivec2(shadow_views[first_view + int(id) / texels].tile.xy) + ivec2(texel % width, texel / width);
+    ivec2 corner = ivec2(shadow_views[first_view + int(id) / texels].tile.xy);
+    ivec3 at = atlas_texel(corner + ivec2(texel % width, texel / width), imageSize(atlas).y);
     vec2 drawn = imageLoad(atlas, at).rg;
     float first = drawn.x;
     float behind = first * (1.0 + SAME_SURFACE);

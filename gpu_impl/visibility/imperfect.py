@@ -117,16 +117,25 @@ class ImperfectShadowMaps:
         lights.set_views(lights.fixed_views, views, self.map_size)
         lights.upload()
         lights.clear_vertex_tiles()
-        fb = lights.framebuffer
-        fb.viewport = (0, 0, *lights.atlas.size)
         lights.gpu_scene.bind()  # the area CDF and the triangles the points are drawn on
         for name in ("LIGHTS", "SHADOW_VIEWS"):  # not the atlas itself: it is being drawn into
             lights.buffers[name].bind_to_storage_buffer(BINDINGS[name])
         self.program["first_vertex_light"] = lights.fixed_lights
         self.program["seed"] = seed & 0xFFFFFFFF
         self.program["frame"] = frame & 0xFFFFFFFF
-        self.program["atlas_size"] = lights.atlas.size
-        self.gl.draw(self.vao, moderngl.POINTS, fb, depth_test=True, vertices=len(positions) * self.points_per_map)
+        self.program["atlas_size"] = lights.page_size
+        # A draw per atlas page, of the points of the vertices whose maps lie on it (a run of them).
+        pages = lights.view_pages(lights.fixed_views + np.arange(m))
+        for page in np.unique(pages):
+            first, last = np.searchsorted(pages, page), np.searchsorted(pages, page, side="right")
+            self.gl.draw(
+                self.vao,
+                moderngl.POINTS,
+                lights.targets.framebuffers[page],
+                depth_test=True,
+                vertices=int(last - first) * self.points_per_map,
+                first=int(first) * self.points_per_map,
+            )
         if self.pull_push is not None:
             self.pull_push.run(lights, len(positions))
 
