@@ -42,12 +42,12 @@ def measure(gl: GLContext, scene, settings, vertices, repeats: int) -> dict:
         vertex_ms = median_ms(gl, lambda: lights.set_light_vertices(vertices, 0, 0), repeats)
         commands = lights.draw_commands(range(len(lights.view_records)))
         in_view = commands["count"].sum() / 3 / (len(lights.view_records) * lights.gpu_scene.triangle_count)
-        atlas = np.frombuffer(lights.atlas.read(), dtype=np.uint32)
+        atlas = lights.read_atlas().view(np.uint32).ravel()
         return {
             "fixed_ms": fixed_ms,
             "vertex_ms": vertex_ms,
             "in_view": float(in_view),
-            "bits": np.concatenate([atlas, np.frombuffer(lights.triangles.read(), dtype=np.uint32)]),
+            "bits": np.concatenate([atlas, lights.read_atlas(channels=1).ravel()]),
         }
 
 

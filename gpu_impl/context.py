@@ -184,6 +184,19 @@ class GLContext:
         array of its own; the caller owns the arrays and the targets."""
         return LayerTargets(self, color)
 
+    def allocate(self, make):
+        """The GL objects ``make()`` returns (a list), or None, with them released, where the
+        driver ran out of memory making them: drivers cap one texture's bytes below what their
+        size limits say (llvmpipe at 1 GiB), and a texture past it is left empty, not refused."""
+        while self.ctx.error != "GL_NO_ERROR":  # errors of earlier calls are not this one's
+            pass
+        made = make()
+        if self.ctx.error != "GL_OUT_OF_MEMORY":
+            return made
+        for thing in made:
+            thing.release()
+        return None
+
     def depth_renderbuffer(self, size: tuple[int, int]):
         return self.ctx.depth_renderbuffer(size)
 

@@ -149,7 +149,12 @@ NO_TRIANGLE = np.uint32(0xFFFFFFFF)
 # uniform block, and llvmpipe and NVIDIA's driver allow 64 KiB of one (GL_MAX_UNIFORM_BLOCK_SIZE).
 MAX_DIRECTIONS = 65536 // 48
 
+# The most texture arrays the shadow atlas' pages take (gpu_impl/lights.py: AtlasTextures): a
+# driver caps one texture's bytes below its size limits (llvmpipe at 1 GiB), and the shaders
+# declare the arrays of samplers they read them by.
+MAX_ATLAS_TEXTURES = 4
 SHADER_CONSTANTS = {
+    "MAX_ATLAS_TEXTURES": MAX_ATLAS_TEXTURES,
     "SPLAT_BIT": SPLAT_BIT,
     "MATERIAL_TEXTURED": MATERIAL_TEXTURED,
     "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,

@@ -18,6 +18,7 @@ paths reach it.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -27,8 +28,16 @@ import numpy as np
 from evalkit.core.errors import LimitError
 from evalkit.core.scene.model import Light
 from evalkit.core.settings import RenderSettings
-from gpu_impl.context import MEMORY_HEADROOM, GLContext, format_bytes, set_uniforms
-from gpu_impl.layout import BINDINGS, ENVIRONMENT_KINDS, FACING_IMAGE_UNITS, LIGHT, LIGHT_KINDS, SHADOW_VIEW
+from gpu_impl.context import MEMORY_HEADROOM, GLContext, LayerTargets, format_bytes, set_uniforms
+from gpu_impl.layout import (
+    BINDINGS,
+    ENVIRONMENT_KINDS,
+    FACING_IMAGE_UNITS,
+    LIGHT,
+    LIGHT_KINDS,
+    MAX_ATLAS_TEXTURES,
+    SHADOW_VIEW,
+)
 from gpu_impl.scene_buffers import CLUSTER_TRIANGLES, GpuScene
 
 # A spot light whose cone half-angle is within this of 90 degrees cannot use one perspective view.
@@ -42,8 +51,10 @@ CUBE_FACES = (
     (0, 0, -1),
 )  # lights.glsl: shadow_view_of
 GUARD_TEXELS = 2
-# The texture unit of the fixed lights' seen triangles (light paths; the renderer uses 0 and 1).
-TRIANGLES_UNIT = 2
+# Texture units: the atlas' texture arrays from ATLAS_UNIT on, then the fixed lights' seen
+# triangles' (light paths; the renderer's G-buffer takes unit 0).
+ATLAS_UNIT = 1
+TRIANGLES_UNIT = ATLAS_UNIT + MAX_ATLAS_TEXTURES
 # The distance of a texel without a surface (shaders/lights.glsl: NO_SURFACE), and its bits.
 NO_SURFACE = float(np.finfo(np.float32).max)
 NO_SURFACE_BITS = int(np.float32(NO_SURFACE).view(np.uint32))
@@ -394,6 +405,112 @@ def orthographic(half: float, near: float, far: float) -> np.ndarray:
     return m
 
 
+class AtlasTextures:
+    """The shadow atlas' GL textures: its pages in texture arrays of ``per_texture`` pages each, as
+    many as the driver allocates in one texture (it may cap one texture's bytes below its size
+    limits: llvmpipe at 1 GiB), at most `MAX_ATLAS_TEXTURES`. Per array: the distances (RG32F:
+    the first surface, the second), the triangle each texel saw (R32UI; with light paths), the
+    two nearest surfaces facing the light (R32UI each; where second surfaces are kept:
+    shaders/shadow_maps.glsl) and a framebuffer per page (`LayerTargets`)."""
+
+    def __init__(self, gl: GLContext, atlas: Atlas, triangles: bool, facing: bool):
+        self.page, self.pages = atlas.page, atlas.pages
+        per = refused = atlas.pages  # the pages in one texture, tried; the fewest the driver refused
+        while True:
+            count = -(-atlas.pages // per)
+            if count > MAX_ATLAS_TEXTURES:
+                raise LimitError(
+                    f"the shadow atlas' {atlas.pages} pages of {atlas.page[0]} x {atlas.page[1]} texels need more "
+                    f"than the {MAX_ATLAS_TEXTURES} textures the shaders read: the GL driver allocates no texture "
+                    f"of {refused} pages; lower the light samples, the light paths or their maps' size",
+                    ("light_paths",),
+                )
+            sizes = [min(per, atlas.pages - i * per) for i in range(count)]
+            made = gl.allocate(functools.partial(self._make, gl, atlas.page, sizes, triangles, facing))
+            if made is not None:
+                break
+            if per == 1:
+                raise LimitError(
+                    f"the GL driver cannot allocate one shadow atlas page of {atlas.page[0]} x {atlas.page[1]} "
+                    "texels; lower the shadow map sizes, the light samples or the light paths",
+                    ("light_paths",),
+                )
+            refused, per = per, -(-per // 2)
+        self.per_texture, self.arrays = per, made
+
+    @staticmethod
+    def _make(gl: GLContext, size: tuple[int, int], sizes: list[int], triangles: bool, facing: bool) -> list:
+        """A `PageArrays` per texture of ``sizes`` pages."""
+        made = []
+        for pages in sizes:
+            distances = gl.texture_array(size, pages, 2, "f4")
+            seen = gl.texture_array(size, pages, 1, "u4") if triangles else None
+            facing_pair = tuple(gl.texture_array(size, pages, 1, "u4") for _ in FACING_IMAGE_UNITS) if facing else ()
+            targets = gl.layer_targets([distances, *([seen] if triangles else [])])
+            made.append(PageArrays(distances, seen, facing_pair, targets))
+        for texture in (t for arrays in made for t in arrays.facing):
+            gl.fill_texture(texture, NO_SURFACE_BITS)  # then kept so by the second-surface pass
+        return made
+
+    def locate(self, page: int) -> tuple[int, int]:
+        """(texture, layer) of atlas page ``page``."""
+        return divmod(int(page), self.per_texture)
+
+    def framebuffer(self, page: int):
+        texture, layer = self.locate(page)
+        return self.arrays[texture].targets.framebuffers[layer]
+
+    def clear(self, page: int, viewport: tuple[int, int, int, int]) -> None:
+        """``viewport`` of ``page``: no surface, no triangle, the farthest depth."""
+        texture, layer = self.locate(page)
+        self.arrays[texture].targets.clear(layer, viewport, [(NO_SURFACE, NO_SURFACE), 0])
+
+    def texture_pages(self, pages: np.ndarray) -> list[tuple[int, int, int]]:
+        """The runs of ``pages`` (non-decreasing) on one texture: (texture, first index, end index)."""
+        textures = np.asarray(pages, dtype=np.int64) // self.per_texture
+        return [
+            (int(t), int(np.searchsorted(textures, t)), int(np.searchsorted(textures, t, side="right")))
+            for t in np.unique(textures)
+        ]
+
+    def bind_images(self, texture: int, facing: bool = True) -> None:
+        """Texture ``texture``'s distances at image unit 0 and (``facing``) its facing surfaces at theirs."""
+        arrays = self.arrays[texture]
+        arrays.distances.bind_to_image(0, read=True, write=True)
+        for image, unit in zip(arrays.facing if facing else (), FACING_IMAGE_UNITS):
+            image.bind_to_image(unit, read=True, write=True)
+
+    def read(self, channels: int = 2) -> np.ndarray:
+        """The distances (``channels`` 2: first surface, second) or, with ``channels`` 1, the
+        triangles, of every page stacked: (pages x height, width, channels)."""
+        width, height = self.page
+        parts = [(a.distances, np.float32) if channels == 2 else (a.triangles, np.uint32) for a in self.arrays]
+        return np.concatenate([np.frombuffer(t.read(), dtype=d).reshape(-1, width, channels) for t, d in parts])
+
+    @property
+    def has_facing(self) -> bool:
+        return bool(self.arrays[0].facing)
+
+    def release(self) -> None:
+        for arrays in self.arrays:
+            arrays.release()
+
+
+class PageArrays(NamedTuple):
+    """One texture's worth of atlas pages (`AtlasTextures`)."""
+
+    distances: moderngl.TextureArray
+    triangles: moderngl.TextureArray | None
+    facing: tuple
+    targets: LayerTargets
+
+    def release(self) -> None:
+        self.targets.release()
+        for texture in (self.distances, self.triangles, *self.facing):
+            if texture is not None:
+                texture.release()
+
+
 class ShadowLights:
     """The scene's fixed lights (point, spot and directional) and the frame's light vertices, with
     their shadow atlas, and the scene's environment.
@@ -443,12 +560,12 @@ class ShadowLights:
         self.fixed_lights = self.static_lights + environment_samples
         self.fixed_views = self.static_views + environment_samples
         self.buffers = {}
-        self.atlas = self.targets = self.triangles = None
-        self.facing = ()
+        self.atlas = None
         visibility.check(self.light_vertices)
         if records_count:
             per_vertex = visibility.tiles_per_vertex
-            side, max_pages = gl.limit("GL_MAX_TEXTURE_SIZE"), gl.limit("GL_MAX_ARRAY_TEXTURE_LAYERS")
+            side = gl.limit("GL_MAX_TEXTURE_SIZE")
+            max_pages = gl.limit("GL_MAX_ARRAY_TEXTURE_LAYERS") * MAX_ATLAS_TEXTURES
             texels = (
                 self.map_size**2 * self.static_views
                 + environment_map_size**2 * environment_samples
@@ -473,6 +590,7 @@ class ShadowLights:
             # a scene whose every triangle bounds a solid has no second surfaces to keep.
             facing = not gpu_scene.solids().all()
             self._check_memory(atlas, bool(path_vertices), facing, visibility.map_size_setting)
+            self.atlas = AtlasTextures(gl, atlas, bool(path_vertices), facing)  # or a LimitError, before the rest
             self.tiles = np.array(atlas.corners, dtype=np.float64).reshape(-1, 2)
             self.page_size, self.pages = atlas.page, atlas.pages
             # The environment samples' tiles and the light vertices' fill rows of their own
@@ -488,16 +606,7 @@ class ShadowLights:
                 self.records[i] = record
             self.buffers["LIGHTS"] = gl.buffer(self.records.tobytes())
             self.buffers["SHADOW_VIEWS"] = gl.buffer(self.view_records.tobytes())
-            self.atlas = gl.texture_array(atlas.page, atlas.pages, 2, "f4")  # the first surface, the second
-            if path_vertices:
-                self.triangles = gl.texture_array(atlas.page, atlas.pages, 1, "u4")
-            self.targets = gl.layer_targets([self.atlas, *([self.triangles] if path_vertices else [])])
-            self.second_surfaces = None
-            if facing:
-                self.facing = tuple(gl.texture_array(atlas.page, atlas.pages, 1, "u4") for _ in FACING_IMAGE_UNITS)
-                for texture in self.facing:
-                    gl.fill_texture(texture, NO_SURFACE_BITS)  # then kept so by the second-surface pass
-                self.second_surfaces = gl.program("shadow_second_surface")
+            self.second_surfaces = gl.program("shadow_second_surface") if facing else None
             self.program = gl.program("shadow_maps", SECOND_SURFACES=int(self.second_surfaces is not None))
             # Each view's index, an instanced attribute that a draw command's base instance picks.
             self.view_indices = gl.buffer(np.arange(len(sizes), dtype=np.uint32).tobytes())
@@ -614,7 +723,7 @@ class ShadowLights:
 
     def render_shadow_maps(self) -> None:
         """Draw the scene into the tile of every shadow view of the point, spot and directional lights."""
-        if self.targets is None:
+        if self.atlas is None:
             return
         self.clear_rows(0, self.rows)  # the whole atlas: a triangle texel is read only where a distance is
         self.draw(range(self.static_views))
@@ -628,18 +737,15 @@ class ShadowLights:
         width, height = self.page_size
         for page in range(first // height, -(-end // height)):
             lo, hi = max(first - page * height, 0), min(end - page * height, height)
-            self.targets.clear(page, (0, lo, width, hi - lo), [(NO_SURFACE, NO_SURFACE), 0])
+            self.atlas.clear(page, (0, lo, width, hi - lo))
 
     def view_pages(self, views) -> np.ndarray:
         """The atlas page each of ``views`` lies on."""
         return self.view_records["tile"][np.asarray(views, dtype=np.int64), 1].astype(np.int64) // self.page_size[1]
 
     def read_atlas(self, channels: int = 2) -> np.ndarray:
-        """The atlas' distances (``channels`` 2: first surface, second) or, with ``channels`` 1, the
-        triangles texture, as one image of the stacked pages: (rows, width, channels) (tests, benchmarks)."""
-        texture, dtype = (self.atlas, np.float32) if channels == 2 else (self.triangles, np.uint32)
-        width, height = self.page_size
-        return np.frombuffer(texture.read(), dtype=dtype).reshape(self.pages * height, width, channels)
+        """`AtlasTextures.read` (tests, benchmarks)."""
+        return self.atlas.read(channels)
 
     def draw(self, views) -> None:
         """Draw the scene into the given views' tiles (cleared before; in increasing order) in one
@@ -655,34 +761,37 @@ class ShadowLights:
                 self.commands.release()
             self.commands = self.gl.buffer(reserve=max(commands.nbytes, 2 * DRAW_COMMAND.itemsize))
         self.commands.write(commands.tobytes())
-        for texture, unit in zip(self.facing, FACING_IMAGE_UNITS):
-            texture.bind_to_image(unit, read=True, write=True)
         # Per draw: the context caches one program per variant for every atlas it draws into.
         self.program["atlas_size"] = self.page_size
-        # The commands follow the views, so each page's are a run.
+        # The commands follow the views, so each page's are a run, and each texture's a run of pages.
         pages = self.view_pages(commands["base_instance"])
-        for page in np.unique(pages):
-            first, last = np.searchsorted(pages, page), np.searchsorted(pages, page, side="right")
-            set_uniforms(self.program, {"atlas_page": int(page)})  # used where second surfaces are kept
-            self.gl.draw(
-                self.vao,
-                moderngl.TRIANGLES,
-                self.targets.framebuffers[page],
-                depth_test=True,
-                commands=(self.commands, last - first, first),
-                clip_distances=4,
-            )
+        for texture, lo, hi in self.atlas.texture_pages(pages):
+            if self.atlas.has_facing:
+                self.atlas.bind_images(texture)
+            for page in np.unique(pages[lo:hi]):
+                first, last = np.searchsorted(pages, page), np.searchsorted(pages, page, side="right")
+                set_uniforms(self.program, {"atlas_page": int(page) % self.atlas.per_texture})  # its layer
+                self.gl.draw(
+                    self.vao,
+                    moderngl.TRIANGLES,
+                    self.atlas.framebuffer(page),
+                    depth_test=True,
+                    commands=(self.commands, last - first, first),
+                    clip_distances=4,
+                )
         if self.second_surfaces is None:
             return
-        # One dispatch per run of tiles of one size from the first view to the last: the views
-        # between that were not drawn have nothing to find.
-        self.atlas.bind_to_image(0, read=True, write=True)
+        # One dispatch per run of tiles of one size and one texture from the first view to the
+        # last: the views between that were not drawn have nothing to find.
         lo, hi = int(views.min()), int(views.max()) + 1
         sizes = self.view_records["tile"][lo:hi, 2].astype(np.int64)
-        starts = [lo, *(lo + 1 + np.nonzero(np.diff(sizes))[0]), hi]
+        textures = self.view_pages(range(lo, hi)) // self.atlas.per_texture
+        starts = [lo, *(lo + 1 + np.nonzero((np.diff(sizes) != 0) | (np.diff(textures) != 0))[0]), hi]
         for start, end in zip(starts[:-1], starts[1:]):
-            width = int(sizes[start - lo])
-            set_uniforms(self.second_surfaces, {"first_view": start, "width": width})
+            width, texture = int(sizes[start - lo]), int(textures[start - lo])
+            self.atlas.bind_images(texture)
+            values = {"first_view": start, "width": width, "first_page": texture * self.atlas.per_texture}
+            set_uniforms(self.second_surfaces, values)
             self.gl.dispatch(self.second_surfaces, (end - start) * width * width)
 
     def draw_commands(self, views) -> np.ndarray:
@@ -718,26 +827,29 @@ class ShadowLights:
             "ENVIRONMENT": ENVIRONMENT_KINDS[None if self.environment is None else self.environment.kind],
         }
 
-    def bind(self, atlas_unit: int) -> None:
-        """Bind the light buffers and the shadow atlas (at texture unit ``atlas_unit``)."""
+    def bind(self) -> None:
+        """Bind the light buffers and the shadow atlas' textures (from texture unit `ATLAS_UNIT`)."""
         for name, buffer in self.buffers.items():
             buffer.bind_to_storage_buffer(BINDINGS[name])
         if self.atlas is not None:
-            self.atlas.use(atlas_unit)
+            for i, arrays in enumerate(self.atlas.arrays):
+                arrays.distances.use(ATLAS_UNIT + i)
 
-    def bind_triangles(self, unit: int = TRIANGLES_UNIT) -> None:
-        """Bind the triangles the fixed lights' maps saw (for light paths) at texture unit ``unit``."""
-        self.triangles.use(unit)
+    def bind_triangles(self) -> None:
+        """Bind the triangles the fixed lights' maps saw (for light paths), from `TRIANGLES_UNIT`."""
+        for i, arrays in enumerate(self.atlas.arrays):
+            arrays.triangles.use(TRIANGLES_UNIT + i)
 
-    def set_uniforms(self, program, atlas_unit: int) -> None:
+    def set_uniforms(self, program) -> None:
         """Set ``program``'s lighting and environment uniforms (those it has); they never change."""
         values = {
             "light_count": self.count,
             "shadow_bias": self.bias,
             "shadow_slope_bias": self.slope_bias,
             "shadow_filter": self.filter,
-            "shadow_atlas": atlas_unit,
-            "shadow_triangles": TRIANGLES_UNIT,
+            "shadow_atlas": tuple(range(ATLAS_UNIT, ATLAS_UNIT + MAX_ATLAS_TEXTURES)),
+            "shadow_triangles": tuple(range(TRIANGLES_UNIT, TRIANGLES_UNIT + MAX_ATLAS_TEXTURES)),
+            "atlas_pages_per_texture": 1 if self.atlas is None else self.atlas.per_texture,
         }
         env = self.environment
         if env is not None:
@@ -763,9 +875,12 @@ class ShadowLights:
 
     @property
     def nbytes(self) -> int:
-        texel = _texel_bytes(self.triangles is not None, bool(self.facing))
-        atlas = 0 if self.atlas is None else self.pages * self.page_size[0] * self.page_size[1] * texel
-        views = 0 if self.atlas is None else self.view_indices.size
+        if self.atlas is None:
+            return sum(b.size for b in self.buffers.values()) + self.visibility.nbytes
+        arrays = self.atlas.arrays[0]
+        texel = _texel_bytes(arrays.triangles is not None, bool(arrays.facing))
+        atlas = self.pages * self.page_size[0] * self.page_size[1] * texel
+        views = self.view_indices.size
         return sum(b.size for b in self.buffers.values()) + views + atlas + self.visibility.nbytes
 
     def release(self) -> None:
@@ -773,15 +888,10 @@ class ShadowLights:
             buffer.release()
         self.buffers.clear()
         self.visibility.release()
-        if self.targets is not None:
+        if self.atlas is not None:
             self.vao.release()
             self.view_indices.release()
-            self.targets.release()
             self.atlas.release()
-            for texture in self.facing:
-                texture.release()
-            if self.triangles is not None:
-                self.triangles.release()
             if self.commands is not None:
                 self.commands.release()
 

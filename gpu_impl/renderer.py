@@ -44,7 +44,7 @@ from gpu_impl.registry import resolve
 from gpu_impl.scene_buffers import GpuScene
 from gpu_impl.timing import PassTimer
 
-ATLAS_UNIT, GBUFFER_UNIT = 0, 1  # texture units
+GBUFFER_UNIT = 0  # a texture unit; the lights' atlas takes those from lights.ATLAS_UNIT on
 
 
 @dataclass
@@ -195,7 +195,7 @@ class Renderer:
         }
         for program in self.programs.values():
             set_uniforms(program, {**self.tracer.uniforms(), **fixed})
-            self.lights.set_uniforms(program, ATLAS_UNIT)
+            self.lights.set_uniforms(program)
 
     # -- frames --------------------------------------------------------------------------
 
@@ -375,7 +375,7 @@ class Renderer:
         self.tracer.bind()
         for name, buffer in self.buffers.items():
             buffer.bind_to_storage_buffer(BINDINGS[name])
-        self.lights.bind(ATLAS_UNIT)
+        self.lights.bind()
         self.strategy.bind()
         self.gbuffer.use(GBUFFER_UNIT)
 

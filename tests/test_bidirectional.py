@@ -141,26 +141,59 @@ def test_atlas_tiles_fill_one_page_where_they_fit_and_pages_of_their_own_past_it
         gpu_lights.pack_tiles(sizes, 64, max_pages=2)
 
 
-@pytest.mark.parametrize("visibility", ["exact", "imperfect"])
-def test_light_vertices_past_one_texture_render_as_they_do_in_one(gl, monkeypatch, visibility):
-    """Light vertices' shadow maps past the GL texture limit go on more atlas pages: a render whose
-    maps fill several pages (the limit lowered to 128 texels) is the render with one page, bit for
-    bit. lit-room: a spot light's map, light paths' triangles and second surfaces (not every
-    triangle bounds a solid) on page 0 and the light vertices' maps on 2 to 5 pages; the imperfect
-    maps with pull-push."""
+@pytest.mark.parametrize("visibility, most_layers", [("exact", 8), ("imperfect", 2)])
+def test_light_vertices_past_one_texture_render_as_they_do_in_one(gl, monkeypatch, visibility, most_layers):
+    """Light vertices' shadow maps past the GL texture limit go on more atlas pages, and pages past
+    what the driver allocates in one texture (llvmpipe: 1 GiB) on more textures: a render whose
+    maps fill several pages of several textures (the limit lowered to 128 texels, textures to
+    ``most_layers`` pages) is the render with one page, bit for bit. lit-room: a spot light's map,
+    light paths' triangles and second surfaces (not every triangle bounds a solid) on the first
+    page and the light vertices' maps on the rest; the imperfect maps with pull-push."""
     scene = load_scene("lit-room")
     settings = dict(method="perfect", strategy="bidirectional", bounces=2, directions=8, resolution=32, frames=2)
     settings.update(width=16, height=16, spp=2, light_paths=8, shadow_map_size=64, light_visibility=visibility)
     settings.update(light_sample_map_size=32, ism_size=32, ism_points=512, ism_pull_push=True, seed=3)
     one = render_with(gl, scene, **settings)
-    limit = gl.limit
+    limit, allocate = gl.limit, gl.allocate
+
+    def capped(make):  # a driver that allocates no texture of more than `most_layers` layers
+        made = allocate(make)
+        if made is not None and max(arrays.distances.size[2] for arrays in made) > most_layers:
+            for arrays in made:
+                arrays.release()
+            return None
+        return made
+
     monkeypatch.setattr(gl, "limit", lambda name: 128 if name == "GL_MAX_TEXTURE_SIZE" else limit(name))
+    monkeypatch.setattr(gl, "allocate", capped)
     with Renderer(gl, scene, resolve(RenderSettings(**settings), "drop").settings) as renderer:
-        pages = renderer.lights.pages
+        pages, textures = renderer.lights.pages, len(renderer.lights.atlas.arrays)
     paged = render_with(gl, scene, **settings)
-    assert pages > 1
+    assert pages > 1 and textures > 1
     for name, image in one.images.items():
-        assert np.array_equal(image, paged.images[name]), f"{name} differs on {pages} pages"
+        assert np.array_equal(image, paged.images[name]), f"{name} differs on {pages} pages in {textures} textures"
+
+
+def test_an_atlas_past_the_textures_the_shaders_read_is_refused(gl, monkeypatch):
+    """Pages past `MAX_ATLAS_TEXTURES` textures of what the driver allocates in one are a
+    `LimitError` naming the pages, the textures and the light paths, not a render missing them."""
+    limit, allocate = gl.limit, gl.allocate
+
+    def one_layer(make):  # a driver that allocates one layer a texture
+        made = allocate(make)
+        if made is not None and max(arrays.distances.size[2] for arrays in made) > 1:
+            for arrays in made:
+                arrays.release()
+            return None
+        return made
+
+    monkeypatch.setattr(gl, "limit", lambda name: 128 if name == "GL_MAX_TEXTURE_SIZE" else limit(name))
+    monkeypatch.setattr(gl, "allocate", one_layer)
+    settings = dict(method="perfect", strategy="bidirectional", bounces=2, directions=8, resolution=32, frames=1)
+    settings.update(width=16, height=16, light_paths=8, shadow_map_size=64, light_sample_map_size=32)
+    refusal = r"the shadow atlas' 25 pages of 64 x 64 texels need more than the 4 textures .* no texture of 7 pages"
+    with pytest.raises(LimitError, match=refusal):
+        Renderer(gl, load_scene("lit-room"), resolve(RenderSettings(**settings), "drop").settings)
 
 
 def test_light_vertices_past_half_the_free_memory_are_refused_before_anything_is_made(gl, monkeypatch):
@@ -314,8 +347,8 @@ def test_shadow_maps_drawn_by_the_clusters_each_view_sees_are_those_of_every_tri
         with vertex_maps(gl, scene, exact_settings(), vertices) as lights:
             commands = lights.draw_commands(range(len(lights.view_records)))
             drawn = commands["count"].sum() / 3 / (len(lights.view_records) * len(a.faces))
-            maps_read = np.frombuffer(lights.atlas.read(), dtype=np.float32)
-            return np.concatenate([maps_read.view(np.uint32), np.frombuffer(lights.triangles.read(), np.uint32)]), drawn
+            bits = [lights.read_atlas().view(np.uint32).ravel(), lights.read_atlas(channels=1).ravel()]
+            return np.concatenate(bits), drawn
 
     culled, drawn = atlas_and_share()
     monkeypatch.setattr(gpu_lights, "view_clusters", lambda *args: np.ones((len(args[0]), len(args[3])), dtype=bool))

@@ -208,3 +208,21 @@ def test_buffers_are_filled_and_read_by_the_gl_without_mapping_them(gl):
             gl.fill(odd)
     finally:
         odd.release()
+
+
+def test_allocate_returns_nothing_and_releases_what_the_driver_could_not_hold(gl):
+    """`GLContext.allocate`: a texture past the driver's memory (every layer the GL allows of the
+    largest side, 16 bytes a texel: terabytes) is None, not an empty texture; one that fits is
+    made; an error of an earlier call is not taken for it."""
+    side, layers = gl.limit("GL_MAX_TEXTURE_SIZE"), gl.limit("GL_MAX_ARRAY_TEXTURE_LAYERS")
+    made = []
+
+    def huge():
+        made.append(gl.texture_array((side, side), layers, 4, "f4"))
+        return made[-1:]
+
+    assert gl.allocate(huge) is None
+    gl.ctx.texture((side + 1, 1), 1)  # refused: GL_INVALID_VALUE, left pending
+    small = gl.allocate(lambda: [gl.texture_array((8, 8), 2, 2, "f4")])
+    assert small is not None and small[0].size == (8, 8, 2)
+    small[0].release()

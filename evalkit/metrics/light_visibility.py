@@ -22,7 +22,7 @@ from gpu_impl.context import GLContext, set_uniforms
 from gpu_impl.layout import BINDINGS
 from gpu_impl.lights import LightVertices, ShadowLights
 from gpu_impl.registry import resolve
-from gpu_impl.renderer import ATLAS_UNIT, Renderer
+from gpu_impl.renderer import Renderer
 from gpu_impl.scene_buffers import GpuScene
 from references.embree import ExactTracer
 
@@ -72,13 +72,13 @@ def measure(
         records[:, 0, :3] = positions - lights.gpu_scene.centre
         records[:, 1, :3] = normals
         program = gl.program("connection_visibility", **lights.visibility.defines())
-        lights.set_uniforms(program, ATLAS_UNIT)
+        lights.set_uniforms(program)
         set_uniforms(program, {"first_vertex": lights.fixed_lights, "vertex_count": count})
         receiver_buffer = gl.buffer(records.tobytes())
         visible = gl.buffer(reserve=4 * len(positions) * count)
         receiver_buffer.bind_to_storage_buffer(BINDINGS["RECEIVERS"])
         visible.bind_to_storage_buffer(BINDINGS["VISIBLE"])
-        lights.bind(ATLAS_UNIT)
+        lights.bind()
         gl.dispatch(program, len(positions) * count)
         result = np.frombuffer(visible.read(), dtype=np.float32).reshape(len(positions), count).copy()
         receiver_buffer.release()

@@ -23,6 +23,7 @@ layout(std430, binding = BINDING_ISM_PYRAMID) buffer Pyramid { float pyramid[]; 
 
 uniform uint invocations;   // maps x texels of this level
 uniform int first_view;     // the shadow view of map 0
+uniform int first_page;     // the first page of the atlas texture bound (the maps' texture)
 uniform int pull;           // 1: pull into this level from the one below; 0: push into it from the one above
 uniform int level;          // l
 uniform ivec3 sizes;        // texels a side of levels l - 1, l and l + 1
@@ -35,7 +36,7 @@ uniform uint map_stride;    // floats of one map's pyramid
 
 // Texel xy of map m's tile in the atlas.
 ivec3 map_texel(uint m, ivec2 xy) {
-    return atlas_texel(ivec2(shadow_views[first_view + int(m)].tile.xy) + xy, imageSize(atlas).y);
+    return atlas_texel(ivec2(shadow_views[first_view + int(m)].tile.xy) + xy, imageSize(atlas).y) - ivec3(0, 0, first_page);
 }
 
 float texel_at(uint m, int l, int size, int offset, ivec2 xy) {

@@ -50,7 +50,7 @@ layout(local_size_x = LOCAL_SIZE) in;
 #define INV_PI 0.3183098861837907
 
 uniform uint invocations;       // V
-uniform usampler2DArray shadow_triangles;  // the triangle + 1 each shadow texel saw
+uniform usampler2DArray shadow_triangles[MAX_ATLAS_TEXTURES];  // the triangle + 1 each shadow texel saw
 uniform int direction_count;    // K
 uniform uint seed;
 uniform uint frame;
@@ -65,6 +65,16 @@ struct Surface {
     uint triangle;
 };
 
+// The triangle + 1 seen at texel `at` of the atlas' stack (lights.glsl: atlas_surfaces).
+uint seen_triangle(ivec3 at) {
+    int texture_index = at.z / atlas_pages_per_texture;
+    ivec3 layer = ivec3(at.xy, at.z - texture_index * atlas_pages_per_texture);
+    for (int i = 0; i < MAX_ATLAS_TEXTURES; i++) {
+        if (i == texture_index) return texelFetch(shadow_triangles[i], layer, 0).r;
+    }
+    return 0u;
+}
+
 // The first surface along the ray from origin along omega, from light l's shadow map.
 Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
     Surface s = Surface(false, vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0), NO_TRIANGLE);
@@ -75,9 +85,9 @@ Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
     if (any(greaterThan(abs(ndc), vec2(1.0)))) return s;
     int size = int(view.tile.z);
     ivec2 texel = clamp(ivec2((ndc * 0.5 + 0.5) * view.tile.z), ivec2(0), ivec2(size - 1));
-    ivec3 at = atlas_texel(ivec2(view.tile.xy) + texel, textureSize(shadow_atlas, 0).y);
-    uint seen = texelFetch(shadow_triangles, at, 0).r;
-    if (seen == 0u || texelFetch(shadow_atlas, at, 0).r * view.axis.w >= 1.0) return s;  // nothing there
+    ivec3 at = atlas_texel(ivec2(view.tile.xy) + texel, textureSize(shadow_atlas[0], 0).y);
+    uint seen = seen_triangle(at);
+    if (seen == 0u || atlas_surfaces(at).x * view.axis.w >= 1.0) return s;  // nothing there
     uint t = seen - 1u;
     uvec3 v = triangle_vertices(t);
     vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;

@@ -31,9 +31,9 @@ struct Light {
 // LIGHT_LIGHT_PATH_VERTEX or LIGHT_ENVIRONMENT_SAMPLE (a directional light for one frame, drawn
 // from the environment map: gpu_impl/lights.py: EnvironmentSamples) (gpu_impl/layout.py).
 
-// The shadow atlas is a stack of pages, the layers of a texture array: a tile's y counts down the
-// whole stack, so that its page is y / the page's height and a tile is one corner wherever it lies
-// (gpu_impl/lights.py: pack_tiles). The texel `at` of the stack in a page of `page_height` rows:
+// The shadow atlas is a stack of pages: a tile's y counts down the whole stack, so that its page
+// is y / the page's height and a tile is one corner wherever it lies (gpu_impl/lights.py:
+// pack_tiles). The texel `at` of the stack as (x, y in its page of `page_height` rows, the page):
 ivec3 atlas_texel(ivec2 at, int page_height) {
     return ivec3(at.x, at.y % page_height, at.y / page_height);
 }
@@ -54,7 +54,10 @@ layout(std430, binding = BINDING_LIGHTS) readonly buffer Lights { Light lights[]
 layout(std430, binding = BINDING_SHADOW_VIEWS) readonly buffer ShadowViews { ShadowView shadow_views[]; };
 
 uniform int light_count;          // the point, spot and directional lights and the emitter samples
-uniform sampler2DArray shadow_atlas;  // RG32F light distances: the first surface, the second (shadow_maps.glsl)
+// The pages are the layers of up to MAX_ATLAS_TEXTURES texture arrays of atlas_pages_per_texture
+// pages each (a driver caps one texture's bytes: gpu_impl/lights.py: AtlasTextures).
+uniform sampler2DArray shadow_atlas[MAX_ATLAS_TEXTURES];  // RG32F distances: the first surface, the second
+uniform int atlas_pages_per_texture;
 uniform float shadow_bias;        // constant depth bias, in texels
 uniform float shadow_slope_bias;  // slope-scaled depth bias, in texels per unit tan(angle to the light)
 uniform int shadow_filter;        // PCF: shadow_filter x shadow_filter bilinear taps, one texel apart
@@ -81,6 +84,17 @@ uniform int shadow_filter;        // PCF: shadow_filter x shadow_filter bilinear
 
 float light_distance(ShadowView view, vec3 p) {
     return view.origin.w > 0.5 ? distance(p, view.origin.xyz) : dot(p - view.origin.xyz, view.axis.xyz);
+}
+
+// The first and second surfaces at texel `at` of the stack (atlas_texel). An array of samplers is
+// indexed only by a dynamically uniform expression, so the loop's counter picks the texture.
+vec2 atlas_surfaces(ivec3 at) {
+    int texture_index = at.z / atlas_pages_per_texture;
+    ivec3 layer = ivec3(at.xy, at.z - texture_index * atlas_pages_per_texture);
+    for (int i = 0; i < MAX_ATLAS_TEXTURES; i++) {
+        if (i == texture_index) return texelFetch(shadow_atlas[i], layer, 0).rg;
+    }
+    return vec2(NO_SURFACE);
 }
 
 // The world-space size of one shadow texel at p: tile.w is 2 tan(fov / 2) / size for a
@@ -119,7 +133,7 @@ float depth_bias_texels(float slope) {
 // after Woo 1992), where the gap is wider than `resolved` x 2 (SECOND_SURFACE_MARGIN): a point on
 // the ceiling above a light that hangs a hair under it is in shadow however wide the bias is.
 float lit_tap(ivec2 at, float dist, float bias, float resolved) {
-    vec2 surfaces = texelFetch(shadow_atlas, atlas_texel(at, textureSize(shadow_atlas, 0).y), 0).rg;
+    vec2 surfaces = atlas_surfaces(atlas_texel(at, textureSize(shadow_atlas[0], 0).y));
     float half_gap = 0.5 * (surfaces.y - surfaces.x);
     return surfaces.x >= dist - (half_gap > resolved ? min(bias, half_gap) : bias) ? 1.0 : 0.0;
 }

@@ -19,6 +19,7 @@ layout(r32ui, binding = FACING_IMAGE_NEXT) uniform uimage2DArray facing_next;
 uniform uint invocations;  // the tiles' texels
 uniform int first_view;    // the run's first view
 uniform int width;         // its tiles' side in texels
+uniform int first_page;    // the first page of the atlas texture bound (its tiles' texture)
 
 // Distances within this share of each other are one surface: the first surface itself where it
 // faces the light, or coplanar and doubled geometry, which must not shrink the bias to nothing.
@@ -29,7 +30,7 @@ void main() {
     if (id >= invocations) return;
     int texels = width * width, texel = int(id) % texels;
     ivec2 corner = ivec2(shadow_views[first_view + int(id) / texels].tile.xy);
-    ivec3 at = atlas_texel(corner + ivec2(texel % width, texel / width), imageSize(atlas).y);
+    ivec3 at = atlas_texel(corner + ivec2(texel % width, texel / width), imageSize(atlas).y) - ivec3(0, 0, first_page);
     vec2 drawn = imageLoad(atlas, at).rg;
     float first = drawn.x;
     float behind = first * (1.0 + SAME_SURFACE);

@@ -131,7 +131,7 @@ class ImperfectShadowMaps:
             self.gl.draw(
                 self.vao,
                 moderngl.POINTS,
-                lights.targets.framebuffers[page],
+                lights.atlas.framebuffer(page),
                 depth_test=True,
                 vertices=int(last - first) * self.points_per_map,
                 first=int(first) * self.points_per_map,
@@ -172,17 +172,21 @@ class PullPush:
             self.buffer = self.gl.buffer(reserve=4 * self.stride * maps)
         self.buffer.bind_to_storage_buffer(BINDINGS["ISM_PYRAMID"])
         lights.buffers["SHADOW_VIEWS"].bind_to_storage_buffer(BINDINGS["SHADOW_VIEWS"])
-        lights.atlas.bind_to_image(0, read=True, write=True)
-        self.program["first_view"] = lights.fixed_views
         top = len(self.sizes) - 1
         passes = [(1, level) for level in range(1, top + 1)] + [(0, level) for level in range(top - 1, -1, -1)]
-        for pull, level in passes:
-            around = [max(0, min(top, level + i)) for i in (-1, 0, 1)]
-            self.program["pull"] = pull
-            self.program["level"] = level
-            self.program["sizes"] = tuple(self.sizes[i] for i in around)
-            self.program["offsets"] = tuple(self.offsets[i] for i in around)
-            self.gl.dispatch(self.program, maps * self.sizes[level] ** 2)
+        # Every pass over the maps on one atlas texture, then the next texture's maps.
+        pages = lights.view_pages(lights.fixed_views + np.arange(maps))
+        for texture, first, last in lights.atlas.texture_pages(pages):
+            lights.atlas.bind_images(texture, facing=False)
+            self.program["first_view"] = lights.fixed_views + first
+            self.program["first_page"] = texture * lights.atlas.per_texture
+            for pull, level in passes:
+                around = [max(0, min(top, level + i)) for i in (-1, 0, 1)]
+                self.program["pull"] = pull
+                self.program["level"] = level
+                self.program["sizes"] = tuple(self.sizes[i] for i in around)
+                self.program["offsets"] = tuple(self.offsets[i] for i in around)
+                self.gl.dispatch(self.program, (last - first) * self.sizes[level] ** 2)
 
     def release(self) -> None:
         if self.buffer is not None:
