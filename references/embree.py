@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evalkit.core.bundleset import FRAME_PADDING, BundleSet, DirectionSet, bundle_params, line_origins
+from evalkit.core.bundleset import FRAME_PADDING, BundleSet, DirectionSet, bundle_params, lines_origins
 from evalkit.core.scene import Scene
 from evalkit.core.scene.colour import sample_texture
 
@@ -189,18 +189,26 @@ class ExactTracer:
 
     # --- every hit along bundle lines ----------------------------------------------------------
 
-    def bundles(self, directions: DirectionSet, resolution: int) -> BundleSet:
+    def bundles(self, directions: DirectionSet, resolution: int, lines: np.ndarray | None = None) -> BundleSet:
         """Exact bundles on the lines of ``directions`` at ``resolution``: the lines the GL
-        `BundleTracer` rasterizes (`BundleSet.line_origins`)."""
+        `BundleTracer` rasterizes (`BundleSet.line_origins`). ``lines``: only these (list indices
+        k R^2 + j R + i), the others left empty: what a lookup of a few points reads
+        (`evalkit.metrics.bundles.lookup_lines`), at a fraction of the cost."""
         start = time.perf_counter()
-        # Tasks of several directions: numpy's per-call cost, not Embree, bounds small tasks.
-        per_task = max(1, min(LINES_PER_TASK // resolution**2, -(-directions.count // self.threads)))
-        tasks = [range(k, min(k + per_task, directions.count)) for k in range(0, directions.count, per_task)]
+        list_count = directions.count * resolution**2
+        if lines is None:
+            # Tasks of several directions: numpy's per-call cost, not Embree, bounds small tasks.
+            per_task = resolution**2 * max(
+                1, min(LINES_PER_TASK // resolution**2, -(-directions.count // self.threads))
+            )
+            tasks = [np.arange(first, min(first + per_task, list_count)) for first in range(0, list_count, per_task)]
+        else:
+            lines = np.unique(np.asarray(lines, dtype=np.int64))
+            tasks = np.array_split(lines, max(1, min(self.threads, -(-len(lines) // 1024))))
         with ThreadPoolExecutor(self.threads) as pool:
-            parts = list(pool.map(lambda ks: self._trace_bundles(directions, resolution, ks), tasks))
+            parts = list(pool.map(lambda task: self._trace_lines(directions, resolution, task), tasks))
         nodes = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
         casts = int(sum(p["casts"].sum() for p in parts))
-        list_count = directions.count * resolution**2
         offsets = np.zeros(list_count + 1, np.int64)
         np.cumsum(np.bincount(nodes.pop("list"), minlength=list_count), out=offsets[1:])
         params = {
@@ -212,6 +220,8 @@ class ExactTracer:
             "coincidence_layers": len(self._layers),
             "coincident_pairs": len(self.coincident_pairs),
         }
+        if lines is not None:
+            params["lines_traced"] = int(len(lines))  # of the list_count lines; the rest are left empty
         lengths = np.diff(offsets)
         stats = {
             "nodes": int(offsets[-1]),
@@ -251,13 +261,11 @@ class ExactTracer:
         active = np.nonzero(leave >= enter)[0]
         return active, enter[active].astype(np.float32)
 
-    def _trace_bundles(self, directions: DirectionSet, resolution: int, ks: range) -> dict:
-        """Every hit on the lines of bundles ``ks``, sorted as a BundleSet stores them: node arrays
-        plus "list" (each node's global list index) and "casts" (Embree rays cast)."""
-        origins = np.concatenate(
-            [line_origins(directions, k, np.zeros(3), self.radius, resolution) for k in ks]
-        )  # centre-relative
-        unit = np.repeat(directions.directions[ks.start : ks.stop], resolution**2, axis=0)
+    def _trace_lines(self, directions: DirectionSet, resolution: int, lines: np.ndarray) -> dict:
+        """Every hit on ``lines`` (list indices, increasing), sorted as a BundleSet stores them:
+        node arrays plus "list" (each node's list index) and "casts" (Embree rays cast)."""
+        origins = lines_origins(directions, lines, np.zeros(3), self.radius, resolution)  # centre-relative
+        unit = directions.directions[lines // resolution**2]
         # The re-cast loop runs in float32, as Embree does: a re-cast origin is off by about one ulp
         # of 2r, far below the offset; final depths are recomputed in float64.
         origins32, unit32 = origins.astype(np.float32), unit.astype(np.float32)
@@ -294,7 +302,7 @@ class ExactTracer:
             depth[sel], prim[sel], b1[sel], b2[sel] = depth[sub], prim[sub], b1[sub], b2[sub]
         normal, _, albedo, emission, material = self._surface(prim, b1.astype(np.float64), b2.astype(np.float64))
         return {
-            "list": ks.start * resolution**2 + line,
+            "list": lines[line],
             "depth": depth,
             "normal": normal.astype(np.float32),
             "albedo": albedo.astype(np.float32),
@@ -320,24 +328,26 @@ def coincident_pairs(positions_local, faces, normals, tolerance):
     outer = (n[:, :, None] * n[:, None, :])[:, np.triu_indices(3)[0], np.triu_indices(3)[1]] * scale
     feature = np.c_[outer, offset[:, None] * n] / (8.0 * tolerance)
     mix = np.random.default_rng(0).integers(1, 2**62, 9) | 1
+    boxes = p.min(axis=1), p.max(axis=1)  # each triangle's bounds, found once for every candidate pair
     pairs = []
     # Two bin grids half a bin apart, so two planes within tolerance share a bin in at least one.
     for shift in (0.0, 0.5):
         key = (np.floor(feature + shift).astype(np.int64) * mix).sum(axis=1)
         _, group, count = np.unique(key, return_inverse=True, return_counts=True)
-        pairs.append(_overlapping_in_groups(p, n, group, count, scale, tolerance))
+        pairs.append(_overlapping_in_groups(p, n, boxes, group, count, scale, tolerance))
     return np.unique(np.concatenate(pairs), axis=0)
 
 
-def _overlapping_in_groups(p, n, group, count, scale, tolerance):
-    """The coincident pairs among triangles that share a plane bin (``group``)."""
+def _overlapping_in_groups(p, n, boxes, group, count, scale, tolerance):
+    """The coincident pairs among triangles that share a plane bin (``group``); ``boxes``: the
+    triangles' lower and upper corners."""
     candidates = np.nonzero(count[group] > 1)[0]
     if len(candidates) == 0:
         return np.zeros((0, 2), np.int64)
     # Sort and sweep along an in-plane world axis, within each plane group.
     axis = (np.argmax(np.abs(n[candidates]), axis=1) + 1) % 3
-    lo = p[candidates, :, :].min(axis=1)[np.arange(len(candidates)), axis]
-    hi = p[candidates, :, :].max(axis=1)[np.arange(len(candidates)), axis]
+    box_lo, box_hi = boxes
+    lo, hi = box_lo[candidates, axis], box_hi[candidates, axis]
     span = 4.0 * scale + 1.0
     key_lo = group[candidates] * span + lo
     key_hi = group[candidates] * span + hi
@@ -350,10 +360,24 @@ def _overlapping_in_groups(p, n, group, count, scale, tolerance):
     j = i + 1 + (np.arange(width.sum()) - np.repeat(np.cumsum(width) - width, width))
     a, b = tri[i], tri[j]
     # Full bounding boxes overlap, then the separating axis test in the plane.
-    box = np.all(
-        (p[a].max(axis=1) >= p[b].min(axis=1) - tolerance) & (p[b].max(axis=1) >= p[a].min(axis=1) - tolerance), axis=1
-    )
+    box = np.all((box_hi[a] >= box_lo[b] - tolerance) & (box_hi[b] >= box_lo[a] - tolerance), axis=1)
     a, b = a[box], b[box]
+    # Most such pairs in a tessellated plane only touch, at a shared edge or corner, and have a
+    # separating line along an edge where they overlap by 0. Found first in 2-D, on the plane's
+    # projection onto the coordinate plane across its normal's largest axis: an affine map, which
+    # keeps triangles that touch touching, and costs a third of the test below.
+    major = np.argmax(np.abs(n[a]), axis=1)[:, None]
+    corners = np.arange(3)[None, :]
+    (ax, ay), (bx, by) = (
+        (p[t[:, None], corners, (major + 1) % 3], p[t[:, None], corners, (major + 2) % 3]) for t in (a, b)
+    )  # (M, 3) each: the corners' two coordinates
+    apart = np.zeros(len(a), bool)
+    for x, y in ((ax, ay), (bx, by)):
+        for e in range(3):
+            ex, ey = (x[:, (e + 1) % 3] - x[:, e])[:, None], (y[:, (e + 1) % 3] - y[:, e])[:, None]
+            pa, pb = ay * ex - ax * ey, by * ex - bx * ey  # along (-ey, ex), across the edge
+            apart |= np.minimum(_largest(pa), _largest(pb)) - np.maximum(_least(pa), _least(pb)) <= 0.0
+    a, b = a[~apart], b[~apart]
     # Same plane (a hashed bin may hold others), then the separating axis test in that plane.
     overlap = np.all(np.abs(np.einsum("ikj,ij->ik", p[b] - p[a, :1], n[a])) <= tolerance, axis=1)
     for t in (a, b):
@@ -365,6 +389,15 @@ def _overlapping_in_groups(p, n, group, count, scale, tolerance):
             pb = np.einsum("ikj,ij->ik", p[b], ax)
             overlap &= np.minimum(pa.max(1), pb.max(1)) - np.maximum(pa.min(1), pb.min(1)) > tolerance
     return np.sort(np.stack([a[overlap], b[overlap]], axis=1), axis=1)
+
+
+def _largest(x: np.ndarray) -> np.ndarray:
+    """Each row's largest of three (N, 3): faster than a reduction over so short an axis."""
+    return np.maximum(np.maximum(x[:, 0], x[:, 1]), x[:, 2])
+
+
+def _least(x: np.ndarray) -> np.ndarray:
+    return np.minimum(np.minimum(x[:, 0], x[:, 1]), x[:, 2])
 
 
 def coincidence_layers(pairs: np.ndarray, triangle_count: int) -> np.ndarray:

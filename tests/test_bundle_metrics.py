@@ -21,6 +21,7 @@ from evalkit.metrics.bundles import (
     bundle_lookup,
     compare_bundles,
     eye_vertices,
+    lookup_lines,
     next_hit_errors,
     resolution_advice,
 )
@@ -321,6 +322,25 @@ def test_fine_geometry_asks_for_a_finer_bundle_resolution():
         assert all(a > b for a, b in zip(rates, rates[1:])), rates
         coarse[name] = advice["recommended"]
     assert coarse["cornell-box"] <= 64 and coarse["parts"] >= 128 and coarse["parts"] > coarse["cornell-box"], coarse
+
+
+@pytest.mark.parametrize("name, R", [("cornell-box", 64), ("parts", 256)])
+def test_exact_bundles_on_the_lines_the_lookups_read_judge_them_as_whole_bundles_do(name, R):
+    """The resolution probe traces only the four lines around each lookup (`lookup_lines`): the
+    lookups, and so the next-hit errors, are those on the whole exact bundles, from a fraction of
+    their lines."""
+    scene = load_scene(name)
+    tracer = ExactTracer(scene)
+    vertices = eye_vertices(scene, tracer, 500, seed=3)
+    ds = DirectionSet.make(4, seed=3)
+    k = np.random.default_rng(3).integers(0, 4, len(vertices["position"]))  # what next_hit_errors draws
+    lines = lookup_lines(ds, tracer.centre, tracer.radius, R, vertices["position"], k)
+    whole, some = tracer.bundles(ds, R), tracer.bundles(ds, R, lines)
+    assert some.params["lines_traced"] == len(np.unique(lines)) < 0.2 * len(whole.offsets)
+    a, b = next_hit_errors(whole, tracer, vertices, seed=3), next_hit_errors(some, tracer, vertices, seed=3)
+    assert a["lookups"] > 300 and a == b
+    assert np.array_equal(whole.depth[np.concatenate([np.arange(*whole.offsets[i : i + 2]) for i in np.unique(lines)])],
+                          some.depth)  # fmt: skip
 
 
 def test_the_probe_counts_lookups_on_parts_whose_normals_oppose_their_winding_as_any_other():

@@ -103,13 +103,23 @@ def line_origins(directions: DirectionSet, k: int, centre: np.ndarray, radius: f
     """Origins (R*R, 3) float64 of bundle k's lines, in list order (row j, then column i); see the
     module docstring."""
     R = resolution
-    s = radius * (2.0 * (np.arange(R) + 0.5 + directions.jitter[k, 0]) / R - 1.0)
-    t = radius * (2.0 * (np.arange(R) + 0.5 + directions.jitter[k, 1]) / R - 1.0)
-    tt, ss = np.meshgrid(t, s, indexing="ij")
+    return lines_origins(directions, k * R * R + np.arange(R * R), centre, radius, R)
+
+
+def lines_origins(
+    directions: DirectionSet, lines: np.ndarray, centre: np.ndarray, radius: float, resolution: int
+) -> np.ndarray:
+    """Origins (N, 3) float64 of the given lines (list indices k R^2 + j R + i: bundle k, row j,
+    column i)."""
+    R = resolution
+    k, pixel = np.divmod(np.asarray(lines, dtype=np.int64), R * R)
+    j, i = np.divmod(pixel, R)
+    s = radius * (2.0 * (i + 0.5 + directions.jitter[k, 0]) / R - 1.0)
+    t = radius * (2.0 * (j + 0.5 + directions.jitter[k, 1]) / R - 1.0)
     return (
         centre
-        + ss.reshape(-1, 1) * directions.axis_u[k]
-        + tt.reshape(-1, 1) * directions.axis_v[k]
+        + s[:, None] * directions.axis_u[k]
+        + t[:, None] * directions.axis_v[k]
         - radius * directions.directions[k]
     )
 

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import functools
 import math
+import weakref
 
 import numpy as np
 
@@ -426,14 +427,7 @@ def bundle_lookup(
     omega = np.where(forward[:, None], d, -d)
     cg = np.einsum("ij,ij->i", geometric, d)
     leaves = np.where(forward, cg > 0, cg < 0)
-    p = position - bundles.centre
-    grid = np.stack(
-        [
-            (np.einsum("ij,ij->i", p, u) / bundles.radius * 0.5 + 0.5) * R - ds.jitter[k, 0] - 0.5,
-            (np.einsum("ij,ij->i", p, v) / bundles.radius * 0.5 + 0.5) * R - ds.jitter[k, 1] - 0.5,
-        ],
-        axis=1,
-    )
+    grid = _lookup_grid(ds, bundles.centre, bundles.radius, R, position, k)
     corner = np.floor(grid).astype(np.int64)
     offset = grid - corner
     depths = bundles.depth.astype(np.float64)
@@ -531,6 +525,29 @@ def bundle_lookup(
     }
 
 
+def _lookup_grid(ds: DirectionSet, centre, radius: float, R: int, position: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Where each of ``position`` (N, 3) projects in bundle k's grid of lines (N, 2): line (i, j)
+    at (i, j); the lookup reads the four lines around it."""
+    p = position - centre
+    return np.stack(
+        [
+            (np.einsum("ij,ij->i", p, ds.axis_u[k]) / radius * 0.5 + 0.5) * R - ds.jitter[k, 0] - 0.5,
+            (np.einsum("ij,ij->i", p, ds.axis_v[k]) / radius * 0.5 + 0.5) * R - ds.jitter[k, 1] - 0.5,
+        ],
+        axis=1,
+    )
+
+
+def lookup_lines(ds: DirectionSet, centre, radius: float, R: int, position: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """The list indices of the lines `bundle_lookup` reads for ``position`` (N, 3) in bundles
+    ``k`` (N,): the four around each, those inside the grid."""
+    corner = np.floor(_lookup_grid(ds, centre, radius, R, position, k)).astype(np.int64)
+    pixels = corner[:, None, :] + np.array([(0, 0), (1, 0), (0, 1), (1, 1)])[None]  # (N, 4, 2)
+    inside = np.all((pixels >= 0) & (pixels < R), axis=2)
+    lines = np.asarray(k)[:, None] * R * R + pixels[..., 1] * R + pixels[..., 0]
+    return lines[inside]
+
+
 def _in_triangle(b: np.ndarray) -> bool:
     """Whether barycentrics b lie in their triangle, up to 1e-4 of round-off (scene.glsl:
     inside_triangle)."""
@@ -624,6 +641,24 @@ def _own_surface_test(splats: _SplatShapes | None, plane, h: float):
     return skipped
 
 
+# What lookups need of a scene's triangles beside the bundles, found once per `SceneArrays`: the
+# resolution probe looks the same scene up at every R it tries (on 2.4 M triangles, the edges'
+# neighbours took 7.7 s of each 13.7 s probe).
+_TRIANGLE_FACTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _triangle_facts(arrays) -> dict:
+    """Of ``arrays``' triangles: the neighbour across each edge and whether it turns
+    (`triangle_neighbours`: "across", "turned") and each one's longest edge ("longest")."""
+    facts = _TRIANGLE_FACTS.get(arrays)
+    if facts is None:
+        across, turned = triangle_neighbours(arrays.positions, arrays.faces, arrays.tri_normal)
+        corners = arrays.positions[arrays.faces]
+        longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+        facts = _TRIANGLE_FACTS[arrays] = {"across": across, "turned": turned, "longest": longest}
+    return facts
+
+
 def _smaller_than_pixel(bundles: BundleSet, arrays):
     """Whether node j's surface is smaller than a bundle pixel, as shaders/bundle_hits.glsl tells: a
     splat's diameter, or its triangle's longest edge."""
@@ -632,8 +667,7 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
         small = 2.0 * float(bundles.params["splat_radius"]) < h
         return lambda j: small
     triangles = bundles.node_triangle()
-    corners = arrays.positions[arrays.faces]  # per triangle, not per node: nodes are many more
-    small = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1) < h
+    small = _triangle_facts(arrays)["longest"] < h  # per triangle, not per node: nodes are many more
     return lambda j: small[triangles[j]]
 
 
@@ -651,8 +685,8 @@ def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
     behind x or the vertex's own triangle ``own``, else ("open",). The splats' shapes bring the
     scene's edge pairs."""
     triangles = bundles.node_triangle()
-    pairs = splats.pairs if splats else None
-    across, turned = triangle_neighbours(arrays.positions, arrays.faces, arrays.tri_normal, pairs=pairs)
+    facts = _triangle_facts(arrays)
+    across, turned = facts["across"], facts["turned"]
 
     def within_splat(j, b, y):
         d2 = np.sum((y - splats.centres[j]) ** 2)
@@ -693,6 +727,11 @@ def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
     return walk
 
 
+def _lookup_directions(K: int, count: int, seed: int) -> np.ndarray:
+    """The bundle each of ``count`` vertices looks up in `next_hit_errors`: uniform over K."""
+    return np.random.default_rng(seed).integers(0, K, count)
+
+
 def next_hit_errors(
     bundles: BundleSet, tracer, vertices: dict, seed: int = 0, self_hit_bias: float = DEFAULT_SELF_HIT_BIAS
 ) -> dict:
@@ -701,9 +740,8 @@ def next_hit_errors(
     with the exact Embree ray from the vertex along the same direction. Vertices whose direction
     does not leave their surface (shading normals) end their path in the renderer and are not
     counted. Broken down by outcome, by direction and by the slope at the exact hit."""
-    rng = np.random.default_rng(seed)
     K = bundles.directions.count
-    k = rng.integers(0, K, len(vertices["position"]))
+    k = _lookup_directions(K, len(vertices["position"]), seed)
     look = bundle_lookup(
         bundles,
         tracer.arrays,
@@ -794,9 +832,12 @@ def resolution_advice(scene, tracer, directions: int = 4, vertices: int = 1000, 
     each R probed. `tracer` is the exact tracer (references.embree.ExactTracer) of the scene."""
     points = eye_vertices(scene, tracer, vertices, seed=seed)
     ds = DirectionSet.make(directions, seed=seed)
+    k = _lookup_directions(directions, len(points["position"]), seed)
     probed, recommended = {}, None
     for R in PROBE_RESOLUTIONS:
-        probed[R] = next_hit_errors(tracer.bundles(ds, R), tracer, points, seed=seed)["error_rate"]
+        # Only the lines the lookups read: the rest would not change a lookup.
+        lines = lookup_lines(ds, tracer.centre, tracer.radius, R, points["position"], k)
+        probed[R] = next_hit_errors(tracer.bundles(ds, R, lines), tracer, points, seed=seed)["error_rate"]
         if probed[R] <= NEXT_HIT_ERROR_TARGET:
             recommended = R
             break
