@@ -329,18 +329,21 @@ def coincident_pairs(positions_local, faces, normals, tolerance):
     feature = np.c_[outer, offset[:, None] * n] / (8.0 * tolerance)
     mix = np.random.default_rng(0).integers(1, 2**62, 9) | 1
     boxes = p.min(axis=1), p.max(axis=1)  # each triangle's bounds, found once for every candidate pair
-    pairs = []
-    # Two bin grids half a bin apart, so two planes within tolerance share a bin in at least one.
+    pairs, tested = [], None
+    # Two bin grids half a bin apart, so two planes within tolerance share a bin in at least one;
+    # the second tests only the pairs the first did not (most pairs share a bin in both).
     for shift in (0.0, 0.5):
         key = (np.floor(feature + shift).astype(np.int64) * mix).sum(axis=1)
         _, group, count = np.unique(key, return_inverse=True, return_counts=True)
-        pairs.append(_overlapping_in_groups(p, n, boxes, group, count, scale, tolerance))
+        pairs.append(_overlapping_in_groups(p, n, boxes, group, count, scale, tolerance, tested))
+        tested = group
     return np.unique(np.concatenate(pairs), axis=0)
 
 
-def _overlapping_in_groups(p, n, boxes, group, count, scale, tolerance):
-    """The coincident pairs among triangles that share a plane bin (``group``); ``boxes``: the
-    triangles' lower and upper corners."""
+def _overlapping_in_groups(p, n, boxes, group, count, scale, tolerance, tested=None):
+    """The coincident pairs among triangles that share a plane bin (``group``), but for those that
+    share one in ``tested`` (another grouping, already tested); ``boxes``: the triangles' lower and
+    upper corners."""
     candidates = np.nonzero(count[group] > 1)[0]
     if len(candidates) == 0:
         return np.zeros((0, 2), np.int64)
@@ -359,6 +362,9 @@ def _overlapping_in_groups(p, n, boxes, group, count, scale, tolerance):
     i = np.repeat(first, width)
     j = i + 1 + (np.arange(width.sum()) - np.repeat(np.cumsum(width) - width, width))
     a, b = tri[i], tri[j]
+    if tested is not None:
+        untested = tested[a] != tested[b]
+        a, b = a[untested], b[untested]
     # Full bounding boxes overlap, then the separating axis test in the plane.
     box = np.all((box_hi[a] >= box_lo[b] - tolerance) & (box_hi[b] >= box_lo[a] - tolerance), axis=1)
     a, b = a[box], b[box]

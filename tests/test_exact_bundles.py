@@ -16,7 +16,7 @@ from evalkit.core.bundleset import BundleSet, DirectionSet
 from evalkit.core.scene import Material, Mesh, load_scene
 from evalkit.core.scene.tessellate import box, unit_sphere
 from evalkit.metrics.bundles import compare_bundles
-from references.embree import ExactTracer
+from references.embree import ExactTracer, coincident_pairs
 
 # Exact depths are float64 plane depths stored as float32: a few 1e-8 of the radius.
 EXACT_DEPTH_TOLERANCE = 1e-6
@@ -45,6 +45,53 @@ def test_exact_bundles_equal_float64_brute_force(make):
     assert result["exact_nodes"] > 1000
     assert result["matched"] == result["exact_nodes"] and result["spurious"] == 0, result
     assert result["same_prim"] == 1.0, result
+
+
+def brute_force_coincident_pairs(p: np.ndarray, n: np.ndarray, tolerance: float) -> set:
+    """Every pair of triangles (corners ``p`` (T, 3, 3), unit normals ``n``) in one plane within
+    ``tolerance`` whose interiors overlap by more than it along every edge's axis in that plane."""
+    found = set()
+    for a in range(len(p)):
+        for b in range(a + 1, len(p)):
+            if abs(abs(n[a] @ n[b]) - 1.0) > 1e-9 or np.abs((p[b] - p[a, 0]) @ n[a]).max() > tolerance:
+                continue
+            overlaps = True
+            for t in (a, b):
+                for e in range(3):
+                    axis = np.cross(n[a], p[t, (e + 1) % 3] - p[t, e])
+                    axis /= np.linalg.norm(axis)
+                    pa, pb = p[a] @ axis, p[b] @ axis
+                    overlaps &= min(pa.max(), pb.max()) - max(pa.min(), pb.min()) > tolerance
+            if overlaps:
+                found.add((a, b))
+    return found
+
+
+def test_coincident_pairs_are_those_of_a_test_of_every_pair():
+    """`coincident_pairs` (plane bins, a sweep, a 2-D test of touching pairs, then the test in the
+    plane) finds the pairs a test of every pair finds: a floor tessellated into 128 triangles that
+    only touch, a box standing on it (its bottom coincident with the floor), a doubled triangle, a
+    triangle a tenth of the tolerance above the floor and one ten tolerances above it."""
+    cell = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    floor = [(cell + [x, 0.0, z]) * 0.25 for x in range(8) for z in range(8)]
+    quads = [q[[0, 2, 1]] for q in floor] + [q[[0, 3, 2]] for q in floor]
+    cube, cube_faces = box(np.array([0.5, 0.0, 0.5]), np.array([1.1, 0.8, 1.1]))  # from the floor up
+    triangles = np.concatenate(
+        [
+            np.stack(quads),
+            cube[cube_faces],
+            [quads[5], quads[40] + [0.0, 1e-7, 0.0], quads[41] + [0.0, 1e-5, 0.0]],
+        ]
+    )
+    n = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    positions, faces = triangles.reshape(-1, 3), np.arange(3 * len(triangles)).reshape(-1, 3)
+    tolerance = 1e-6
+    fast = {tuple(pair) for pair in coincident_pairs(positions, faces, n, tolerance).tolist()}
+    assert fast == brute_force_coincident_pairs(triangles, n, tolerance)
+    last = len(triangles) - 1
+    assert {(5, last - 2), (40, last - 1)} <= fast and not any(last in pair for pair in fast)
+    assert sum(a >= 128 for a, b in fast) == 0 and sum(b >= 128 and b < last - 2 for a, b in fast) >= 2
 
 
 def test_coincident_and_thin_surfaces_are_every_one_a_node():
