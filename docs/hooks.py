@@ -1,6 +1,7 @@
-"""MkDocs hooks (mkdocs.yml): the reference pages generated from the code (evalkit/reference_docs.py)
-and the results pages generated from the committed data files in docs/results/data/
-(evalkit/results_docs.py) are added to the site at build time, never written into the checkout."""
+"""MkDocs hooks (mkdocs.yml): the reference pages generated from the code (evalkit/reference_docs.py),
+the results pages generated from the committed data files in docs/results/data/
+(evalkit/results_docs.py) and the tutorials, notebooks run at build time (evalkit/notebooks.py),
+are added to the site at build time, never written into the checkout."""
 
 from __future__ import annotations
 
@@ -8,16 +9,20 @@ from pathlib import Path
 
 from mkdocs.structure.files import File
 
+from evalkit.notebooks import notebook_markdown
 from evalkit.reference_docs import cli_markdown, settings_markdown
 from evalkit.results_docs import results_pages
 
 GENERATED = {"reference/cli.md": cli_markdown, "reference/settings.md": settings_markdown}
+TUTORIALS = {"tutorials/quick_start.md": "quick_start.ipynb"}  # page: notebook in docs/
 
 
 def on_files(files, config):
     for path, make in GENERATED.items():
         files.append(File.generated(config, path, content=make()))
     docs = Path(config["docs_dir"])
+    for page, notebook in TUTORIALS.items():
+        files.append(File.generated(config, page, content=notebook_markdown(docs / notebook, docs.parent)))
     for path, content in results_pages(docs / "results" / "data", docs).items():
         files.append(File.generated(config, path, content=content))
     return files

@@ -3,7 +3,6 @@ with one line on stderr and no traceback."""
 
 from __future__ import annotations
 
-import ast
 import json
 import os
 import re
@@ -23,6 +22,7 @@ from evalkit.core.display import tonemap
 from evalkit.core.exr import read_exr
 from evalkit.core.mitsuba_env import find_libllvm, llvm_major
 from evalkit.core.scene import load_scene
+from evalkit.notebooks import run_notebook
 
 
 def last_json(stdout: str) -> dict:
@@ -203,26 +203,16 @@ def test_the_readme_python_quick_start_runs(tmp_path):
 
 
 def test_the_notebook_runs_and_its_results_show_themselves(tmp_path, monkeypatch):
-    # docs/quick_start.ipynb, cell by cell as a kernel runs it: each cell's last expression is
-    # what the notebook displays, through its _repr_html_.
-    notebook = json.loads(Path(REPO, "docs", "quick_start.ipynb").read_text())
+    # docs/quick_start.ipynb, cell by cell as a kernel runs it (evalkit.notebooks, which builds the
+    # site's tutorial from it): each cell's last expression is shown through its _repr_html_.
     monkeypatch.chdir(tmp_path)
-    namespace: dict = {}
-    shown = []
-    for cell in notebook["cells"]:
-        if cell["cell_type"] != "code":
-            continue
-        tree = ast.parse("".join(cell["source"]))
-        last = tree.body.pop() if tree.body and isinstance(tree.body[-1], ast.Expr) else None
-        exec(compile(tree, "quick_start.ipynb", "exec"), namespace)
-        if last is not None:
-            value = eval(compile(ast.Expression(last.value), "quick_start.ipynb", "eval"), namespace)
-            shown.append(value._repr_html_())
-    assert [type(namespace[n]).__name__ for n in ("result", "bundles", "rows")] == [
+    run = run_notebook(Path(REPO, "docs", "quick_start.ipynb"))
+    assert [type(run.namespace[n]).__name__ for n in ("result", "bundles", "rows")] == [
         "RenderResult",
         "BundleSet",
         "StudyRows",
     ]
+    shown = [cell.shown for cell in run.cells if cell.shown is not None]
     assert len(shown) == 4 and "data:image/png;base64," in shown[0] and "RenderResult" in shown[0]
     assert "lines by nodes on them" in shown[1] and "hole_rate" in shown[2] and "class='ek-table" in shown[3]
 

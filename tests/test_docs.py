@@ -4,6 +4,7 @@ open from the file system in a real browser without console errors."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -25,6 +26,7 @@ PAGES = (
     "index",
     "guide",
     "howto",
+    "tutorials/quick_start",
     "method",
     "ARCHITECTURE",
     "reference/cli",
@@ -70,6 +72,19 @@ def test_the_pages_open_from_the_file_system_without_console_errors(site, browse
         assert browser.title, page
         severe = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
         assert not severe, (page, severe)
+
+
+def test_the_tutorial_is_its_notebook_run_when_the_site_was_built(site):
+    """The tutorial page holds every code cell of docs/quick_start.ipynb and what each shows, run at
+    build time: the render's picture, the bundles, their comparison and the study's table, and
+    says what ran it."""
+    page = (site / "tutorials" / "quick_start.html").read_text()
+    notebook = json.loads((REPO / "docs" / "quick_start.ipynb").read_text())
+    code = [c for c in notebook["cells"] if c["cell_type"] == "code"]
+    assert page.count('<div class="ek-output">') == len(code) == 4
+    assert "data:image/png;base64," in page and "lines by nodes on them" in page and "class='ek-table" in page
+    ran = r"Run when this page was built: <code>docs/quick_start.ipynb</code>, evalkit [\d.]+, .+, 20\d\d-\d\d-\d\d"
+    assert re.search(ran, page)
 
 
 def test_every_results_page_comes_from_a_data_file_that_names_its_command_and_versions(site):
