@@ -14,7 +14,10 @@ from evalkit.reference_docs import cli_markdown, settings_markdown
 from evalkit.results_docs import results_pages
 
 GENERATED = {"reference/cli.md": cli_markdown, "reference/settings.md": settings_markdown}
-TUTORIALS = {"tutorials/quick_start.md": "quick_start.ipynb"}  # page: notebook in docs/
+TUTORIALS = {  # page: notebook in docs/
+    "tutorials/quick_start.md": "quick_start.ipynb",
+    "tutorials/bundles.md": "bundles_tutorial.ipynb",
+}
 
 
 def on_files(files, config):

@@ -15,6 +15,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import NamedTuple
 
+from gpu_impl.context import default_context
+
 
 class Cell(NamedTuple):
     """A cell: its kind ("markdown" or "code"), its source, and what a code cell shows (HTML; None
@@ -72,9 +74,7 @@ def notebook_markdown(path: str | os.PathLike, repository: str | os.PathLike) ->
             if cell.shown is not None:
                 # One line of HTML in a block of its own: Markdown passes it through as it is.
                 parts.append(f'<div class="ek-output">{" ".join(cell.shown.splitlines())}</div>')
-    from gpu_impl.context import default_context  # the context the cells rendered with
-
-    gl = default_context().info
+    gl = default_context().info  # the context the cells rendered with
     when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     version = importlib.metadata.version("raybundle-evalkit")
     parts.append(

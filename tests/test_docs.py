@@ -27,6 +27,7 @@ PAGES = (
     "guide",
     "howto",
     "tutorials/quick_start",
+    "tutorials/bundles",
     "method",
     "ARCHITECTURE",
     "reference/cli",
@@ -74,17 +75,23 @@ def test_the_pages_open_from_the_file_system_without_console_errors(site, browse
         assert not severe, (page, severe)
 
 
-def test_the_tutorial_is_its_notebook_run_when_the_site_was_built(site):
-    """The tutorial page holds every code cell of docs/quick_start.ipynb and what each shows, run at
-    build time: the render's picture, the bundles, their comparison and the study's table, and
-    says what ran it."""
-    page = (site / "tutorials" / "quick_start.html").read_text()
-    notebook = json.loads((REPO / "docs" / "quick_start.ipynb").read_text())
-    code = [c for c in notebook["cells"] if c["cell_type"] == "code"]
-    assert page.count('<div class="ek-output">') == len(code) == 4
-    assert "data:image/png;base64," in page and "lines by nodes on them" in page and "class='ek-table" in page
-    ran = r"Run when this page was built: <code>docs/quick_start.ipynb</code>, evalkit [\d.]+, .+, 20\d\d-\d\d-\d\d"
-    assert re.search(ran, page)
+@pytest.mark.parametrize(
+    "page, notebook, shown",
+    [
+        ("quick_start", "quick_start.ipynb", ["data:image/png;base64,", "lines by nodes on them", "class='ek-table"]),
+        ("bundles", "bundles_tutorial.ipynb", ["perfect against exact", "imperfect against exact", "4 of 4 runs ok"]),
+    ],
+)
+def test_a_tutorial_is_its_notebook_run_when_the_site_was_built(site, page, notebook, shown):
+    """A tutorial page holds every code cell of its notebook and what each shows, run at build
+    time (the quick start: the render's picture, the bundles, their comparison and the study's
+    table), and says what ran it."""
+    html = (site / "tutorials" / f"{page}.html").read_text()
+    cells = json.loads((REPO / "docs" / notebook).read_text())["cells"]
+    code = [c for c in cells if c["cell_type"] == "code"]
+    assert html.count('<div class="ek-output">') == len(code) and all(s in html for s in shown)
+    ran = rf"Run when this page was built: <code>docs/{notebook}</code>, evalkit [\d.]+, .+, 20\d\d-\d\d-\d\d"
+    assert re.search(ran, html)
 
 
 def test_every_results_page_comes_from_a_data_file_that_names_its_command_and_versions(site):
