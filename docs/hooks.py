@@ -17,6 +17,7 @@ GENERATED = {"reference/cli.md": cli_markdown, "reference/settings.md": settings
 TUTORIALS = {  # page: notebook in docs/
     "tutorials/quick_start.md": "quick_start.ipynb",
     "tutorials/bundles.md": "bundles_tutorial.ipynb",
+    "tutorials/poster_question.md": "poster_question.ipynb",
 }
 
 
