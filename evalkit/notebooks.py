@@ -55,8 +55,8 @@ def run_notebook(path: str | os.PathLike) -> RunNotebook:
 
 
 def notebook_markdown(path: str | os.PathLike, repository: str | os.PathLike) -> str:
-    """The notebook at ``path`` as a page, run now (in a folder of its own; imports resolve from
-    ``repository``): its Markdown cells, its code, each code cell's output, and what ran it."""
+    """The notebook at ``path`` as a page, run now in a folder of its own: its Markdown cells, its
+    code, each code cell's output, and what ran it (the notebook named from ``repository``)."""
     path = Path(path).resolve()
     here = os.getcwd()
     with tempfile.TemporaryDirectory() as folder:

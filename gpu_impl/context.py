@@ -187,7 +187,8 @@ class GLContext:
     def allocate(self, make):
         """The GL objects ``make()`` returns (a list), or None, with them released, where the
         driver ran out of memory making them: drivers cap one texture's bytes below what their
-        size limits say (llvmpipe at 1 GiB), and a texture past it is left empty, not refused."""
+        size limits say (llvmpipe at about 1.3 GiB: docs/platform.md), and a texture past it is
+        left empty, not refused."""
         while self.ctx.error != "GL_NO_ERROR":  # errors of earlier calls are not this one's
             pass
         made = make()

@@ -150,8 +150,8 @@ NO_TRIANGLE = np.uint32(0xFFFFFFFF)
 MAX_DIRECTIONS = 65536 // 48
 
 # The most texture arrays the shadow atlas' pages take (gpu_impl/lights.py: AtlasTextures): a
-# driver caps one texture's bytes below its size limits (llvmpipe at 1 GiB), and the shaders
-# declare the arrays of samplers they read them by.
+# driver caps one texture's bytes below its size limits (llvmpipe at about 1.3 GiB:
+# docs/platform.md), and the shaders declare the arrays of samplers they read them by.
 MAX_ATLAS_TEXTURES = 4
 SHADER_CONSTANTS = {
     "MAX_ATLAS_TEXTURES": MAX_ATLAS_TEXTURES,

@@ -408,7 +408,7 @@ def orthographic(half: float, near: float, far: float) -> np.ndarray:
 class AtlasTextures:
     """The shadow atlas' GL textures: its pages in texture arrays of ``per_texture`` pages each, as
     many as the driver allocates in one texture (it may cap one texture's bytes below its size
-    limits: llvmpipe at 1 GiB), at most `MAX_ATLAS_TEXTURES`. Per array: the distances (RG32F:
+    limits: llvmpipe at about 1.3 GiB), at most `MAX_ATLAS_TEXTURES`. Per array: the distances (RG32F:
     the first surface, the second), the triangle each texel saw (R32UI; with light paths), the
     two nearest surfaces facing the light (R32UI each; where second surfaces are kept:
     shaders/shadow_maps.glsl) and a framebuffer per page (`LayerTargets`)."""
