@@ -151,8 +151,11 @@ MAX_DIRECTIONS = 65536 // 48
 
 # The most texture arrays the shadow atlas' pages take (gpu_impl/lights.py: AtlasTextures): a
 # driver caps one texture's bytes below its size limits (llvmpipe at about 1.3 GiB:
-# docs/platform.md), and the shaders declare the arrays of samplers they read them by.
-MAX_ATLAS_TEXTURES = 4
+# docs/platform.md), and the shaders read them through arrays of samplers. One, for now: on
+# llvmpipe, lookups through an array of 4 samplers made cornell-box's bidirectional G-buffer and
+# bounce passes 1.7 times as slow (a loop picks the sampler, since an array of samplers is indexed
+# only by a dynamically uniform expression), so an atlas past one texture is refused instead.
+MAX_ATLAS_TEXTURES = 1
 SHADER_CONSTANTS = {
     "MAX_ATLAS_TEXTURES": MAX_ATLAS_TEXTURES,
     "SPLAT_BIT": SPLAT_BIT,

@@ -421,7 +421,7 @@ class AtlasTextures:
             if count > MAX_ATLAS_TEXTURES:
                 raise LimitError(
                     f"the shadow atlas' {atlas.pages} pages of {atlas.page[0]} x {atlas.page[1]} texels need more "
-                    f"than the {MAX_ATLAS_TEXTURES} textures the shaders read: the GL driver allocates no texture "
+                    f"textures than the shaders read ({MAX_ATLAS_TEXTURES}): the GL driver allocates no texture "
                     f"of {refused} pages; lower the light samples, the light paths or their maps' size",
                     ("light_paths",),
                 )
@@ -847,9 +847,11 @@ class ShadowLights:
             "shadow_bias": self.bias,
             "shadow_slope_bias": self.slope_bias,
             "shadow_filter": self.filter,
-            "shadow_atlas": tuple(range(ATLAS_UNIT, ATLAS_UNIT + MAX_ATLAS_TEXTURES)),
-            "shadow_triangles": tuple(range(TRIANGLES_UNIT, TRIANGLES_UNIT + MAX_ATLAS_TEXTURES)),
+            "shadow_atlas": _units(ATLAS_UNIT),
+            "shadow_triangles": _units(TRIANGLES_UNIT),
             "atlas_pages_per_texture": 1 if self.atlas is None else self.atlas.per_texture,
+            "atlas_textures": 0 if self.atlas is None else len(self.atlas.arrays),
+            "atlas_page_height": 1 if self.atlas is None else self.page_size[1],
         }
         env = self.environment
         if env is not None:
@@ -894,6 +896,13 @@ class ShadowLights:
             self.atlas.release()
             if self.commands is not None:
                 self.commands.release()
+
+
+def _units(first: int):
+    """The texture units of an array of `MAX_ATLAS_TEXTURES` samplers from ``first`` on (one
+    sampler's, not an array's, where there is one)."""
+    units = tuple(range(first, first + MAX_ATLAS_TEXTURES))
+    return units if len(units) > 1 else units[0]
 
 
 def _texel_bytes(triangles: bool, facing: bool) -> int:

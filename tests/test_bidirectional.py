@@ -33,7 +33,7 @@ from evalkit.metrics.light_visibility import (
     vertex_shadow_maps,
 )
 from gpu_impl import lights as gpu_lights
-from gpu_impl.layout import LIGHT_PATH_VERTEX
+from gpu_impl.layout import LIGHT_PATH_VERTEX, MAX_ATLAS_TEXTURES
 from gpu_impl.lights import NO_SURFACE, LightVertices
 from gpu_impl.registry import resolve
 from gpu_impl.renderer import Renderer
@@ -144,11 +144,13 @@ def test_atlas_tiles_fill_one_page_where_they_fit_and_pages_of_their_own_past_it
 @pytest.mark.parametrize("visibility, most_layers", [("exact", 8), ("imperfect", 2)])
 def test_light_vertices_past_one_texture_render_as_they_do_in_one(gl, monkeypatch, visibility, most_layers):
     """Light vertices' shadow maps past the GL texture limit go on more atlas pages, and pages past
-    what the driver allocates in one texture (llvmpipe: 1 GiB) on more textures: a render whose
-    maps fill several pages of several textures (the limit lowered to 128 texels, textures to
-    ``most_layers`` pages) is the render with one page, bit for bit. lit-room: a spot light's map,
-    light paths' triangles and second surfaces (not every triangle bounds a solid) on the first
-    page and the light vertices' maps on the rest; the imperfect maps with pull-push."""
+    what the driver allocates in one texture on more textures (as many as `MAX_ATLAS_TEXTURES`): a
+    render whose maps fill several pages (the limit lowered to 128 texels, textures to
+    ``most_layers`` pages where more than one texture is read) is the render with one page, bit for
+    bit. lit-room: a spot light's map, light paths' triangles and second surfaces (not every
+    triangle bounds a solid) on the first page and the light vertices' maps on the rest; the
+    imperfect maps with pull-push."""
+    most_layers = most_layers if MAX_ATLAS_TEXTURES > 1 else 2048
     scene = load_scene("lit-room")
     settings = dict(method="perfect", strategy="bidirectional", bounces=2, directions=8, resolution=32, frames=2)
     settings.update(width=16, height=16, spp=2, light_paths=8, shadow_map_size=64, light_visibility=visibility)
@@ -169,7 +171,7 @@ def test_light_vertices_past_one_texture_render_as_they_do_in_one(gl, monkeypatc
     with Renderer(gl, scene, resolve(RenderSettings(**settings), "drop").settings) as renderer:
         pages, textures = renderer.lights.pages, len(renderer.lights.atlas.arrays)
     paged = render_with(gl, scene, **settings)
-    assert pages > 1 and textures > 1
+    assert pages > 1 and textures == min(textures, MAX_ATLAS_TEXTURES) and (textures > 1) == (MAX_ATLAS_TEXTURES > 1)
     for name, image in one.images.items():
         assert np.array_equal(image, paged.images[name]), f"{name} differs on {pages} pages in {textures} textures"
 
@@ -191,7 +193,12 @@ def test_an_atlas_past_the_textures_the_shaders_read_is_refused(gl, monkeypatch)
     monkeypatch.setattr(gl, "allocate", one_layer)
     settings = dict(method="perfect", strategy="bidirectional", bounces=2, directions=8, resolution=32, frames=1)
     settings.update(width=16, height=16, light_paths=8, shadow_map_size=64, light_sample_map_size=32)
-    refusal = r"the shadow atlas' 25 pages of 64 x 64 texels need more than the 4 textures .* no texture of 7 pages"
+    refused = 7 if MAX_ATLAS_TEXTURES == 4 else 13 if MAX_ATLAS_TEXTURES == 2 else 25
+    refusal = (
+        rf"the shadow atlas' 25 pages of 64 x 64 texels need more textures than the shaders read "
+        rf"\({MAX_ATLAS_TEXTURES}\): .* "
+        rf"no texture of {refused} pages"
+    )
     with pytest.raises(LimitError, match=refusal):
         Renderer(gl, load_scene("lit-room"), resolve(RenderSettings(**settings), "drop").settings)
 
@@ -199,24 +206,26 @@ def test_an_atlas_past_the_textures_the_shaders_read_is_refused(gl, monkeypatch)
 def test_light_vertices_past_half_the_free_memory_are_refused_before_anything_is_made(gl, monkeypatch):
     """A shadow atlas past half the memory free is a `LimitError` (what `evalkit tune` takes as the
     renderer's refusal, tests/test_tune.py) from the renderer's constructor, naming the vertices,
-    the bytes, the pages and the settings at fault; past one texture but within the memory it is
-    made."""
-    side, size = gl.limit("GL_MAX_TEXTURE_SIZE"), 1024
-    fits = side * side // (6 * size * size)  # cube maps of `size` texels a face in one texture
+    the bytes, the pages and the settings at fault; past the texture limit (lowered to 1024 texels)
+    but within the memory it is made."""
+    size = 1024
     settings = dict(method="perfect", strategy="bidirectional", bounces=1, directions=4, resolution=16, frames=1)
-    settings.update(width=8, height=8, light_sample_map_size=size, shadow_map_size=16)
+    settings.update(width=8, height=8, shadow_map_size=16)
     scene = load_scene("lit-room")  # one spot light: a single fixed view of 16 texels a side
     monkeypatch.setattr(gl, "free_memory", lambda: (2**28, "a test"))
     with pytest.raises(
         LimitError,
         match=r"2 light vertices' shadow maps need [\d.]+ MiB in 1 atlas pages, over half of the 256.00 MiB free by a",
     ) as refused:
-        Renderer(gl, scene, RenderSettings(**settings, light_paths=2))
+        Renderer(gl, scene, RenderSettings(**settings, light_paths=2, light_sample_map_size=size))
     # The tuner passes over these light paths and maps of this size, and more of either.
     assert refused.value.settings == ("light_paths", "light_sample_map_size")
     monkeypatch.setattr(gl, "free_memory", lambda: None)  # where the driver does not say
-    with Renderer(gl, scene, RenderSettings(**settings, light_paths=fits + 1)) as renderer:
-        assert renderer.lights.light_vertices == fits + 1 and renderer.lights.pages > 1
+    limit = gl.limit
+    monkeypatch.setattr(gl, "limit", lambda name: 1024 if name == "GL_MAX_TEXTURE_SIZE" else limit(name))
+    past = 1024 * 1024 // (6 * 64 * 64) + 1  # light paths whose cube maps of 64 texels fill more than 1024^2
+    with Renderer(gl, scene, RenderSettings(**settings, light_paths=past, light_sample_map_size=64)) as renderer:
+        assert renderer.lights.light_vertices == past and renderer.lights.pages > 1
 
 
 def test_imperfect_shadow_maps_agree_with_exact_maps_and_rays_on_most_connections(gl):

@@ -65,12 +65,11 @@ struct Surface {
     uint triangle;
 };
 
-// The triangle + 1 seen at texel `at` of the atlas' stack (lights.glsl: atlas_surfaces).
-uint seen_triangle(ivec3 at) {
-    int texture_index = at.z / atlas_pages_per_texture;
-    ivec3 layer = ivec3(at.xy, at.z - texture_index * atlas_pages_per_texture);
-    for (int i = 0; i < MAX_ATLAS_TEXTURES; i++) {
-        if (i == texture_index) return texelFetch(shadow_triangles[i], layer, 0).r;
+// The triangle + 1 seen at `texel` of the tile at `place` (lights.glsl: atlas_surfaces).
+uint seen_triangle(ivec4 place, ivec2 texel) {
+    ivec3 at = ivec3(place.xy + texel, place.z);
+    for (int i = 0; i < atlas_textures; i++) {
+        if (i == place.w) return texelFetch(shadow_triangles[i], at, 0).r;
     }
     return 0u;
 }
@@ -85,9 +84,9 @@ Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
     if (any(greaterThan(abs(ndc), vec2(1.0)))) return s;
     int size = int(view.tile.z);
     ivec2 texel = clamp(ivec2((ndc * 0.5 + 0.5) * view.tile.z), ivec2(0), ivec2(size - 1));
-    ivec3 at = atlas_texel(ivec2(view.tile.xy) + texel, textureSize(shadow_atlas[0], 0).y);
-    uint seen = seen_triangle(at);
-    if (seen == 0u || atlas_surfaces(at).x * view.axis.w >= 1.0) return s;  // nothing there
+    ivec4 place = atlas_place(ivec2(view.tile.xy));
+    uint seen = seen_triangle(place, texel);
+    if (seen == 0u || atlas_surfaces(place, texel).x * view.axis.w >= 1.0) return s;  // nothing there
     uint t = seen - 1u;
     uvec3 v = triangle_vertices(t);
     vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;

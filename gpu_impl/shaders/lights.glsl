@@ -58,6 +58,8 @@ uniform int light_count;          // the point, spot and directional lights and 
 // pages each (a driver caps one texture's bytes: gpu_impl/lights.py: AtlasTextures).
 uniform sampler2DArray shadow_atlas[MAX_ATLAS_TEXTURES];  // RG32F distances: the first surface, the second
 uniform int atlas_pages_per_texture;
+uniform int atlas_textures;  // how many of them there are: the loops below run no further
+uniform int atlas_page_height;
 uniform float shadow_bias;        // constant depth bias, in texels
 uniform float shadow_slope_bias;  // slope-scaled depth bias, in texels per unit tan(angle to the light)
 uniform int shadow_filter;        // PCF: shadow_filter x shadow_filter bilinear taps, one texel apart
@@ -86,13 +88,23 @@ float light_distance(ShadowView view, vec3 p) {
     return view.origin.w > 0.5 ? distance(p, view.origin.xyz) : dot(p - view.origin.xyz, view.axis.xyz);
 }
 
-// The first and second surfaces at texel `at` of the stack (atlas_texel). An array of samplers is
-// indexed only by a dynamically uniform expression, so the loop's counter picks the texture.
-vec2 atlas_surfaces(ivec3 at) {
+// A tile's place in the atlas' textures: its corner in its page (xy), the page's layer in its
+// texture (z) and the texture (w). Found once a lookup, not once a tap: llvmpipe divides integers
+// lane by lane, and dividing at every tap made its shadow lookups 1.6 times as slow.
+ivec4 atlas_place(ivec2 corner) {
+    ivec3 at = atlas_texel(corner, atlas_page_height);
     int texture_index = at.z / atlas_pages_per_texture;
-    ivec3 layer = ivec3(at.xy, at.z - texture_index * atlas_pages_per_texture);
-    for (int i = 0; i < MAX_ATLAS_TEXTURES; i++) {
-        if (i == texture_index) return texelFetch(shadow_atlas[i], layer, 0).rg;
+    return ivec4(at.xy, at.z - texture_index * atlas_pages_per_texture, texture_index);
+}
+
+// The first and second surfaces at `texel` of the tile at `place` (atlas_place). An array of
+// samplers is indexed only by a dynamically uniform expression, so the loop's counter picks the
+// texture; it runs to atlas_textures, not MAX_ATLAS_TEXTURES: llvmpipe runs every branch under
+// masks, so every texture the loop passes costs a fetch.
+vec2 atlas_surfaces(ivec4 place, ivec2 texel) {
+    ivec3 at = ivec3(place.xy + texel, place.z);
+    for (int i = 0; i < atlas_textures; i++) {
+        if (i == place.w) return texelFetch(shadow_atlas[i], at, 0).rg;
     }
     return vec2(NO_SURFACE);
 }
@@ -132,8 +144,8 @@ float depth_bias_texels(float slope) {
 // first surface and its second, the nearest behind it that faces the light (a midpoint shadow map,
 // after Woo 1992), where the gap is wider than `resolved` x 2 (SECOND_SURFACE_MARGIN): a point on
 // the ceiling above a light that hangs a hair under it is in shadow however wide the bias is.
-float lit_tap(ivec2 at, float dist, float bias, float resolved) {
-    vec2 surfaces = atlas_surfaces(atlas_texel(at, textureSize(shadow_atlas[0], 0).y));
+float lit_tap(ivec4 place, ivec2 texel, float dist, float bias, float resolved) {
+    vec2 surfaces = atlas_surfaces(place, texel);
     float half_gap = 0.5 * (surfaces.y - surfaces.x);
     return surfaces.x >= dist - (half_gap > resolved ? min(bias, half_gap) : bias) ? 1.0 : 0.0;
 }
@@ -142,7 +154,7 @@ float lit_tap(ivec2 at, float dist, float bias, float resolved) {
 // taps that let the light through to a point at `dist` with depth bias `bias` (lit_tap).
 float filtered_visibility(ShadowView view, vec2 ndc, float dist, float bias, float resolved) {
     int size = int(view.tile.z);
-    ivec2 origin = ivec2(view.tile.xy);
+    ivec4 place = atlas_place(ivec2(view.tile.xy));
     // Texel coordinates in the tile with texel centres at integers.
     vec2 st = (ndc * 0.5 + 0.5) * view.tile.z - 0.5 - 0.5 * float(shadow_filter - 1);
     float lit = 0.0;
@@ -151,10 +163,10 @@ float filtered_visibility(ShadowView view, vec2 ndc, float dist, float bias, flo
             vec2 s = st + vec2(i, j);
             vec2 base = floor(s), w = s - base;
             ivec2 t0 = clamp(ivec2(base), ivec2(0), ivec2(size - 1)), t1 = clamp(ivec2(base) + 1, ivec2(0), ivec2(size - 1));
-            float l00 = lit_tap(origin + t0, dist, bias, resolved);
-            float l10 = lit_tap(origin + ivec2(t1.x, t0.y), dist, bias, resolved);
-            float l01 = lit_tap(origin + ivec2(t0.x, t1.y), dist, bias, resolved);
-            float l11 = lit_tap(origin + t1, dist, bias, resolved);
+            float l00 = lit_tap(place, t0, dist, bias, resolved);
+            float l10 = lit_tap(place, ivec2(t1.x, t0.y), dist, bias, resolved);
+            float l01 = lit_tap(place, ivec2(t0.x, t1.y), dist, bias, resolved);
+            float l11 = lit_tap(place, t1, dist, bias, resolved);
             lit += mix(mix(l00, l10, w.x), mix(l01, l11, w.x), w.y);
         }
     }
