@@ -141,6 +141,23 @@ def test_atlas_tiles_fill_one_page_where_they_fit_and_pages_of_their_own_past_it
         gpu_lights.pack_tiles(sizes, 64, max_pages=2)
 
 
+def small_textures(gl, monkeypatch, side: int, most_layers: int) -> None:
+    """``gl`` as a driver whose textures are at most ``side`` texels a side and that allocates no
+    texture array of more than ``most_layers`` layers (as llvmpipe caps one texture's bytes)."""
+    limit, allocate = gl.limit, gl.allocate
+
+    def capped(make):
+        made = allocate(make)
+        if made is not None and max(arrays.distances.size[2] for arrays in made) > most_layers:
+            for arrays in made:
+                arrays.release()
+            return None
+        return made
+
+    monkeypatch.setattr(gl, "limit", lambda name: side if name == "GL_MAX_TEXTURE_SIZE" else limit(name))
+    monkeypatch.setattr(gl, "allocate", capped)
+
+
 @pytest.mark.parametrize("visibility, most_layers", [("exact", 8), ("imperfect", 2)])
 def test_light_vertices_past_one_texture_render_as_they_do_in_one(gl, monkeypatch, visibility, most_layers):
     """Light vertices' shadow maps past the GL texture limit go on more atlas pages, and pages past
@@ -156,18 +173,7 @@ def test_light_vertices_past_one_texture_render_as_they_do_in_one(gl, monkeypatc
     settings.update(width=16, height=16, spp=2, light_paths=8, shadow_map_size=64, light_visibility=visibility)
     settings.update(light_sample_map_size=32, ism_size=32, ism_points=512, ism_pull_push=True, seed=3)
     one = render_with(gl, scene, **settings)
-    limit, allocate = gl.limit, gl.allocate
-
-    def capped(make):  # a driver that allocates no texture of more than `most_layers` layers
-        made = allocate(make)
-        if made is not None and max(arrays.distances.size[2] for arrays in made) > most_layers:
-            for arrays in made:
-                arrays.release()
-            return None
-        return made
-
-    monkeypatch.setattr(gl, "limit", lambda name: 128 if name == "GL_MAX_TEXTURE_SIZE" else limit(name))
-    monkeypatch.setattr(gl, "allocate", capped)
+    small_textures(gl, monkeypatch, 128, most_layers)
     with Renderer(gl, scene, resolve(RenderSettings(**settings), "drop").settings) as renderer:
         pages, textures = renderer.lights.pages, len(renderer.lights.atlas.arrays)
     paged = render_with(gl, scene, **settings)
@@ -179,18 +185,7 @@ def test_light_vertices_past_one_texture_render_as_they_do_in_one(gl, monkeypatc
 def test_an_atlas_past_the_textures_the_shaders_read_is_refused(gl, monkeypatch):
     """Pages past `MAX_ATLAS_TEXTURES` textures of what the driver allocates in one are a
     `LimitError` naming the pages, the textures and the light paths, not a render missing them."""
-    limit, allocate = gl.limit, gl.allocate
-
-    def one_layer(make):  # a driver that allocates one layer a texture
-        made = allocate(make)
-        if made is not None and max(arrays.distances.size[2] for arrays in made) > 1:
-            for arrays in made:
-                arrays.release()
-            return None
-        return made
-
-    monkeypatch.setattr(gl, "limit", lambda name: 128 if name == "GL_MAX_TEXTURE_SIZE" else limit(name))
-    monkeypatch.setattr(gl, "allocate", one_layer)
+    small_textures(gl, monkeypatch, 128, most_layers=1)
     settings = dict(method="perfect", strategy="bidirectional", bounces=2, directions=8, resolution=32, frames=1)
     settings.update(width=16, height=16, light_paths=8, shadow_map_size=64, light_sample_map_size=32)
     refused = 7 if MAX_ATLAS_TEXTURES == 4 else 13 if MAX_ATLAS_TEXTURES == 2 else 25
