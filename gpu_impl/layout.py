@@ -151,13 +151,14 @@ MAX_DIRECTIONS = 65536 // 48
 
 # The most texture arrays the shadow atlas' pages take (gpu_impl/lights.py: AtlasTextures): a
 # driver caps one texture's bytes below its size limits (llvmpipe at about 1.3 GiB:
-# docs/platform.md), and the shaders read them through arrays of samplers. One, for now: on
-# llvmpipe, lookups through an array of 4 samplers made cornell-box's bidirectional G-buffer and
-# bounce passes 1.7 times as slow (a loop picks the sampler, since an array of samplers is indexed
-# only by a dynamically uniform expression), so an atlas past one texture is refused instead.
-MAX_ATLAS_TEXTURES = 1
+# docs/platform.md). An atlas in one texture is read through one sampler (shaders compiled with
+# ATLAS_TEXTURES 1); one past it, through an array of this many, which only bidirectional paths
+# compile (their light vertices are what outgrows a texture): on llvmpipe, lookups through an
+# array of 4 samplers made cornell-box's bidirectional G-buffer and bounce passes 1.7 times as slow
+# (a loop picks the sampler, since an array of samplers is indexed only by a dynamically uniform
+# expression), a cost paid only where one texture cannot hold the atlas.
+MAX_ATLAS_TEXTURES = 4
 SHADER_CONSTANTS = {
-    "MAX_ATLAS_TEXTURES": MAX_ATLAS_TEXTURES,
     "SPLAT_BIT": SPLAT_BIT,
     "MATERIAL_TEXTURED": MATERIAL_TEXTURED,
     "MATERIAL_TWOSIDED": MATERIAL_TWOSIDED,

@@ -408,20 +408,21 @@ def orthographic(half: float, near: float, far: float) -> np.ndarray:
 class AtlasTextures:
     """The shadow atlas' GL textures: its pages in texture arrays of ``per_texture`` pages each, as
     many as the driver allocates in one texture (it may cap one texture's bytes below its size
-    limits: llvmpipe at about 1.3 GiB), at most `MAX_ATLAS_TEXTURES`. Per array: the distances (RG32F:
+    limits: llvmpipe at about 1.3 GiB), at most ``most`` (the shaders read one texture through a
+    sampler, more through an array of `MAX_ATLAS_TEXTURES`). Per array: the distances (RG32F:
     the first surface, the second), the triangle each texel saw (R32UI; with light paths), the
     two nearest surfaces facing the light (R32UI each; where second surfaces are kept:
     shaders/shadow_maps.glsl) and a framebuffer per page (`LayerTargets`)."""
 
-    def __init__(self, gl: GLContext, atlas: Atlas, triangles: bool, facing: bool):
+    def __init__(self, gl: GLContext, atlas: Atlas, triangles: bool, facing: bool, most: int):
         self.page, self.pages = atlas.page, atlas.pages
         per = refused = atlas.pages  # the pages in one texture, tried; the fewest the driver refused
         while True:
             count = -(-atlas.pages // per)
-            if count > MAX_ATLAS_TEXTURES:
+            if count > most:
                 raise LimitError(
                     f"the shadow atlas' {atlas.pages} pages of {atlas.page[0]} x {atlas.page[1]} texels need more "
-                    f"textures than the shaders read ({MAX_ATLAS_TEXTURES}): the GL driver allocates no texture "
+                    f"textures than the shaders read ({most}): the GL driver allocates no texture "
                     f"of {refused} pages; lower the light samples, the light paths or their maps' size",
                     ("light_paths",),
                 )
@@ -565,7 +566,9 @@ class ShadowLights:
         if records_count:
             per_vertex = visibility.tiles_per_vertex
             side = gl.limit("GL_MAX_TEXTURE_SIZE")
-            max_pages = gl.limit("GL_MAX_ARRAY_TEXTURE_LAYERS") * MAX_ATLAS_TEXTURES
+            # Only light paths' vertices outgrow one texture; other lights' shaders read one.
+            most = MAX_ATLAS_TEXTURES if path_vertices else 1
+            max_pages = gl.limit("GL_MAX_ARRAY_TEXTURE_LAYERS") * most
             texels = (
                 self.map_size**2 * self.static_views
                 + environment_map_size**2 * environment_samples
@@ -590,7 +593,8 @@ class ShadowLights:
             # a scene whose every triangle bounds a solid has no second surfaces to keep.
             facing = not gpu_scene.solids().all()
             self._check_memory(atlas, bool(path_vertices), facing, visibility.map_size_setting)
-            self.atlas = AtlasTextures(gl, atlas, bool(path_vertices), facing)  # or a LimitError, before the rest
+            # or a LimitError, before the rest
+            self.atlas = AtlasTextures(gl, atlas, bool(path_vertices), facing, most)
             self.tiles = np.array(atlas.corners, dtype=np.float64).reshape(-1, 2)
             self.page_size, self.pages = atlas.page, atlas.pages
             # The environment samples' tiles and the light vertices' fill rows of their own
@@ -823,6 +827,7 @@ class ShadowLights:
     def defines(self) -> dict:
         return {
             "SHADOW_LIGHTS": int(self.records_count > 0),
+            "ATLAS_TEXTURES": self.atlas_textures,
             **self.visibility.defines(),
             "ENVIRONMENT": ENVIRONMENT_KINDS[None if self.environment is None else self.environment.kind],
         }
@@ -840,6 +845,17 @@ class ShadowLights:
         for i, arrays in enumerate(self.atlas.arrays):
             arrays.triangles.use(TRIANGLES_UNIT + i)
 
+    @property
+    def atlas_textures(self) -> int:
+        """The ATLAS_TEXTURES the shaders are compiled with: 1, read through one sampler, or
+        `MAX_ATLAS_TEXTURES`, through an array of samplers, where the atlas takes more textures."""
+        return 1 if self.atlas is None or len(self.atlas.arrays) == 1 else MAX_ATLAS_TEXTURES
+
+    def _units(self, first: int):
+        """The texture units of the atlas' samplers from ``first`` on: one, or an array's."""
+        count = self.atlas_textures
+        return first if count == 1 else tuple(range(first, first + count))
+
     def set_uniforms(self, program) -> None:
         """Set ``program``'s lighting and environment uniforms (those it has); they never change."""
         values = {
@@ -847,8 +863,8 @@ class ShadowLights:
             "shadow_bias": self.bias,
             "shadow_slope_bias": self.slope_bias,
             "shadow_filter": self.filter,
-            "shadow_atlas": _units(ATLAS_UNIT),
-            "shadow_triangles": _units(TRIANGLES_UNIT),
+            "shadow_atlas": self._units(ATLAS_UNIT),
+            "shadow_triangles": self._units(TRIANGLES_UNIT),
             "atlas_pages_per_texture": 1 if self.atlas is None else self.atlas.per_texture,
             "atlas_textures": 0 if self.atlas is None else len(self.atlas.arrays),
             "atlas_page_height": 1 if self.atlas is None else self.page_size[1],
@@ -896,13 +912,6 @@ class ShadowLights:
             self.atlas.release()
             if self.commands is not None:
                 self.commands.release()
-
-
-def _units(first: int):
-    """The texture units of an array of `MAX_ATLAS_TEXTURES` samplers from ``first`` on (one
-    sampler's, not an array's, where there is one)."""
-    units = tuple(range(first, first + MAX_ATLAS_TEXTURES))
-    return units if len(units) > 1 else units[0]
 
 
 def _texel_bytes(triangles: bool, facing: bool) -> int:

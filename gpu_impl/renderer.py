@@ -151,14 +151,14 @@ class Renderer:
         self.gbuffer_program = gl.program("gbuffer")
         self.gbuffer_vao = self.gpu_scene.vertex_array(self.gbuffer_program)
         d = self.defines
-        primary = {k: d[k] for k in ("SHADOW_LIGHTS", "ENVIRONMENT", "TEXTURES", "LIGHT_VISIBILITY", "BIDIRECTIONAL")}
+        primary = ("SHADOW_LIGHTS", "ENVIRONMENT", "TEXTURES", "LIGHT_VISIBILITY", "BIDIRECTIONAL", "ATLAS_TEXTURES")
         self.programs = {
-            "primary": gl.program("primary", **primary),
+            "primary": gl.program("primary", **{k: d[k] for k in primary}),
             **self.strategy.programs(d),
             "resolve_images": gl.program("resolve_images"),
         }
         if d["SHADOW_LIGHTS"] and self.tracer.lighting != "lazy" and not self.strategy.lazy_lighting_only:
-            irradiance = ("SHADOW_LIGHTS", "NODE_SIDES", "TEXTURES", "LIGHT_VISIBILITY")
+            irradiance = ("SHADOW_LIGHTS", "NODE_SIDES", "TEXTURES", "LIGHT_VISIBILITY", "ATLAS_TEXTURES")
             self.programs["irradiance"] = gl.program("irradiance", **{k: d[k] for k in irradiance})
         self.buffers = {
             "PATHS": gl.buffer(reserve=PATH.itemsize * self.paths),

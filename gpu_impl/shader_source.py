@@ -21,6 +21,7 @@ from gpu_impl.layout import (
     ENVIRONMENT_KINDS,
     LIGHT_VISIBILITY_EXACT,
     LIGHT_VISIBILITY_IMPERFECT,
+    MAX_ATLAS_TEXTURES,
     NODE_SPLAT_POINT,
     NODE_TRIANGLE,
     SAMPLERS,
@@ -43,6 +44,15 @@ REQUIRES = {
     "ENVIRONMENT_SAMPLES": "SHADOW_LIGHTS",
     "BIDIRECTIONAL": "LAZY_LIGHTING",
 }
+# The shadow atlas read through one sampler, or through an array where it takes more textures,
+# which only light paths' vertices make (gpu_impl/lights.py: ShadowLights.atlas_textures).
+ATLAS_TEXTURES = (1, MAX_ATLAS_TEXTURES)
+
+
+def atlas_possible(d: dict) -> bool:
+    return d["ATLAS_TEXTURES"] == 1 or (d["SHADOW_LIGHTS"] and d["BIDIRECTIONAL"])
+
+
 # Per program: flag sets (a list), or axes (a dict of define -> the values the code sets it to),
 # with a rule that leaves out combinations no code makes (a (dict, predicate) pair).
 VARIANTS = {
@@ -65,12 +75,13 @@ VARIANTS = {
     "shadow_second_surface": [{}],
     "imperfect_shadow_maps": [{}],
     "ism_pull_push": [{}],
-    "connection_visibility": {"LIGHT_VISIBILITY": LIGHT_VISIBILITIES},
+    "connection_visibility": {"LIGHT_VISIBILITY": LIGHT_VISIBILITIES, "ATLAS_TEXTURES": (1,)},
     "irradiance": {
         "SHADOW_LIGHTS": (1,),
         "NODE_SIDES": (1, 2),
         "TEXTURES": (0, 1),
         "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
+        "ATLAS_TEXTURES": (1,),
     },
     "primary": (
         {
@@ -79,8 +90,9 @@ VARIANTS = {
             "TEXTURES": (0, 1),
             "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
             "BIDIRECTIONAL": (0, 1),
+            "ATLAS_TEXTURES": ATLAS_TEXTURES,
         },
-        lambda d: d["SHADOW_LIGHTS"] or not d["BIDIRECTIONAL"],
+        lambda d: (d["SHADOW_LIGHTS"] or not d["BIDIRECTIONAL"]) and atlas_possible(d),
     ),
     "eye_paths": (
         {
@@ -94,12 +106,14 @@ VARIANTS = {
             "NODE_REFERENCE": NODE_REFERENCES,
             "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
             "BIDIRECTIONAL": (0, 1),
+            "ATLAS_TEXTURES": ATLAS_TEXTURES,
         },
         # Precomputed light (shadow-mapped lights, not lazy) is splat points' only; environment
         # samples are drawn from a map, for eye paths only.
         lambda d: (
             (not d["SHADOW_LIGHTS"] or d["LAZY_LIGHTING"] or d["NODE_REFERENCE"] == NODE_SPLAT_POINT)
             and (not d["ENVIRONMENT_SAMPLES"] or (d["ENVIRONMENT"] == ENVMAP and not d["BIDIRECTIONAL"]))
+            and atlas_possible(d)
         ),
     ),
     "light_paths": {
@@ -109,6 +123,7 @@ VARIANTS = {
         "NODE_REFERENCE": NODE_REFERENCES,
         "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
         "ENVIRONMENT": ENVIRONMENTS,
+        "ATLAS_TEXTURES": ATLAS_TEXTURES,
     },
     "resolve_images": [{}],
     "record_strides": {"RECORD_GROUP": (0, 1, 2, 3, 4, 5)},

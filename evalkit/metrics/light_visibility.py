@@ -71,7 +71,8 @@ def measure(
         records = np.zeros((len(positions), 2, 4), dtype=np.float32)
         records[:, 0, :3] = positions - lights.gpu_scene.centre
         records[:, 1, :3] = normals
-        program = gl.program("connection_visibility", **lights.visibility.defines())
+        defines = {**lights.visibility.defines(), "ATLAS_TEXTURES": lights.atlas_textures}
+        program = gl.program("connection_visibility", **defines)
         lights.set_uniforms(program)
         set_uniforms(program, {"first_vertex": lights.fixed_lights, "vertex_count": count})
         receiver_buffer = gl.buffer(records.tobytes())

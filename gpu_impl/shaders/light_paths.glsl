@@ -50,7 +50,11 @@ layout(local_size_x = LOCAL_SIZE) in;
 #define INV_PI 0.3183098861837907
 
 uniform uint invocations;       // V
-uniform usampler2DArray shadow_triangles[MAX_ATLAS_TEXTURES];  // the triangle + 1 each shadow texel saw
+#if ATLAS_TEXTURES == 1  // the triangle + 1 each shadow texel saw, in the atlas' textures (lights.glsl)
+uniform usampler2DArray shadow_triangles;
+#else
+uniform usampler2DArray shadow_triangles[ATLAS_TEXTURES];
+#endif
 uniform int direction_count;    // K
 uniform uint seed;
 uniform uint frame;
@@ -68,10 +72,14 @@ struct Surface {
 // The triangle + 1 seen at `texel` of the tile at `place` (lights.glsl: atlas_surfaces).
 uint seen_triangle(ivec4 place, ivec2 texel) {
     ivec3 at = ivec3(place.xy + texel, place.z);
+#if ATLAS_TEXTURES == 1
+    return texelFetch(shadow_triangles, at, 0).r;
+#else
     for (int i = 0; i < atlas_textures; i++) {
         if (i == place.w) return texelFetch(shadow_triangles[i], at, 0).r;
     }
     return 0u;
+#endif
 }
 
 // The first surface along the ray from origin along omega, from light l's shadow map.

@@ -54,11 +54,6 @@ layout(std430, binding = BINDING_LIGHTS) readonly buffer Lights { Light lights[]
 layout(std430, binding = BINDING_SHADOW_VIEWS) readonly buffer ShadowViews { ShadowView shadow_views[]; };
 
 uniform int light_count;          // the point, spot and directional lights and the emitter samples
-// The pages are the layers of up to MAX_ATLAS_TEXTURES texture arrays of atlas_pages_per_texture
-// pages each (a driver caps one texture's bytes: gpu_impl/lights.py: AtlasTextures).
-uniform sampler2DArray shadow_atlas[MAX_ATLAS_TEXTURES];  // RG32F distances: the first surface, the second
-uniform int atlas_pages_per_texture;
-uniform int atlas_textures;  // how many of them there are: the loops below run no further
 uniform int atlas_page_height;
 uniform float shadow_bias;        // constant depth bias, in texels
 uniform float shadow_slope_bias;  // slope-scaled depth bias, in texels per unit tan(angle to the light)
@@ -88,27 +83,6 @@ float light_distance(ShadowView view, vec3 p) {
     return view.origin.w > 0.5 ? distance(p, view.origin.xyz) : dot(p - view.origin.xyz, view.axis.xyz);
 }
 
-// A tile's place in the atlas' textures: its corner in its page (xy), the page's layer in its
-// texture (z) and the texture (w). Found once a lookup, not once a tap: llvmpipe divides integers
-// lane by lane, and dividing at every tap made its shadow lookups 1.6 times as slow.
-ivec4 atlas_place(ivec2 corner) {
-    ivec3 at = atlas_texel(corner, atlas_page_height);
-    int texture_index = at.z / atlas_pages_per_texture;
-    return ivec4(at.xy, at.z - texture_index * atlas_pages_per_texture, texture_index);
-}
-
-// The first and second surfaces at `texel` of the tile at `place` (atlas_place). An array of
-// samplers is indexed only by a dynamically uniform expression, so the loop's counter picks the
-// texture; it runs to atlas_textures, not MAX_ATLAS_TEXTURES: llvmpipe runs every branch under
-// masks, so every texture the loop passes costs a fetch.
-vec2 atlas_surfaces(ivec4 place, ivec2 texel) {
-    ivec3 at = ivec3(place.xy + texel, place.z);
-    for (int i = 0; i < atlas_textures; i++) {
-        if (i == place.w) return texelFetch(shadow_atlas[i], at, 0).rg;
-    }
-    return vec2(NO_SURFACE);
-}
-
 // The world-space size of one shadow texel at p: tile.w is 2 tan(fov / 2) / size for a
 // perspective view (times the distance) and 2 radius / size for an orthographic one.
 float texel_size(ShadowView view, float dist) {
@@ -116,6 +90,47 @@ float texel_size(ShadowView view, float dist) {
 }
 
 #if !defined SHADOW_MAP_RASTER
+
+// The pages are the layers of ATLAS_TEXTURES texture arrays of atlas_pages_per_texture pages each
+// (a driver caps one texture's bytes: gpu_impl/lights.py: AtlasTextures); RG32F distances: the
+// first surface, the second. One texture is read through one sampler; more, through an array
+// (gpu_impl/layout.py: MAX_ATLAS_TEXTURES says what that costs).
+#if ATLAS_TEXTURES == 1
+uniform sampler2DArray shadow_atlas;
+#else
+uniform sampler2DArray shadow_atlas[ATLAS_TEXTURES];
+uniform int atlas_pages_per_texture;
+uniform int atlas_textures;  // how many of them there are: the loops below run no further
+#endif
+
+// A tile's place in the atlas' textures: its corner in its page (xy), the page's layer in its
+// texture (z) and the texture (w). Found once a lookup, not once a tap: llvmpipe divides integers
+// lane by lane, and dividing at every tap made its shadow lookups 1.6 times as slow.
+ivec4 atlas_place(ivec2 corner) {
+    ivec3 at = atlas_texel(corner, atlas_page_height);
+#if ATLAS_TEXTURES == 1
+    return ivec4(at, 0);
+#else
+    int texture_index = at.z / atlas_pages_per_texture;
+    return ivec4(at.xy, at.z - texture_index * atlas_pages_per_texture, texture_index);
+#endif
+}
+
+// The first and second surfaces at `texel` of the tile at `place` (atlas_place). An array of
+// samplers is indexed only by a dynamically uniform expression, so the loop's counter picks the
+// texture; it runs to atlas_textures, not ATLAS_TEXTURES: llvmpipe runs every branch under
+// masks, so every texture the loop passes costs a fetch.
+vec2 atlas_surfaces(ivec4 place, ivec2 texel) {
+    ivec3 at = ivec3(place.xy + texel, place.z);
+#if ATLAS_TEXTURES == 1
+    return texelFetch(shadow_atlas, at, 0).rg;
+#else
+    for (int i = 0; i < atlas_textures; i++) {
+        if (i == place.w) return texelFetch(shadow_atlas[i], at, 0).rg;
+    }
+    return vec2(NO_SURFACE);
+#endif
+}
 
 // The shadow view of light l that p falls in: a cube light (6 views) picks its face by the major
 // axis of p - position, in the order +x, -x, +y, -y, +z, -z (gpu_impl/lights.py).

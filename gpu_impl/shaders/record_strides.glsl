@@ -15,6 +15,7 @@
 #elif RECORD_GROUP == 1
 #define SHADOW_LIGHTS 1
 #define LIGHT_VISIBILITY LIGHT_VISIBILITY_EXACT
+#define ATLAS_TEXTURES 1  // the records are the same however many textures the atlas takes
 #include "lights.glsl"
 #elif RECORD_GROUP == 2
 #include "paths.glsl"

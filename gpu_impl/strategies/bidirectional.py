@@ -110,7 +110,7 @@ class BidirectionalPaths(EyePaths):
         else:  # nothing to light or connect to
             programs["eye_paths"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=0)
         if self.path_vertices_per_frame:
-            keep = ("TEXTURES", "NODE_SIDES", "NODE_REFERENCE", "LIGHT_VISIBILITY", "ENVIRONMENT")
+            keep = ("TEXTURES", "NODE_SIDES", "NODE_REFERENCE", "LIGHT_VISIBILITY", "ENVIRONMENT", "ATLAS_TEXTURES")
             programs["light_paths"] = gl.program("light_paths", BIDIRECTIONAL=1, **{k: defines[k] for k in keep})
         return programs
 
