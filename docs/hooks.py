@@ -18,6 +18,7 @@ TUTORIALS = {  # page: notebook in docs/
     "tutorials/quick_start.md": "quick_start.ipynb",
     "tutorials/bundles.md": "bundles_tutorial.ipynb",
     "tutorials/poster_question.md": "poster_question.ipynb",
+    "tutorials/ci.md": "ci_tutorial.ipynb",
 }
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from evalkit.core.atomic import atomic_path, write_text
+from evalkit.core.display import fields_html
 from evalkit.core.errors import InputError
 from evalkit.core.exr import write_exr
 from evalkit.figures import error_map_png
@@ -118,7 +119,16 @@ def junit_xml(outcomes: list[Outcome], path: str | os.PathLike) -> None:
         ET.ElementTree(suite).write(tmp, encoding="utf-8", xml_declaration=True)
 
 
-def calibrate(case: Case, seeds: list[int], out: str | os.PathLike) -> dict:
+class Spread(dict):
+    """`calibrate`'s figures, which a notebook shows as a table."""
+
+    def _repr_html_(self) -> str:
+        figures = {k: self[k] for k in ("mean", "std", "min", "max")}
+        per_seed = {f"seed {s}": v for s, v in zip(self["seeds"], self["values"])}
+        return fields_html(f"{self['case']} over {len(self['seeds'])} seeds", {**figures, **per_seed})
+
+
+def calibrate(case: Case, seeds: list[int], out: str | os.PathLike) -> Spread:
     """The case's value over ``seeds`` (for a 'falls' case: the largest step ratio), to set or
     review its threshold: mean, standard deviation, min and max."""
     values = []
@@ -131,12 +141,14 @@ def calibrate(case: Case, seeds: list[int], out: str | os.PathLike) -> dict:
             raise InputError(case.name, f"calibration run failed: {o.message}")
         values.append(max(b / a for a, b in zip(o.values, o.values[1:])) if case.kind == "falls" else o.values[0])
     v = np.array(values)
-    return {
-        "case": case.name,
-        "seeds": seeds,
-        "values": values,
-        "mean": float(v.mean()),
-        "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
-        "min": float(v.min()),
-        "max": float(v.max()),
-    }
+    return Spread(
+        {
+            "case": case.name,
+            "seeds": seeds,
+            "values": values,
+            "mean": float(v.mean()),
+            "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
+            "min": float(v.min()),
+            "max": float(v.max()),
+        }
+    )

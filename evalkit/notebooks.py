@@ -10,6 +10,9 @@ import html
 import importlib.metadata
 import json
 import os
+import shlex
+import subprocess
+import sys
 import tempfile
 from datetime import UTC, datetime
 from pathlib import Path
@@ -25,6 +28,27 @@ class Cell(NamedTuple):
     kind: str
     source: str
     shown: str | None = None
+
+
+class Shell(NamedTuple):
+    """A command run as a terminal runs it (`shell`): shown as the command, what it printed and its
+    exit status."""
+
+    command: list[str]
+    output: str
+    returncode: int
+
+    def _repr_html_(self) -> str:
+        text = f"$ {shlex.join(self.command)}\n{self.output.rstrip()}\n(exit status {self.returncode})"
+        return f"<pre>{html.escape(text)}</pre>"
+
+
+def shell(*command: str) -> Shell:
+    """Run ``command`` (``evalkit`` is this environment's) in the current directory: what a
+    tutorial shows of a command line, as a CI job would run it."""
+    path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
+    run = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PATH": path})
+    return Shell(list(command), run.stdout + run.stderr, run.returncode)
 
 
 class RunNotebook(NamedTuple):

@@ -22,7 +22,7 @@ from evalkit.core.display import tonemap
 from evalkit.core.exr import read_exr
 from evalkit.core.mitsuba_env import find_libllvm, llvm_major
 from evalkit.core.scene import load_scene
-from evalkit.notebooks import run_notebook
+from evalkit.notebooks import run_notebook, shell
 
 
 def last_json(stdout: str) -> dict:
@@ -215,6 +215,15 @@ def test_the_notebook_runs_and_its_results_show_themselves(tmp_path, monkeypatch
     shown = [cell.shown for cell in run.cells if cell.shown is not None]
     assert len(shown) == 4 and "data:image/png;base64," in shown[0] and "RenderResult" in shown[0]
     assert "lines by nodes on them" in shown[1] and "hole_rate" in shown[2] and "class='ek-table" in shown[3]
+
+
+def test_a_tutorials_command_shows_what_it_printed_and_its_exit_status(tmp_path, monkeypatch):
+    # evalkit.notebooks.shell: what a tutorial shows of a command, run in the current directory.
+    monkeypatch.chdir(tmp_path)
+    run = shell(sys.executable, "-c", "import os, sys; print(os.getcwd(), 'a<b'); sys.exit(3)")
+    assert run.returncode == 3 and run.output.split() == [str(tmp_path), "a<b"]
+    assert run._repr_html_().endswith(f"{tmp_path} a&lt;b\n(exit status 3)</pre>")
+    assert shell("evalkit", "--help").returncode == 0  # this environment's evalkit, found on its PATH
 
 
 def test_a_reader_that_stops_early_ends_the_command_quietly():

@@ -29,6 +29,7 @@ PAGES = (
     "tutorials/quick_start",
     "tutorials/bundles",
     "tutorials/poster_question",
+    "tutorials/ci",
     "method",
     "ARCHITECTURE",
     "reference/cli",
@@ -82,6 +83,7 @@ def test_the_pages_open_from_the_file_system_without_console_errors(site, browse
         ("quick_start", "quick_start.ipynb", ["data:image/png;base64,", "lines by nodes on them", "class='ek-table"]),
         ("bundles", "bundles_tutorial.ipynb", ["perfect against exact", "imperfect against exact", "4 of 4 runs ok"]),
         ("poster_question", "poster_question.ipynb", ["7 of 7 runs ok", "bidirectional", "mitsuba"]),
+        ("ci", "ci_tutorial.ipynb", ["import fidelity passed", "over 4 seeds", "1 of 1 cases pass", "(exit status 1)"]),
     ],
 )
 def test_a_tutorial_is_its_notebook_run_when_the_site_was_built(site, page, notebook, shown):
