@@ -24,8 +24,8 @@ ADVICE_SOURCES = [
 def cached_resolution_advice(scene: Scene, seed: int = 0, probe: bool = True) -> dict | None:
     """`resolution_advice` for ``scene``, from the user cache where it is; else probed and cached
     (``probe``) or None. A probe builds the scene's exact tracer and its triangles' neighbours,
-    which grow with the scene (about a minute on 2.4 M triangles on 2 cores): it is kept by the
-    scene's content and the code that makes the advice."""
+    which grow with the scene (benchmarks/resolution_probe.py times it): it is kept by the scene's
+    content and the code that makes the advice."""
     key = f"advice-{scene.content_hash()}-seed{seed}-{cache.code_hash(*ADVICE_SOURCES)}"
     advice = cache.load("facts", key)
     if advice is None and probe:

@@ -12,7 +12,7 @@ from test_bundles import QUAD, QUAD_FACES, build, scene_of
 
 from evalkit.core.bundleset import SPLAT_PRIM_ID, BundleSet, DirectionSet
 from evalkit.core.scene import Material, Mesh, load_scene
-from evalkit.core.scene.edges import smooth_surfaces
+from evalkit.core.scene.edges import plane_barycentrics, smooth_surfaces
 from evalkit.core.scene.tessellate import box, subdivide, unit_sphere
 from evalkit.core.settings import RenderSettings
 from evalkit.metrics.bundles import (
@@ -25,6 +25,7 @@ from evalkit.metrics.bundles import (
     next_hit_errors,
     resolution_advice,
 )
+from evalkit.metrics.bundles import _barycentrics as scalar_barycentrics
 from gpu_impl.bundles import decode_normals
 from gpu_impl.layout import PATH, PATH_BACK, PATH_ENDED, PATH_SUMS
 from gpu_impl.renderer import Renderer
@@ -556,3 +557,17 @@ def test_smooth_surfaces_join_gentle_bends_and_part_at_creases():
     assert len(np.unique(s[:48])) == 1 and len(np.unique(s)) == 3
     s = smooth_surfaces(*prism(6))
     assert len(np.unique(s[:12])) == 6 and len(np.unique(s)) == 8
+
+
+def test_the_walks_barycentrics_in_python_floats_are_plane_barycentrics():
+    # Walks solve each hop's barycentrics in Python floats (evalkit.metrics.bundles._barycentrics):
+    # plane_barycentrics' numbers up to the order of its sums, degenerate triangles included.
+    rng = np.random.default_rng(1)
+    p, p0, p1, p2 = (rng.normal(size=(200, 3)) for _ in range(4))
+    p1[:3] = p0[:3]  # no area: numpy's inf and nan
+    p2[3] = p0[3] + 2.0 * (p1[3] - p0[3])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        expected = plane_barycentrics(p, p0, p1, p2)
+    got = np.array([scalar_barycentrics(*(v.tolist() for v in row)) for row in zip(p, p0, p1, p2)])
+    assert np.allclose(got, expected, rtol=1e-12, atol=1e-12, equal_nan=True)
+    assert np.array_equal(np.isfinite(got), np.isfinite(expected)) and not np.isfinite(got[:4]).any()

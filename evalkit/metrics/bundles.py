@@ -695,36 +695,71 @@ def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
         )
 
     reach2 = (WALK_REACH * bundles.pixel_size()) ** 2
+    positions, faces, normals = arrays.positions, arrays.faces, arrays.tri_normal
 
+    # In Python floats, not numpy: a walk is a few hops of 3-vectors, and numpy's cost per call on
+    # arrays so small made walks three quarters of the probe's lookups (plane_barycentrics'
+    # formula; its sums' order differs, by about 1e-14).
     def walk(j, x, o, s, own, met):
+        x, o, met = x.tolist(), o.tolist(), met.tolist()
         t = triangles[j]
         for hop in range(MAX_WALK_HOPS + 1):
-            p0, p1, p2 = arrays.positions[arrays.faces[t]]
-            b = plane_barycentrics((x + s * o)[None], p0[None], p1[None], p2[None])[0]
-            w = np.array([1 - b[0] - b[1], b[0], b[1]])
-            corner = int(np.argmin(w))
+            corners = positions[faces[t]].tolist()
+            y = [x[i] + s * o[i] for i in range(3)]
+            b = _barycentrics(y, *corners)
+            w = (1 - b[0] - b[1], b[0], b[1])
+            corner = min(range(3), key=w.__getitem__)
             if w[corner] >= -1e-4:  # inside, up to round-off (`_in_triangle`); at the first, the node itself
                 return ("met", t if hop else -1, s)
-            if hop == 0 and splats is not None and within_splat(j, b, x + s * o):
+            if hop == 0 and splats is not None and within_splat(j, np.array(b), np.array(y)):
                 return ("met", -1, s)
             # The edge to cross, opposite that corner, must pass within reach of the line's node.
-            a, e = (p0, p1, p2)[(corner + 1) % 3], (p0, p1, p2)[(corner + 2) % 3] - (p0, p1, p2)[(corner + 1) % 3]
-            off = a + np.clip((met - a) @ e / max(e @ e, 1e-30), 0.0, 1.0) * e - met
-            if hop == MAX_WALK_HOPS or off @ off > reach2:
+            a, end = corners[(corner + 1) % 3], corners[(corner + 2) % 3]
+            e = _sub(end, a)
+            along = min(max(_dot(_sub(met, a), e) / max(_dot(e, e), 1e-30), 0.0), 1.0)
+            off = [a[i] + along * e[i] - met[i] for i in range(3)]
+            if hop == MAX_WALK_HOPS or _dot(off, off) > reach2:
                 return ("open",)
-            e = (corner + 1) % 3
-            u = across[t, e]
+            edge = (corner + 1) % 3
+            u = int(across[t, edge])
             if u < 0:
                 return ("outside",)
-            n = arrays.tri_normal[u]
-            if u == own or ((n @ o < 0) != turned[t, e]) != (arrays.tri_normal[t] @ o < 0):
+            n = normals[u].tolist()
+            n_o = _dot(n, o)
+            if u == own or ((n_o < 0) != bool(turned[t, edge])) != (_dot(normals[t].tolist(), o) < 0):
                 return ("outside",)
-            s = n @ (arrays.positions[arrays.faces[u, 0]] - x) / (n @ o)
-            if not np.isfinite(s) or s <= 0:
+            if n_o == 0:
+                return ("outside",)
+            s = _dot(n, _sub(positions[faces[u, 0]].tolist(), x)) / n_o
+            if not math.isfinite(s) or s <= 0:
                 return ("outside",)
             t = u
 
     return walk
+
+
+def _sub(a: list, b: list) -> list:
+    return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+
+
+def _dot(a: list, b: list) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _barycentrics(p: list, p0: list, p1: list, p2: list) -> tuple[float, float]:
+    """`plane_barycentrics` of one point, in Python floats."""
+    e1, e2, q = _sub(p1, p0), _sub(p2, p0), _sub(p, p0)
+    aa, ab, bb = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
+    det = aa * bb - ab * ab
+    q1, q2 = _dot(q, e1), _dot(q, e2)
+    return _divide(bb * q1 - ab * q2, det), _divide(aa * q2 - ab * q1, det)
+
+
+def _divide(a: float, b: float) -> float:
+    """a / b, as numpy divides: inf or nan where b is 0 (a degenerate triangle)."""
+    if b == 0:
+        return math.copysign(math.inf, a) * math.copysign(1.0, b) if a != 0 and not math.isnan(a) else math.nan
+    return a / b
 
 
 def _lookup_directions(K: int, count: int, seed: int) -> np.ndarray:
