@@ -5,10 +5,14 @@ them in the site)."""
 
 from __future__ import annotations
 
+import base64
+import html
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 from evalkit.records import read_record
+from evalkit.report import plot
 
 
 def _table(header: list[str], rows: list[list]) -> list[str]:
@@ -54,14 +58,16 @@ HOLE_FIT_COLUMNS = (
 
 
 def study_markdown(data: dict, source: str) -> str:
-    """A study's rows (`evalkit study FILE --record`): its parameters that vary and its measures,
-    and the hole model's fits where the study made them."""
+    """A study's rows (`evalkit study FILE --record`): its plots, its parameters that vary and its
+    measures, and the hole model's fits where the study made them."""
     rows = [r for r in data["rows"] if r.get("status") == "ok"]
     lines = [f"# {data['title']}", "", data["description"], "", f"Reduced from the paper: {data['reduced']}", ""]
     lines += _provenance(data, source)
     failed = len(data["rows"]) - len(rows)
     if failed:
         lines += [f"{failed} of {len(data['rows'])} runs failed and are not shown.", ""]
+    for spec in data.get("plots", []):
+        lines += _plot_markdown(rows, spec)
     fits = data.get("hole_model")
     if fits:
         keys = [k for k in HOLE_FIT_COLUMNS if k in fits[0]]
@@ -71,6 +77,16 @@ def study_markdown(data: dict, source: str) -> str:
     columns = [*data["varying"], *measures]
     lines += ["## Runs", ""] + _table(columns, [[_value(r.get(c)) for c in columns] for r in rows])
     return "\n".join(lines) + "\n"
+
+
+def _plot_markdown(rows: list[dict], spec: dict) -> list[str]:
+    """A study's [[plot]] drawn from its recorded rows as its report draws it, in the page itself
+    (a PNG in a data URI: the site opens from the file system)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "plot.png"
+        title = plot(rows, spec, path)
+        data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return [f"## {title}", "", f'<img alt="{html.escape(title)}" src="data:image/png;base64,{data}">', ""]
 
 
 def _ms(v: float) -> str:

@@ -142,6 +142,7 @@ def test_a_study_recorded_with_its_command_becomes_a_results_page(tmp_path):
         '[defaults]\nscene = "cornell-box"\nmethod = "imperfect"\ndirections = 4\nresolution = 64\npoints = 4096\n'
         "[[grid]]\nsplat_scale = [1.2, 1.8]\n"
         "[measure]\nbundles = true\nrender = false\nimages = []\neye_vertices = 256\n"
+        '[[plot]]\ntitle = "Holes against s"\nx = "splat_scale"\ny = "hole_rate"\n'
     )
     data = tmp_path / "docs" / "results" / "data"
     r = run_evalkit("study", str(study), "--out", str(tmp_path / "out"), "--record", str(data / "splats.json"))
@@ -154,5 +155,7 @@ def test_a_study_recorded_with_its_command_becomes_a_results_page(tmp_path):
     assert page.startswith("# Holes against splat scale") and "docs/results/data/splats.json" in page
     header = next(line for line in page.splitlines() if line.startswith("| splat_scale"))
     assert "hole_rate" in header and "nodes_per_crossing" in header
+    # The study's plot, drawn from the recorded rows into the page itself.
+    assert '## Holes against s\n\n<img alt="Holes against s" src="data:image/png;base64,' in page
     holes = {row["splat_scale"]: row["hole_rate"] for row in record["rows"]}
     assert f"| 1.2 | {holes[1.2]:.4g} |" in page  # each row's value as the study measured it
