@@ -593,8 +593,7 @@ class ShadowLights:
             # a scene whose every triangle bounds a solid has no second surfaces to keep.
             facing = not gpu_scene.solids().all()
             self._check_memory(atlas, bool(path_vertices), facing, visibility.map_size_setting)
-            # or a LimitError, before the rest
-            self.atlas = AtlasTextures(gl, atlas, bool(path_vertices), facing, most)
+            self.atlas = AtlasTextures(gl, atlas, bool(path_vertices), facing, most)  # or a LimitError, before the rest
             self.tiles = np.array(atlas.corners, dtype=np.float64).reshape(-1, 2)
             self.page_size, self.pages = atlas.page, atlas.pages
             # The environment samples' tiles and the light vertices' fill rows of their own

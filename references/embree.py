@@ -313,6 +313,7 @@ class ExactTracer:
         }
 
 
+# Candidate pairs tested at a time (`_overlapping`): the tests' temporaries then stay in the cache.
 PAIR_BLOCK = 1 << 16
 
 
@@ -372,7 +373,7 @@ def _overlapping_in_groups(p, n, boxes, group, count, scale, tolerance, tested=N
     # u within rows pairs a triangle with those beside it, not with every one of a large plane
     # whose u it shares (16 M pairs on 2.4 M triangles, swept along u alone). Rows are made
     # higher while triangles would take more than 4 rows each on average.
-    h = max(float(np.median(np.maximum(hi - lo, v_hi - v_lo))), tolerance)
+    h = max(float(np.median(np.maximum(hi - lo, v_hi - v_lo))), tolerance) or 1.0
     while True:
         r_lo, r_hi = np.floor(v_lo / h).astype(np.int64), np.floor(v_hi / h).astype(np.int64)
         rows = r_hi - r_lo + 1
@@ -400,8 +401,8 @@ def _overlapping_in_groups(p, n, boxes, group, count, scale, tolerance, tested=N
     if tested is not None:
         untested = tested[a] != tested[b]
         a, b = a[untested], b[untested]
-    # In blocks of pairs whose temporaries stay in the cache: on 2.4 M triangles, the tests below
-    # on all 5 M pairs at once took twice as long.
+    # In blocks: on 2.4 M triangles, the tests on all 5 M pairs at once spent their time moving
+    # arrays of every pair through memory.
     parts = [
         _overlapping(p, n, boxes, a[s : s + PAIR_BLOCK], b[s : s + PAIR_BLOCK], tolerance)
         for s in range(0, len(a), PAIR_BLOCK)
