@@ -74,10 +74,7 @@ def study_markdown(data: dict, source: str) -> str:
         lines += ["## The hole model's fits", ""]
         lines += _table(keys, [[_value(f.get(k)) for k in keys] for f in fits]) + [""]
     measures = [m for m in STUDY_MEASURES if any(m in r for r in rows)]
-    # A parameter varies where runs that have it differ (a setting only some methods have is
-    # empty in the others' rows, which is not a variation to show).
-    varying = [c for c in data["varying"] if len({repr(r.get(c)) for r in rows if r.get(c) is not None}) > 1]
-    columns = [*varying, *measures]
+    columns = [*data["varying"], *measures]
     lines += ["## Runs", ""] + _table(columns, [[_value(r.get(c)) for c in columns] for r in rows])
     return "\n".join(lines) + "\n"
 
