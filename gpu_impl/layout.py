@@ -56,6 +56,7 @@ BINDINGS = {
     "LIST_COUNTS": 15,
     # the lines each splat covers, from the compute splatter's count pass to its scatter pass
     "SPLAT_LINES": 16,
+    "SPLATS_FOUND_AGAIN": 33,
     # the lists longer than SHORT_LIST, queued by the resolve's first pass for its second
     "LONG_LISTS": 17,
     # prefix sums, and node attributes for the host (read-back only)
@@ -133,7 +134,16 @@ SAMPLERS = {"random": 0, "stratified": 1}
 # are the written less the kept), the longest list, count/scatter mismatches (always 0), the lines
 # splats cover (the nodes there would be without merging), the nodes the merge kept, and the lists
 # the resolve's first pass queued for its second.
-COUNTERS = {"NODES": 0, "REDUNDANT": 1, "MAX_LENGTH": 2, "MISMATCH": 3, "COVERED": 4, "KEPT": 5, "LONG_LISTS": 6}
+COUNTERS = {
+    "NODES": 0,
+    "REDUNDANT": 1,
+    "MAX_LENGTH": 2,
+    "MISMATCH": 3,
+    "COVERED": 4,
+    "KEPT": 5,
+    "LONG_LISTS": 6,
+    "FOUND_AGAIN": 7,
+}
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
 # The image units of the two R32UI images in which the shadow maps' raster pass keeps each texel's

@@ -59,7 +59,12 @@ VARIANTS = {
     "perfect_bundles": [{}, {"NULL_FRAGMENT": True}],
     "imperfect_bundles": [{}, {"NULL_FRAGMENT": True}],
     "splat_points": {"SAMPLER": tuple(SAMPLERS.values())},
-    "splat_lists": [{"COUNT_SPLATS": True}, {"COUNT_SPLATS": True, "COUNT_COVERED": True}, {"SCATTER_SPLATS": True}],
+    "splat_lists": [
+        {"COUNT_SPLATS": True},
+        {"COUNT_SPLATS": True, "COUNT_COVERED": True},
+        {"SCATTER_SPLATS": True},
+        {"SCATTER_SPLATS": True, "FIND_AGAIN": True},
+    ],
     "resolve_lists": [
         {"COUNT_LISTS": True},
         *(

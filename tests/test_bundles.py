@@ -563,12 +563,14 @@ def test_cli_reports_an_exceeded_budget_in_one_line(tmp_path):
     assert r.stderr.count("\n") == 1 and "over the node budget" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
+@pytest.mark.parametrize("splat_scale", [1.5, 4.0])
+def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl, splat_scale):
     # The raster splatter decides coverage from the rasterizer's interpolated disk coordinates,
     # the compute splatter from the line's exact distance to the splat centre: they may disagree
     # only for a line through a splat's rim, within the rasterizer's rounding: its vertices snap to
     # 1/256 pixel (on the splat's plane, 1/256 pixel over |cos| of the plane's slope). Unmerged, so
-    # every splat's nodes are compared.
+    # every splat's nodes are compared; with large splats, also those the compute splatter's scatter
+    # finds again.
     scene = nested_boxes()
     directions = DirectionSet.make(8, seed=5)
     found = {}
@@ -581,11 +583,15 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
                 directions=8,
                 resolution=64,
                 points=4096,
-                splat_scale=1.5,
+                splat_scale=splat_scale,
                 splatter=splatter,
                 merge=False,
             ) as splats:
-                splats.build(directions)
+                stats = splats.build(directions)
+                if splatter == "compute":
+                    # Splats 4 times the covering radius have lines beyond their record's 8 x 8 box:
+                    # the scatter finds those again (shaders/splat_lists.glsl: FIND_AGAIN).
+                    assert (stats["splats_found_again"] > 0) == (splat_scale > 2), stats["splats_found_again"]
                 offsets, depth, ref, _ = splats.node_refs()
                 lists = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
                 found[splatter] = {(int(i), int(p)): float(z) for i, p, z in zip(lists, ref, depth)}
@@ -645,9 +651,10 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl):
         (["--points", "0"], "argument --points: 0 must be at least 1"),
         (["--splat-scale", "-1"], "argument --splat-scale: -1.0 must be positive and finite"),
         (
-            # 16,777,216 points of 12 + 16 bytes (SPLAT_POINT, SPLAT_LINES), two 4-byte words per list
+            # 16,777,216 points of 16 + 16 + 4 bytes (SPLAT_POINT, SPLAT_LINES, a place among the splats
+            # found again), two 4-byte words per list
             ["--points", "65536", "--node-budget", "10MiB"],
-            "need 544.06 MiB for 16,777,216 splat points, their lines and the list offsets, "
+            "need 608.06 MiB for 16,777,216 splat points, their lines and the list offsets, "
             "over the node budget of 10.00 MiB",
         ),
     ],

@@ -14,7 +14,8 @@ sharp_splat_radius, inside_splat).
 - ``lists``, compute splatter (the default): every splat counts the lines it covers, a prefix sum
   makes exact-size slot ranges, round-trip 1 reads their total, and every splat writes its nodes
   (shaders/splat_lists.glsl): no linked list, no re-run. The count pass leaves each splat's lines
-  behind (`SPLAT_LINES`) so the scatter does not search for them again.
+  behind (`SPLAT_LINES`, an 8 x 8 box) so the scatter does not search for them again; the few
+  splats larger than that box are queued, and a pass over just those finds their lines again.
 - ``lists``, raster splatter: the poster's splats drawn by the rasterizer as triangles with a
   circular cut-out into linked lists (shaders/imperfect_bundles.glsl).
 - ``resolve``: each list sorted and its redundant nodes (one surface crossing covered by several
@@ -227,7 +228,7 @@ def splat_centres(points: np.ndarray, arrays) -> np.ndarray:
 class ComputeSplatTracer(SplatTracer):
     """The compute splatter: count, exact allocation, scatter."""
 
-    point_bytes = SPLAT_POINT.itemsize + SPLAT_LINES.itemsize
+    point_bytes = SPLAT_POINT.itemsize + SPLAT_LINES.itemsize + 4  # and its place in the splats found again
     points_are = "splat points, their lines"
 
     def __init__(self, gl, gpu_scene, settings, **hooks):
@@ -235,6 +236,7 @@ class ComputeSplatTracer(SplatTracer):
         # The count pass's variant: counting the lines splats cover, too, or not.
         self.count_variant = {"COUNT_SPLATS": True, **({"COUNT_COVERED": True} if self.count_covered else {})}
         self._ensure("SPLAT_LINES", SPLAT_LINES.itemsize * self.K * self.N)
+        self._ensure("SPLATS_FOUND_AGAIN", 4 * self.K * self.N)
         self._compile()
 
     def compute_programs(self) -> list:
@@ -243,6 +245,7 @@ class ComputeSplatTracer(SplatTracer):
             self.points_program(),
             gl.program("splat_lists", **self.count_variant),
             gl.program("splat_lists", SCATTER_SPLATS=True),
+            gl.program("splat_lists", SCATTER_SPLATS=True, FIND_AGAIN=True),
             *self.sort_programs(**self.merge_defines),
         ]
 
@@ -262,6 +265,12 @@ class ComputeSplatTracer(SplatTracer):
             scatter = gl.program("splat_lists", SCATTER_SPLATS=True)
             self._uniforms(scatter, nearest_only=self.merge)
             gl.dispatch(scatter, self.K * self.N)
+            # The splats whose lines were beyond their record's box, found again.
+            found = int(gl.read(self.buffers["COUNTERS"], np.uint32, 1, first=COUNTERS["FOUND_AGAIN"])[0])
+            if found:
+                again = gl.program("splat_lists", SCATTER_SPLATS=True, FIND_AGAIN=True)
+                self._uniforms(again, nearest_only=self.merge)
+                gl.dispatch(again, found)
         return 0, raw
 
     def covered_nodes(self, counters: np.ndarray, raw: int) -> int | None:
@@ -275,7 +284,8 @@ class ComputeSplatTracer(SplatTracer):
         return int(counters[COUNTERS["COVERED"]]) if "COUNT_COVERED" in self.count_variant else None
 
     def build_stats(self, counters: np.ndarray, raw: int) -> dict:
-        return {**super().build_stats(counters, raw), "capacity": raw}
+        found_again = int(counters[COUNTERS["FOUND_AGAIN"]])  # splats whose lines were beyond their record
+        return {**super().build_stats(counters, raw), "capacity": raw, "splats_found_again": found_again}
 
 
 class RasterSplatTracer(LinkedListTracer, SplatTracer):

@@ -10,13 +10,16 @@
 // no linked list, no overflow. The merge (resolve_lists.glsl) sorts them, so the order in which
 // nodes land in a list does not matter.
 //
-// The count pass also leaves each splat's lines behind (splat_lines[]): a bit per line of the
-// splat's bounding box in the bundle's pixel grid (up to 32 lines), and its plane's offset, so
-// the scatter writes the nodes without finding the lines again: on a CPU rasterizer that search
-// (rows, the neighbour tests) was half the scatter's time. A splat whose box holds more than 32
-// lines (a large or edge-on splat) is found again by the scatter with the same code (precise
+// The count pass also leaves each splat's lines behind (splat_lines[]): a bit per line of an
+// 8 x 8 box of the bundle's pixel grid from the splat's first row and column, and its plane's
+// offset, so the scatter writes the nodes without finding the lines again: on a CPU rasterizer
+// that search (rows, the neighbour tests) was half the scatter's time. A splat with a line beyond
+// the box (a large or edge-on splat: about 2 % on atrium, all of them grown at sharp edges) is
+// found again, in a pass of its own over just those splats, with the same code (precise
 // arithmetic); should the two passes ever disagree, the scatter counts the mismatch and the host
-// says so.
+// says so. A pass of their own because the search, were it in the scatter, would hold up the
+// other splats of its SIMD batch, and its code makes every splat's slower: on llvmpipe the
+// scatter took 2.5x as long for those 2 %.
 //
 // A line (i, j) crosses the splat's plane at q; it is in the splat when |q - c| <= r. With
 // (du, dv) the offset of the line from the centre c across the bundle and n the plane's normal,
@@ -44,16 +47,17 @@
 
 layout(local_size_x = LOCAL_SIZE) in;
 
-uniform uint invocations;  // K N points
+uniform uint invocations;  // K N points; with FIND_AGAIN, the splats found again
 uniform bool nearest_only;
 
-// A splat's lines as the count pass found them: x the box's first column | its first row << 16,
-// y a bit per line (row-major, LINES_WIDTH columns a row), z the box's width | LINES_FACING |
-// LINES_KEPT, w the bits of dot(n, centre), the splat plane's offset (splat_lines[], declared in
-// bundle_build.glsl). Without LINES_KEPT the scatter finds the lines itself.
-#define LINES_WIDTH 0xFFu
-#define LINES_FACING 0x100u
-#define LINES_KEPT 0x200u  // merging: only the nearest of a triangle's splats puts a node on a line
+// A splat's lines as the count pass found them: x the box's first column | its first row << 16
+// (LINES_FOUND_AGAIN: lines beyond the box, the scatter does not write them; no box starts there,
+// as K R^2 < 2^32 keeps both below 65535), y and z a bit per line of the box (row-major, 8
+// columns a row: z the rows past the fourth), w the bits of dot(n, centre), the splat plane's
+// offset (splat_lines[], declared in bundle_build.glsl). Which way the splat faces, the scatter
+// works out again as the count pass did.
+#define LINES_BOX 8
+#define LINES_FOUND_AGAIN 0xFFFFFFFFu
 
 // A splat seen nearly edge-on covers no line centre (its ellipse has no width); one exactly
 // edge-on has no depth plane.
@@ -103,7 +107,7 @@ uint splat(uint id) {
     float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz);
     if (abs(nd) < MIN_COS) {
 #if defined COUNT_SPLATS
-        splat_lines[id] = uvec4(0u, 0u, LINES_KEPT, 0u);  // no lines
+        splat_lines[id] = uvec4(0u);  // no lines
 #endif
         return 0u;
     }
@@ -171,11 +175,10 @@ uint splat(uint id) {
     int column_lo = int(ceil(max(c.x - rp, lo.x))), column_hi = int(floor(min(c.x + rp, hi.x)));
     uint covered = 0u;
 #if defined COUNT_SPLATS
-    // The box: columns from x_min, at most the splat's radius either side of its centre (a disk's
-    // projection), rows y0 .. y1; a line outside it (round-off) or past bit 31: not kept.
+    // The box: LINES_BOX columns from x_min, LINES_BOX rows from y0; a line outside it (a larger
+    // splat, or round-off) makes the splat's lines found again.
     int x_min = max(0, column_lo);
-    uint width = uint(clamp(column_hi - x_min + 1, 1, int(LINES_WIDTH)));
-    uint mask = 0u;
+    uvec2 mask = uvec2(0u);
     bool kept = true;
 #endif
     for (int y = y0; y <= y1; y++) {
@@ -210,39 +213,42 @@ uint splat(uint id) {
             uint list = pixel_list(k, ivec2(x, y));
 #if defined COUNT_SPLATS
             atomicAdd(list_counts[list], 1u);
-            uint bit = uint(y - y0) * width + uint(x - x_min);
-            kept = kept && x >= x_min && uint(x - x_min) < width && bit < 32u;
-            if (kept) mask |= 1u << bit;
+            uint column = uint(x - x_min), row = uint(y - y0);
+            kept = kept && x >= x_min && column < LINES_BOX && row < LINES_BOX;
+            if (kept) mask[row / 4u] |= 1u << (row % 4u * LINES_BOX + column);
 #else
             write_node(list, node_key(dot(plane, vec3(1.0, float(x), float(y))), ref));
 #endif
         }
     }
 #if defined COUNT_SPLATS
-    splat_lines[id] = kept ? uvec4(uint(x_min) | uint(y0) << 16, mask, width | (nd > 0.0 ? LINES_FACING : 0u) | LINES_KEPT, floatBitsToUint(w))
-                           : uvec4(0u);
+    if (kept) {
+        splat_lines[id] = uvec4(uint(x_min) | uint(y0) << 16, mask, floatBitsToUint(w));
+    } else {
+        splat_lines[id] = uvec4(LINES_FOUND_AGAIN, 0u, 0u, 0u);
+        found_again[atomicAdd(counters[COUNTER_FOUND_AGAIN], 1u)] = id;
+    }
 #endif
     return covered;
 }
 
 #if defined SCATTER_SPLATS
-// Node keys for the lines the count pass kept for splat `id`, or for the lines it finds again.
+// Node keys for the lines the count pass kept for splat `id`.
 void scatter(uint id) {
     uvec4 lines = splat_lines[id];
-    if ((lines.z & LINES_KEPT) == 0u) {
-        splat(id);
-        return;
-    }
-    if (lines.y == 0u) return;
+    if (lines.x == LINES_FOUND_AGAIN || (lines.y | lines.z) == 0u) return;
     int k = int(id / points_per_direction);
-    vec3 plane = depth_plane(frames[k], triangle_normal(points[id].triangle), uintBitsToFloat(lines.w));
-    uint ref = id | ((lines.z & LINES_FACING) != 0u ? FACING_BIT : 0u);
-    uint width = lines.z & LINES_WIDTH;
+    BundleFrame f = frames[k];
+    vec3 n = triangle_normal(points[id].triangle);
+    vec3 plane = depth_plane(f, n, uintBitsToFloat(lines.w));
+    uint ref = id | (dot(n, f.d.xyz) > 0.0 ? FACING_BIT : 0u);
     ivec2 origin = ivec2(lines.x & 0xFFFFu, lines.x >> 16);
-    for (uint mask = lines.y; mask != 0u; mask &= mask - 1u) {
-        uint bit = uint(findLSB(mask));
-        ivec2 pixel = origin + ivec2(bit % width, bit / width);
-        write_node(pixel_list(k, pixel), node_key(dot(plane, vec3(1.0, vec2(pixel))), ref));
+    for (uint half_box = 0u; half_box < 2u; half_box++) {
+        for (uint mask = lines[1 + half_box]; mask != 0u; mask &= mask - 1u) {
+            uint bit = uint(findLSB(mask));
+            ivec2 pixel = origin + ivec2(bit % LINES_BOX, half_box * 4u + bit / LINES_BOX);
+            write_node(pixel_list(k, pixel), node_key(dot(plane, vec3(1.0, vec2(pixel))), ref));
+        }
     }
 }
 #endif
@@ -263,6 +269,8 @@ void main() {
     atomicAdd(covered_by_group, covered);
     barrier();
     if (gl_LocalInvocationIndex == 0u) atomicAdd(counters[COUNTER_COVERED], covered_by_group);
+#elif defined FIND_AGAIN
+    if (id < invocations) splat(found_again[id]);  // the scatter of the splats beyond their box
 #elif defined SCATTER_SPLATS
     if (id < invocations) scatter(id);
 #else
