@@ -132,8 +132,9 @@ SAMPLERS = {"random": 0, "stratified": 1}
 # The build counters (bundle_build.glsl): nodes appended to linked lists (including any past the
 # capacity), perfect bundles' coincident duplicates (all kept; imperfect bundles' redundant nodes
 # are the written less the kept), the longest list, count/scatter mismatches (always 0), the lines
-# splats cover (the nodes there would be without merging), the nodes the merge kept, and the lists
-# the resolve's first pass queued for its second.
+# splats cover (the nodes there would be without merging), the nodes the merge kept, the lists
+# the resolve's first pass queued for its second, and the splats whose lines the compute
+# splatter's scatter finds again.
 COUNTERS = {
     "NODES": 0,
     "REDUNDANT": 1,
