@@ -14,7 +14,10 @@ from pathlib import Path
 import pytest
 from conftest import run_evalkit
 
+from evalkit import fidelity
 from evalkit.core.settings import RenderSettings, declared
+from evalkit.metrics import confidence
+from evalkit.metrics.bundles import NEXT_HIT_ERROR_TARGET
 from evalkit.records import read_record, write_record
 from evalkit.reference_docs import commands
 from evalkit.results_docs import PAGES as RESULT_PAGES
@@ -159,3 +162,68 @@ def test_a_study_recorded_with_its_command_becomes_a_results_page(tmp_path):
     assert '## Holes against s\n\n<img alt="Holes against s" src="data:image/png;base64,' in page
     holes = {row["splat_scale"]: row["hole_rate"] for row in record["rows"]}
     assert f"| 1.2 | {holes[1.2]:.4g} |" in page  # each row's value as the study measured it
+
+
+# -- numbers typed by hand ------------------------------------------------------------------------
+
+# A measured-looking number in prose: one with a unit of time, size or ratio, or a decimal. Code
+# (commands, parameters), maths and link targets are not prose; "1920 x 1024" is a size, not a ratio.
+UNIT = r"(?:%|x\b(?!\s*\d)|ms\b|s\b|min\b|minutes?\b|seconds?\b|hours?\b|[KMG]i?B\b|fps\b)"
+MEASURED = re.compile(rf"(?<![\w.\-/])(\d[\d,]*(?:\.\d+)?)\s?{UNIT}|(?<![\w.\-/])\d+\.\d+(?![\w.])")
+NOT_PROSE = re.compile(r"```.*?```|`[^`\n]*`|\\\(.*?\\\)|\\\[.*?\\\]|\$\$.*?\$\$|\]\([^)]*\)|<!--.*?-->", re.S)
+# A version names what it versions: "Python 3.11", "OpenGL 4.5", "Apache 2.0".
+VERSIONED = ("Python", "OpenGL", "GL", "GLSL", "Mesa", "LLVM", "Apache", "MPL", "version", "to")
+# The constants of the method the pages state, each the value in the code that it states.
+CONSTANTS = {
+    "95 %": confidence.LEVEL == 0.95,
+    "1 %": NEXT_HIT_ERROR_TARGET == 0.01 and fidelity.TOLERANCE == 0.01,
+    "99.75 %": fidelity.Z_SHARE == 0.9975,
+}
+# The pages still holding measurements typed by hand, and how many: the count may only fall. Their
+# measurements move into data files (docs/results/data/, written by the benchmarks and studies) and
+# the pages generated from them.
+HAND_TYPED = {
+    "docs/BIDIRECTIONAL.md": 1148,
+    "docs/MEASURED_FACTS.md": 1757,
+    "docs/guide.md": 360,
+    "docs/platform.md": 69,
+}
+
+
+def markdown_sources():
+    """Every Markdown source of the README and the site: pages, and the tutorials' text cells."""
+    for path in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        yield path, path.read_text()
+    for path in sorted((REPO / "docs").glob("*.ipynb")):
+        cells = json.loads(path.read_text())["cells"]
+        yield path, "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "markdown")
+
+
+def hand_typed_numbers(text: str) -> list[str]:
+    """The measured-looking numbers in ``text``'s prose that are neither versions nor constants."""
+    prose = NOT_PROSE.sub(" ", text)
+    found = []
+    for match in MEASURED.finditer(prose):
+        before = prose[: match.start()].split()
+        if before and before[-1] in VERSIONED:
+            continue
+        if " ".join(match.group(0).split()) not in CONSTANTS:
+            found.append(match.group(0).strip())
+    return found
+
+
+def test_no_page_holds_a_measured_number_typed_by_hand():
+    assert all(CONSTANTS.values())  # each constant the pages may state is the code's
+    typed = {str(path.relative_to(REPO)): hand_typed_numbers(text) for path, text in markdown_sources()}
+    for page, numbers in typed.items():
+        assert len(numbers) <= HAND_TYPED.get(page, 0), (page, numbers[:20])
+    assert set(HAND_TYPED) <= set(typed)
+
+
+def test_the_number_check_finds_measurements_but_not_versions_sizes_code_or_constants():
+    text = (
+        "Built in 57 s (3.2x faster, 12.5 % holes, 1.5 GiB) with Python 3.11 on OpenGL 4.5: "
+        "`evalkit render --frames 64`, 1920 x 1024 pixels, a 95 % interval, \\(\\alpha = 0.5\\).\n"
+        "```\nbuilt in 4.2 ms\n```\n0.966 of the reference."
+    )
+    assert hand_typed_numbers(text) == ["57 s", "3.2x", "12.5 %", "1.5 GiB", "0.966"]
