@@ -18,8 +18,8 @@ import os
 import moderngl
 import numpy as np
 
-from evalkit.core.errors import InputError
-from gpu_impl.layout import LOCAL_SIZE, MAX_GROUPS
+from evalkit.core.errors import InputError, LimitError
+from gpu_impl.layout import LOCAL_SIZE, MAX_GROUPS, TEXEL_ROW
 from gpu_impl.shader_source import COMPILED, program_sources, variant_key
 
 GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
@@ -173,6 +173,22 @@ class GLContext:
         texture = self.ctx.texture(size, components, dtype=dtype)
         texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
         return texture
+
+    def record_texture(self, records: int, components: int, dtype: str, what: str, settings: tuple[str, ...] = ()):
+        """A texture of ``records`` texels, `TEXEL_ROW` a row (the last row padded), that shaders read
+        records from by texel fetch (shaders/bundle.glsl: record_texel); ``what`` names them, and
+        ``settings`` the settings that make them as many, in the refusal when the driver makes no
+        such texture."""
+        rows = max(1, -(-records // TEXEL_ROW))
+        made = None
+        if rows <= self.limit("GL_MAX_TEXTURE_SIZE"):
+            made = self.allocate(lambda: [self.texture((TEXEL_ROW, rows), components, dtype)])
+        if made is None:
+            raise LimitError(
+                f"{records:,} {what} as texels need a texture of {TEXEL_ROW} x {rows}, which the GL driver refused",
+                settings,
+            )
+        return made[0]
 
     def texture_array(self, size: tuple[int, int], layers: int, components: int, dtype: str):
         texture = self.ctx.texture_array((*size, layers), components, dtype=dtype)

@@ -160,6 +160,14 @@ NO_TRIANGLE = np.uint32(0xFFFFFFFF)
 # uniform block, and llvmpipe and NVIDIA's driver allow 64 KiB of one (GL_MAX_UNIFORM_BLOCK_SIZE).
 MAX_DIRECTIONS = 65536 // 48
 
+# Records read as texels by the passes that read splat points by the million (bundle.glsl:
+# SPLAT_TEXELS): textures TEXEL_ROW texels wide, a splat point a texel (SPLAT_POINT's four words),
+# a triangle TEXELS_PER_TRIANGLE (its corners, each with its vertex index, then its normal:
+# scene_buffers.py: GpuScene.triangle_texels), bound at these texture units.
+TEXEL_ROW = 4096
+TEXELS_PER_TRIANGLE = 4
+SPLAT_TEXEL_UNITS = {"point_texels": 9, "triangle_texels": 10}
+
 # The most texture arrays the shadow atlas' pages take (gpu_impl/lights.py: AtlasTextures): a
 # driver caps one texture's bytes below its size limits (llvmpipe at about 1.3 GiB:
 # docs/platform.md). An atlas in one texture is read through one sampler (shaders compiled with
@@ -205,6 +213,8 @@ SHADER_CONSTANTS = {
     "SHORT_LIST": SHORT_LIST,
     "SORT_NETWORK": SORT_NETWORK,
     "MAX_DIRECTIONS": MAX_DIRECTIONS,
+    "TEXEL_ROW": TEXEL_ROW,
+    "TEXELS_PER_TRIANGLE": TEXELS_PER_TRIANGLE,
     **{f"SAMPLER_{name.upper()}": value for name, value in SAMPLERS.items()},
     **{f"COUNTER_{name}": value for name, value in COUNTERS.items()},
 }

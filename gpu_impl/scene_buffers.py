@@ -17,6 +17,7 @@ from gpu_impl.layout import (
     MATERIAL_WRAP_CLAMP,
     MATERIAL_WRAP_MIRROR,
     NO_TRIANGLE,
+    TEXELS_PER_TRIANGLE,
     TRIANGLE,
     TRIANGLE_CUT,
     TRIANGLE_FACT_WORDS,
@@ -63,6 +64,7 @@ class GpuScene:
         self._solid = None  # `solids`, found when a pass first needs them
         self._cuts = self._surfaces = None  # `splat_facts`, found when splats first need them
         self._cluster_bounds = None  # `cluster_bounds`, found when a pass first culls
+        self._triangle_texels = None  # `triangle_texels`, made when splat builders first read them
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
         textures = []  # every texture of the scene in one texel buffer: materials', then the environment map's
@@ -178,10 +180,35 @@ class GpuScene:
             self._cluster_bounds = (lo, hi)
         return self._cluster_bounds
 
+    def triangle_texels(self):
+        """The triangles as the splat builders read them (shaders/bundle.glsl: SPLAT_TEXELS), a
+        texture of `TEXELS_PER_TRIANGLE` texels a triangle: its three corners as the vertex
+        records hold them, each with its vertex index, then its normal as the triangle records hold
+        it; as RGBA32UI, so every float's bits come back as they are. Made the first time they ask;
+        poses rewrite it."""
+        if self._triangle_texels is None:
+            records = TEXELS_PER_TRIANGLE * self.triangle_count
+            self._triangle_texels = self.gl.record_texture(records, 4, "u4", "triangle texels of the scene")
+            self._write_triangle_texels(self.arrays)
+        return self._triangle_texels
+
+    def _write_triangle_texels(self, a) -> None:
+        texture = self._triangle_texels
+        texels = np.zeros((texture.width * texture.height, 4), np.uint32)
+        corners = texels[: TEXELS_PER_TRIANGLE * len(a.faces)].reshape(len(a.faces), TEXELS_PER_TRIANGLE, 4)
+        corners[:, :3, :3] = self._positions(a)[a.faces].view(np.uint32)
+        corners[:, :3, 3] = a.faces
+        corners[:, 3, :3] = a.tri_normal.astype(np.float32).view(np.uint32)
+        texture.write(texels.tobytes())
+
+    def _positions(self, a) -> np.ndarray:
+        """Vertex positions as the GPU holds them: float32, relative to the bounding-sphere centre."""
+        return (a.positions - self.centre).astype(np.float32)
+
     def _geometry(self, a) -> dict[str, bytes]:
         """The buffers that move with the geometry: positions (the raster passes' vertices),
         vertex records (position, normal, uv: what shaders read) and triangle records."""
-        positions = (a.positions - self.centre).astype(np.float32)
+        positions = self._positions(a)
         vertices = np.zeros(len(positions), dtype=VERTEX)
         vertices["position"], vertices["normal"], vertices["uv"] = positions, a.normals, a.uvs
         return {
@@ -218,12 +245,15 @@ class GpuScene:
             )
         for name, data in self._geometry(a).items():
             self.buffers[name].write(data)
+        if self._triangle_texels is not None:
+            self._write_triangle_texels(a)
         self.scene, self.arrays = scene, a
         self._cluster_bounds = None
 
     @property
     def nbytes(self) -> int:
-        return sum(b.size for b in self.buffers.values())
+        texels = self._triangle_texels
+        return sum(b.size for b in self.buffers.values()) + (0 if texels is None else 16 * texels.width * texels.height)
 
     def bind(self) -> None:
         """Bind every scene buffer shaders read at its storage binding (layout.BINDINGS); positions
@@ -247,6 +277,9 @@ class GpuScene:
         for buffer in self.buffers.values():
             buffer.release()
         self.buffers.clear()
+        if self._triangle_texels is not None:
+            self._triangle_texels.release()
+            self._triangle_texels = None
 
     def __enter__(self) -> GpuScene:
         return self

@@ -26,8 +26,9 @@ from evalkit.core.scene.edges import (
 from evalkit.core.scene.tessellate import box, unit_sphere
 from gpu_impl.bundles import NodeBudgetExceeded
 from gpu_impl.context import GLContext
-from gpu_impl.layout import MAX_DIRECTIONS
+from gpu_impl.layout import MAX_DIRECTIONS, TEXELS_PER_TRIANGLE, TRIANGLE, VERTEX
 from gpu_impl.methods.imperfect import splat_centres
+from gpu_impl.renderer import enclosing_sphere
 from gpu_impl.scene_buffers import (
     SURFACE_LEAST_POINTS,
     SURFACE_POINTS_SHARE,
@@ -563,6 +564,27 @@ def test_cli_reports_an_exceeded_budget_in_one_line(tmp_path):
     assert r.stderr.count("\n") == 1 and "over the node budget" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_the_triangle_texels_hold_what_the_scene_buffers_hold_in_every_pose(gl):
+    """The compute splatter reads the triangles as texels (GpuScene.triangle_texels), made once: a
+    pose rewrites them as it does the buffers the other passes read, or the splats would stay where
+    the geometry was."""
+    scene = load_scene("atrium-animated")
+    with GpuScene(gl, scene.at(0.0), sphere=enclosing_sphere([scene.at(0.0), scene.at(3.0)])) as gpu_scene:
+        made = gpu_scene.triangle_texels()
+        before = np.frombuffer(gpu_scene.buffers["VERTICES"].read(), VERTEX)
+        gpu_scene.pose(scene.at(3.0))
+        assert gpu_scene.triangle_texels() is made
+        T = gpu_scene.triangle_count
+        texels = np.frombuffer(made.read(), np.uint32)[: 4 * TEXELS_PER_TRIANGLE * T].reshape(T, TEXELS_PER_TRIANGLE, 4)
+        faces = np.frombuffer(gpu_scene.buffers["INDICES"].read(), np.uint32).reshape(T, 3)
+        vertices = np.frombuffer(gpu_scene.buffers["VERTICES"].read(), VERTEX)
+        triangles = np.frombuffer(gpu_scene.buffers["TRIANGLES"].read(), TRIANGLE)
+    assert not np.array_equal(vertices["position"], before["position"])  # the ball moved
+    assert np.array_equal(texels[:, :3, :3].view(np.float32), vertices["position"][faces])
+    assert np.array_equal(texels[:, :3, 3], faces)
+    assert np.array_equal(texels[:, 3, :3].view(np.float32), triangles["normal"])
+
+
 @pytest.mark.parametrize("splat_scale", [1.5, 4.0])
 def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl, splat_scale):
     # The raster splatter decides coverage from the rasterizer's interpolated disk coordinates,
@@ -651,10 +673,10 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl, 
         (["--points", "0"], "argument --points: 0 must be at least 1"),
         (["--splat-scale", "-1"], "argument --splat-scale: -1.0 must be positive and finite"),
         (
-            # 16,777,216 points of 16 + 16 + 4 bytes (SPLAT_POINT, SPLAT_LINES, a place among the splats
-            # found again), two 4-byte words per list
+            # 16,777,216 points of 16 + 16 + 16 + 4 bytes (SPLAT_POINT, its texel, SPLAT_LINES, a place
+            # among the splats found again), two 4-byte words per list
             ["--points", "65536", "--node-budget", "10MiB"],
-            "need 608.06 MiB for 16,777,216 splat points, their lines and the list offsets, "
+            "need 864.06 MiB for 16,777,216 splat points, their texels and lines and the list offsets, "
             "over the node budget of 10.00 MiB",
         ),
     ],

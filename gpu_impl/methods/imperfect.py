@@ -35,7 +35,7 @@ from evalkit.core.errors import LimitError
 from evalkit.core.scene.edges import FLAT_DEGREES, SPLAT_CREASE_DEGREES, SPLAT_GROWTH
 from evalkit.core.settings import DEPTH_TOLERANCE, setting
 from gpu_impl.bundles import BundleTracer, LinkedListTracer
-from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT
+from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT, SPLAT_TEXEL_UNITS
 from gpu_impl.scene_buffers import SURFACE_LEAST_POINTS, surface_area_cdf
 from gpu_impl.units import BundleMethod, TuneTerms
 
@@ -228,8 +228,9 @@ def splat_centres(points: np.ndarray, arrays) -> np.ndarray:
 class ComputeSplatTracer(SplatTracer):
     """The compute splatter: count, exact allocation, scatter."""
 
-    point_bytes = SPLAT_POINT.itemsize + SPLAT_LINES.itemsize + 4  # and its place in the splats found again
-    points_are = "splat points, their lines"
+    # A point, its copy as a texel, its lines, and its place among the splats found again.
+    point_bytes = 2 * SPLAT_POINT.itemsize + SPLAT_LINES.itemsize + 4
+    points_are = "splat points, their texels and lines"
 
     def __init__(self, gl, gpu_scene, settings, **hooks):
         super().__init__(gl, gpu_scene, settings, **hooks)
@@ -237,7 +238,30 @@ class ComputeSplatTracer(SplatTracer):
         self.count_variant = {"COUNT_SPLATS": True, **({"COUNT_COVERED": True} if self.count_covered else {})}
         self._ensure("SPLAT_LINES", SPLAT_LINES.itemsize * self.K * self.N)
         self._ensure("SPLATS_FOUND_AGAIN", 4 * self.K * self.N)
+        # The count and scatter read the points, and their triangles, as texels (shaders/bundle.glsl:
+        # SPLAT_TEXELS): the points copied from POINTS after the points pass, so POINTS holds whole
+        # rows of them.
+        self.point_texels = gl.record_texture(self.K * self.N, 4, "u4", "splat points", ("directions", "points"))
+        self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.point_texels.width * self.point_texels.height))
+        gpu_scene.triangle_texels()
         self._compile()
+
+    @property
+    def memory_bytes(self) -> int:
+        texels = getattr(self, "point_texels", None)  # made after the shared constructor's checks
+        return super().memory_bytes + (0 if texels is None else SPLAT_POINT.itemsize * texels.width * texels.height)
+
+    def uniforms(self) -> dict:
+        return {**super().uniforms(), **SPLAT_TEXEL_UNITS}
+
+    def bind(self) -> None:
+        super().bind()
+        self.point_texels.use(SPLAT_TEXEL_UNITS["point_texels"])
+        self.gpu_scene.triangle_texels().use(SPLAT_TEXEL_UNITS["triangle_texels"])
+
+    def release(self) -> None:
+        super().release()
+        self.point_texels.release()
 
     def compute_programs(self) -> list:
         gl = self.gl
@@ -254,6 +278,7 @@ class ComputeSplatTracer(SplatTracer):
     def splat_lists(self, timer) -> tuple[int, int]:
         gl = self.gl
         with timer.measure("lists"):
+            self.point_texels.write(self.buffers["POINTS"])
             count = gl.program("splat_lists", **self.count_variant)
             self._uniforms(count, nearest_only=self.merge)
             gl.dispatch(count, self.K * self.N)

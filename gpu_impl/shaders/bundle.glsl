@@ -46,8 +46,43 @@ layout(std430, binding = BINDING_POINTS) writeonly buffer Points { SplatPoint po
 #else
 layout(std430, binding = BINDING_POINTS) readonly buffer Points { SplatPoint points[]; };
 
+#if defined SPLAT_TEXELS
+// llvmpipe loads a storage buffer lane by lane, each word on its own, and a texel at once, in
+// about a tenth of the time (benchmarks/gl_loads.py); the splat builders load little else, so
+// they read the points, and their triangles' corners and normals, as texels (gpu_impl/layout.py:
+// TEXEL_ROW): the points copied from the storage buffer the points pass wrote, the triangles from
+// scene_buffers.py: GpuScene.triangle_texels. The same words either way, so the same arithmetic.
+uniform usampler2D point_texels;
+uniform usampler2D triangle_texels;
+
+ivec2 record_texel(uint i) {
+    return ivec2(i % uint(TEXEL_ROW), i / uint(TEXEL_ROW));
+}
+
+uvec4 splat_point(uint point) {
+    return texelFetch(point_texels, record_texel(point), 0);
+}
+
+uvec4 triangle_texel(uint t, uint i) {
+    return texelFetch(triangle_texels, record_texel(uint(TEXELS_PER_TRIANGLE) * t + i), 0);
+}
+
+vec3 splat_triangle_normal(uint t) {
+    return uintBitsToFloat(triangle_texel(t, 3u).xyz);
+}
+#else
+uvec4 splat_point(uint point) {
+    SplatPoint p = points[point];
+    return uvec4(p.triangle, p.barycentrics, floatBitsToUint(p.radius), p.cut_lines);
+}
+
+vec3 splat_triangle_normal(uint t) {
+    return triangle_normal(t);
+}
+#endif
+
 vec2 point_barycentrics(uint point) {
-    return unpackUnorm2x16(points[point].barycentrics);
+    return unpackUnorm2x16(splat_point(point).y);
 }
 
 // A splat point on its source triangle (scene.glsl): the triangle, its vertex indices and edges
@@ -67,15 +102,22 @@ struct SplatSource {
 
 SplatSource splat_source(uint point) {
     SplatSource s;
-    s.triangle = points[point].triangle;
+    uvec4 record = splat_point(point);
+    s.triangle = record.x;
+#if defined SPLAT_TEXELS
+    uvec4 c0 = triangle_texel(s.triangle, 0u), c1 = triangle_texel(s.triangle, 1u), c2 = triangle_texel(s.triangle, 2u);
+    s.vertices = uvec3(c0.w, c1.w, c2.w);
+    vec3 p0 = uintBitsToFloat(c0.xyz), p1 = uintBitsToFloat(c1.xyz), p2 = uintBitsToFloat(c2.xyz);
+#else
     s.vertices = triangle_vertices(s.triangle);
-    vec3 p0 = vertex_position(s.vertices.x);
-    s.e1 = vertex_position(s.vertices.y) - p0;
-    s.e2 = vertex_position(s.vertices.z) - p0;
-    s.b = point_barycentrics(point);
+    vec3 p0 = vertex_position(s.vertices.x), p1 = vertex_position(s.vertices.y), p2 = vertex_position(s.vertices.z);
+#endif
+    s.e1 = p1 - p0;
+    s.e2 = p2 - p0;
+    s.b = unpackUnorm2x16(record.y);
     s.centre = p0 + s.b.x * s.e1 + s.b.y * s.e2;
-    s.radius = points[point].radius;
-    s.cut_lines = points[point].cut_lines;
+    s.radius = uintBitsToFloat(record.z);
+    s.cut_lines = record.w;
     return s;
 }
 #endif

@@ -38,6 +38,7 @@
 #define SLOT_LISTS
 #define NODE_KEYS
 #define SPLAT_LINE_RECORDS
+#define SPLAT_TEXELS
 #include "common.glsl"
 #include "scene.glsl"
 #include "bundle.glsl"
@@ -101,7 +102,7 @@ uint splat(uint id) {
     uint t = s.triangle;
     vec2 b = s.b;
     vec3 e1 = s.e1, e2 = s.e2, centre = s.centre;
-    vec3 n = triangle_normal(t);
+    vec3 n = splat_triangle_normal(t);
     int k = int(id / points_per_direction);
     BundleFrame f = frames[k];
     float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz);
@@ -149,9 +150,10 @@ uint splat(uint id) {
     }
     for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
         uint j = id + uint(slot < NEIGHBOURS ? slot - NEIGHBOURS : slot - NEIGHBOURS + 1);
-        bool here = nearest_only && j >= first_point && j < end_point && points[j].triangle == t;
-        vec2 bj = here ? point_barycentrics(j) : b;
-        float rj = here ? points[j].radius * pixels : rp;
+        uvec4 neighbour = splat_point(clamp(j, first_point, end_point - 1u));
+        bool here = nearest_only && j >= first_point && j < end_point && neighbour.x == t;
+        vec2 bj = here ? unpackUnorm2x16(neighbour.y) : b;
+        float rj = here ? uintBitsToFloat(neighbour.z) * pixels : rp;
         vec2 e = edges * (bj - b);
         float eMe = A * e.x * e.x + 2.0 * B * e.x * e.y + C * e.y * e.y;
         gradient[slot] = 2.0 * vec2(A * e.x + B * e.y, B * e.x + C * e.y);
@@ -239,7 +241,7 @@ void scatter(uint id) {
     if (lines.x == LINES_FOUND_AGAIN || (lines.y | lines.z) == 0u) return;
     int k = int(id / points_per_direction);
     BundleFrame f = frames[k];
-    vec3 n = triangle_normal(points[id].triangle);
+    vec3 n = splat_triangle_normal(splat_point(id).x);
     vec3 plane = depth_plane(f, n, uintBitsToFloat(lines.w));
     uint ref = id | (dot(n, f.d.xyz) > 0.0 ? FACING_BIT : 0u);
     ivec2 origin = ivec2(lines.x & 0xFFFFu, lines.x >> 16);
