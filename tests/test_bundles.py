@@ -26,7 +26,7 @@ from evalkit.core.scene.edges import (
 from evalkit.core.scene.tessellate import box, unit_sphere
 from gpu_impl.bundles import NodeBudgetExceeded
 from gpu_impl.context import GLContext
-from gpu_impl.layout import MAX_DIRECTIONS, TEXELS_PER_TRIANGLE, TRIANGLE, VERTEX
+from gpu_impl.layout import MAX_DIRECTIONS, TEXELS_PER_TRIANGLE, TRIANGLE, TRIANGLE_FACT_WORDS, VERTEX
 from gpu_impl.methods.imperfect import splat_centres
 from gpu_impl.renderer import enclosing_sphere
 from gpu_impl.scene_buffers import (
@@ -565,9 +565,9 @@ def test_cli_reports_an_exceeded_budget_in_one_line(tmp_path):
 
 
 def test_the_triangle_texels_hold_what_the_scene_buffers_hold_in_every_pose(gl):
-    """The compute splatter reads the triangles as texels (GpuScene.triangle_texels), made once: a
-    pose rewrites them as it does the buffers the other passes read, or the splats would stay where
-    the geometry was."""
+    """The compute splatter reads the triangles (corners, normals, cut lines) as texels
+    (GpuScene.triangle_texels), made once: they hold what the buffers the other passes read hold,
+    and a pose rewrites them as it does the buffers, or the splats would stay where the geometry was."""
     scene = load_scene("atrium-animated")
     with GpuScene(gl, scene.at(0.0), sphere=enclosing_sphere([scene.at(0.0), scene.at(3.0)])) as gpu_scene:
         made = gpu_scene.triangle_texels()
@@ -575,7 +575,9 @@ def test_the_triangle_texels_hold_what_the_scene_buffers_hold_in_every_pose(gl):
         gpu_scene.pose(scene.at(3.0))
         assert gpu_scene.triangle_texels() is made
         T = gpu_scene.triangle_count
-        texels = np.frombuffer(made.read(), np.uint32)[: 4 * TEXELS_PER_TRIANGLE * T].reshape(T, TEXELS_PER_TRIANGLE, 4)
+        all_texels = np.frombuffer(made.read(), np.uint32).reshape(-1, 4)
+        texels = all_texels[: TEXELS_PER_TRIANGLE * T].reshape(T, TEXELS_PER_TRIANGLE, 4)
+        shapes = np.frombuffer(gpu_scene.buffers["SPLAT_SHAPES"].read(), np.uint32)
         faces = np.frombuffer(gpu_scene.buffers["INDICES"].read(), np.uint32).reshape(T, 3)
         vertices = np.frombuffer(gpu_scene.buffers["VERTICES"].read(), VERTEX)
         triangles = np.frombuffer(gpu_scene.buffers["TRIANGLES"].read(), TRIANGLE)
@@ -583,6 +585,13 @@ def test_the_triangle_texels_hold_what_the_scene_buffers_hold_in_every_pose(gl):
     assert np.array_equal(texels[:, :3, :3].view(np.float32), vertices["position"][faces])
     assert np.array_equal(texels[:, :3, 3], faces)
     assert np.array_equal(texels[:, 3, :3].view(np.float32), triangles["normal"])
+    # Then the cut lines, a texel each, as the splat shapes' words hold them after their heads.
+    head = TRIANGLE_FACT_WORDS * T + 1
+    lines = shapes[head:].reshape(-1, 3)
+    assert len(lines) > 1000 and np.array_equal(
+        (shapes[0 : head - 1 : TRIANGLE_FACT_WORDS] - head) // 3, texels[:, 3, 3] - 4 * T
+    )
+    assert np.array_equal(all_texels[TEXELS_PER_TRIANGLE * T : TEXELS_PER_TRIANGLE * T + len(lines), :3], lines)
 
 
 @pytest.mark.parametrize("splat_scale", [1.5, 4.0])

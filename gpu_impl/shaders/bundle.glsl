@@ -47,24 +47,12 @@ layout(std430, binding = BINDING_POINTS) writeonly buffer Points { SplatPoint po
 layout(std430, binding = BINDING_POINTS) readonly buffer Points { SplatPoint points[]; };
 
 #if defined SPLAT_TEXELS
-// llvmpipe loads a storage buffer lane by lane, each word on its own, and a texel at once, in
-// about a tenth of the time (benchmarks/gl_loads.py); the splat builders load little else, so
-// they read the points, and their triangles' corners and normals, as texels (gpu_impl/layout.py:
-// TEXEL_ROW): the points copied from the storage buffer the points pass wrote, the triangles from
-// scene_buffers.py: GpuScene.triangle_texels. The same words either way, so the same arithmetic.
+// The splat builders read the points as texels (scene.glsl: SPLAT_TEXELS), copied from the
+// storage buffer the points pass wrote.
 uniform usampler2D point_texels;
-uniform usampler2D triangle_texels;
-
-ivec2 record_texel(uint i) {
-    return ivec2(i % uint(TEXEL_ROW), i / uint(TEXEL_ROW));
-}
 
 uvec4 splat_point(uint point) {
     return texelFetch(point_texels, record_texel(point), 0);
-}
-
-uvec4 triangle_texel(uint t, uint i) {
-    return texelFetch(triangle_texels, record_texel(uint(TEXELS_PER_TRIANGLE) * t + i), 0);
 }
 
 vec3 splat_triangle_normal(uint t) {

@@ -108,6 +108,42 @@ bool inside_triangle(vec2 b) {
 // side (evalkit/core/scene/edges.py: splat_cuts).
 layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uint splat_shapes[]; };
 
+#if defined SPLAT_TEXELS
+// llvmpipe loads a storage buffer lane by lane, each word on its own, and a texel at once, in a
+// fraction of the time (benchmarks/gl_loads.py); the splat builders load little else, so they
+// read their triangles (corners, normals, cut lines) and points (bundle.glsl) as texels
+// (gpu_impl/layout.py: TEXEL_ROW; gpu_impl/scene_buffers.py: GpuScene.triangle_texels): the same
+// words as the storage buffers hold, so the same arithmetic. Per triangle TEXELS_PER_TRIANGLE
+// texels: its corners, each with its vertex index, then its normal with the texel of its first
+// cut line; the cut lines follow the triangles', a texel each.
+uniform usampler2D triangle_texels;
+
+ivec2 record_texel(uint i) {
+    return ivec2(i % uint(TEXEL_ROW), i / uint(TEXEL_ROW));
+}
+
+uvec4 triangle_texel(uint t, uint i) {
+    return texelFetch(triangle_texels, record_texel(uint(TEXELS_PER_TRIANGLE) * t + i), 0);
+}
+
+uint cut_lines_start(uint t) {
+    return triangle_texel(t, 3u).w;
+}
+
+vec3 cut_line_at(uint start, uint i) {
+    return uintBitsToFloat(texelFetch(triangle_texels, record_texel(start + i), 0).xyz);
+}
+#else
+uint cut_lines_start(uint t) {
+    return splat_shapes[TRIANGLE_FACT_WORDS * t];
+}
+
+vec3 cut_line_at(uint start, uint i) {
+    uint word = start + 3u * i;
+    return uintBitsToFloat(uvec3(splat_shapes[word], splat_shapes[word + 1u], splat_shapes[word + 2u]));
+}
+#endif
+
 // Triangle t's smooth surface: triangles joined across edges that bend less than the crease angle.
 uint triangle_surface(uint t) {
     return splat_shapes[TRIANGLE_FACT_WORDS * t + 1u];
@@ -117,10 +153,6 @@ uint triangle_surface(uint t) {
 // is none, with TRIANGLE_TURNED set where its normal must be turned to agree with t's.
 uint triangle_across(uint t, uint e) {
     return splat_shapes[TRIANGLE_FACT_WORDS * t + 2u + e];
-}
-
-vec3 cut_line(uint word) {
-    return uintBitsToFloat(uvec3(splat_shapes[word], splat_shapes[word + 1u], splat_shapes[word + 2u]));
 }
 
 // The lines that cut a splat (imperfect bundles', imperfect shadow maps'): of the sharp edges of
@@ -155,9 +187,9 @@ SplatShape splat_shape(uint t, uint lines) {
     const vec3 none = vec3(0.0, 0.0, 3.4e38);
     SplatShape shape = SplatShape(lines != 0u, mat3(none, none, none), mat3(none, none, none), vec3(0.0), vec3(0.0));
     if (lines == 0u) return shape;
-    uint first = splat_shapes[TRIANGLE_FACT_WORDS * t];
+    uint first = cut_lines_start(t);
     for (int i = 0; i < 6; i++) {
-        vec3 l = (lines & (1u << uint(i))) != 0u ? cut_line(first + 3u * uint(i)) : none;
+        vec3 l = (lines & (1u << uint(i))) != 0u ? cut_line_at(first, uint(i)) : none;
         float slack = 1e-4 * max(abs(l.x), abs(l.y));
         if (i < 3) {
             shape.lines_a[i] = l;
