@@ -148,7 +148,7 @@ class GpuScene:
             for e in range(3):
                 word = across[:, e].astype(np.uint32) | np.where(turned[:, e], TRIANGLE_TURNED, 0).astype(np.uint32)
                 head[2 + e :: TRIANGLE_FACT_WORDS] = np.where(across[:, e] < 0, NO_TRIANGLE, word)
-            self._cut_first, self._cut_lines = first[:-1], lines.astype(np.float32).view(np.uint32).reshape(-1, 3)
+            self._cut_first, self._cut_lines = first, lines.astype(np.float32).view(np.uint32).reshape(-1, 3)
             words = np.concatenate([head, self._cut_lines.reshape(-1)])
             self.buffers["SPLAT_SHAPES"] = self.gl.buffer(words.tobytes())
             self._cuts = np.diff(first)
@@ -185,12 +185,13 @@ class GpuScene:
         """The triangles as the splat builders read them (shaders/scene.glsl: SPLAT_TEXELS), a
         texture of `TEXELS_PER_TRIANGLE` texels a triangle: its three corners as the vertex
         records hold them, each with its vertex index, then its normal as the triangle records hold
-        it with the texel of its first cut line; then the cut lines (`splat_facts`), a texel each.
+        it with the texel of its first cut line; a record past the last with where its lines end;
+        then the cut lines (`splat_facts`), a texel each.
         RGBA32UI, so every float's bits come back as they are. Made the first time they ask; poses
         rewrite the corners and normals (the cut lines, in barycentrics, stay)."""
         if self._triangle_texels is None:
             self.splat_facts()
-            records = TEXELS_PER_TRIANGLE * self.triangle_count + len(self._cut_lines)
+            records = TEXELS_PER_TRIANGLE * (self.triangle_count + 1) + len(self._cut_lines)
             self._triangle_texels = self.gl.record_texture(records, 4, "u4", "triangle texels of the scene")
             self._write_triangle_texels(self.arrays)
         return self._triangle_texels
@@ -198,12 +199,14 @@ class GpuScene:
     def _write_triangle_texels(self, a) -> None:
         texture = self._triangle_texels
         texels = np.zeros((texture.width * texture.height, 4), np.uint32)
-        corners = texels[: TEXELS_PER_TRIANGLE * len(a.faces)].reshape(len(a.faces), TEXELS_PER_TRIANGLE, 4)
+        T = len(a.faces)
+        records = texels[: TEXELS_PER_TRIANGLE * (T + 1)].reshape(T + 1, TEXELS_PER_TRIANGLE, 4)
+        corners = records[:T]
         corners[:, :3, :3] = self._positions(a)[a.faces].view(np.uint32)
         corners[:, :3, 3] = a.faces
         corners[:, 3, :3] = a.tri_normal.astype(np.float32).view(np.uint32)
-        lines = TEXELS_PER_TRIANGLE * len(a.faces)
-        corners[:, 3, 3] = lines + self._cut_first  # the texel of its first cut line
+        lines = TEXELS_PER_TRIANGLE * (T + 1)
+        records[:, 3, 3] = lines + self._cut_first  # the texel of its first cut line; past the last, their end
         texels[lines : lines + len(self._cut_lines), :3] = self._cut_lines
         texture.write(texels.tobytes())
 

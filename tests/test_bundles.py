@@ -585,13 +585,13 @@ def test_the_triangle_texels_hold_what_the_scene_buffers_hold_in_every_pose(gl):
     assert np.array_equal(texels[:, :3, :3].view(np.float32), vertices["position"][faces])
     assert np.array_equal(texels[:, :3, 3], faces)
     assert np.array_equal(texels[:, 3, :3].view(np.float32), triangles["normal"])
-    # Then the cut lines, a texel each, as the splat shapes' words hold them after their heads.
+    # A record past the last says where its lines end; then the cut lines, a texel each, as the
+    # splat shapes' words hold them after their heads.
     head = TRIANGLE_FACT_WORDS * T + 1
-    lines = shapes[head:].reshape(-1, 3)
-    assert len(lines) > 1000 and np.array_equal(
-        (shapes[0 : head - 1 : TRIANGLE_FACT_WORDS] - head) // 3, texels[:, 3, 3] - 4 * T
-    )
-    assert np.array_equal(all_texels[TEXELS_PER_TRIANGLE * T : TEXELS_PER_TRIANGLE * T + len(lines), :3], lines)
+    lines, start = shapes[head:].reshape(-1, 3), TEXELS_PER_TRIANGLE * (T + 1)
+    first = all_texels[TEXELS_PER_TRIANGLE - 1 : start : TEXELS_PER_TRIANGLE, 3]
+    assert len(lines) > 1000 and np.array_equal((shapes[0:head:TRIANGLE_FACT_WORDS] - head) // 3, first - start)
+    assert np.array_equal(all_texels[start : start + len(lines), :3], lines)
 
 
 @pytest.mark.parametrize("splat_scale", [1.5, 4.0])

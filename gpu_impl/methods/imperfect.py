@@ -133,7 +133,18 @@ class SplatTracer(BundleTracer):
         return self.K * self.N
 
     def uniforms(self) -> dict:
-        return {**super().uniforms(), "points_per_direction": self.N, "splat_radius": self.splat_radius}
+        return {
+            **super().uniforms(),
+            "points_per_direction": self.N,
+            "splat_radius": self.splat_radius,
+            **SPLAT_TEXEL_UNITS,
+        }
+
+    def bind(self) -> None:
+        super().bind()
+        # The points pass, and the compute splatter's count and scatter, read the triangles as
+        # texels (shaders/scene.glsl: SPLAT_TEXELS).
+        self.gpu_scene.triangle_texels().use(SPLAT_TEXEL_UNITS["triangle_texels"])
 
     @property
     def merge_tolerance(self) -> float:
@@ -243,7 +254,6 @@ class ComputeSplatTracer(SplatTracer):
         # rows of them.
         self.point_texels = gl.record_texture(self.K * self.N, 4, "u4", "splat points", ("directions", "points"))
         self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.point_texels.width * self.point_texels.height))
-        gpu_scene.triangle_texels()
         self._compile()
 
     @property
@@ -251,13 +261,9 @@ class ComputeSplatTracer(SplatTracer):
         texels = getattr(self, "point_texels", None)  # made after the shared constructor's checks
         return super().memory_bytes + (0 if texels is None else SPLAT_POINT.itemsize * texels.width * texels.height)
 
-    def uniforms(self) -> dict:
-        return {**super().uniforms(), **SPLAT_TEXEL_UNITS}
-
     def bind(self) -> None:
         super().bind()
         self.point_texels.use(SPLAT_TEXEL_UNITS["point_texels"])
-        self.gpu_scene.triangle_texels().use(SPLAT_TEXEL_UNITS["triangle_texels"])
 
     def release(self) -> None:
         super().release()

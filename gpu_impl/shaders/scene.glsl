@@ -115,7 +115,8 @@ layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uin
 // (gpu_impl/layout.py: TEXEL_ROW; gpu_impl/scene_buffers.py: GpuScene.triangle_texels): the same
 // words as the storage buffers hold, so the same arithmetic. Per triangle TEXELS_PER_TRIANGLE
 // texels: its corners, each with its vertex index, then its normal with the texel of its first
-// cut line; the cut lines follow the triangles', a texel each.
+// cut line (past the last triangle, one more record: where the last one's lines end); the cut
+// lines follow, a texel each.
 uniform usampler2D triangle_texels;
 
 ivec2 record_texel(uint i) {
@@ -133,6 +134,11 @@ uint cut_lines_start(uint t) {
 vec3 cut_line_at(uint start, uint i) {
     return uintBitsToFloat(texelFetch(triangle_texels, record_texel(start + i), 0).xyz);
 }
+
+// All of triangle t's cut lines, bit i for its line i.
+uint triangle_cut_lines(uint t) {
+    return (1u << (cut_lines_start(t + 1u) - cut_lines_start(t))) - 1u;
+}
 #else
 uint cut_lines_start(uint t) {
     return splat_shapes[TRIANGLE_FACT_WORDS * t];
@@ -141,6 +147,12 @@ uint cut_lines_start(uint t) {
 vec3 cut_line_at(uint start, uint i) {
     uint word = start + 3u * i;
     return uintBitsToFloat(uvec3(splat_shapes[word], splat_shapes[word + 1u], splat_shapes[word + 2u]));
+}
+
+// All of triangle t's cut lines, bit i for its line i.
+uint triangle_cut_lines(uint t) {
+    uint first = splat_shapes[TRIANGLE_FACT_WORDS * t], end = splat_shapes[TRIANGLE_FACT_WORDS * (t + 1u)];
+    return triangle_cut(t) ? (1u << ((end - first) / 3u)) - 1u : 0u;
 }
 #endif
 
@@ -175,11 +187,6 @@ struct SplatShape {
     vec3 slack_a, slack_b;
 };
 
-// All of triangle t's cut lines, bit i for its line i.
-uint triangle_cut_lines(uint t) {
-    uint first = splat_shapes[TRIANGLE_FACT_WORDS * t], end = splat_shapes[TRIANGLE_FACT_WORDS * (t + 1u)];
-    return triangle_cut(t) ? (1u << ((end - first) / 3u)) - 1u : 0u;
-}
 
 // The shape of a splat of triangle t cut by the triangle's cut lines `lines` (bit i for its line
 // i). A splat no line cuts reads nothing.

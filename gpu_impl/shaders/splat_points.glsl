@@ -16,6 +16,7 @@
 #define SPLAT_SHAPES
 #define SPLAT_POINTS_WRITE
 #define SPLAT_CDF
+#define SPLAT_TEXELS
 #include "common.glsl"
 #include "scene.glsl"
 #include "bundle.glsl"
