@@ -45,8 +45,14 @@ def _value(v) -> str:
 # A study page's columns after the parameters that vary: the measures a row has, in this order.
 STUDY_MEASURES = (
     "hole_rate", "leak_rate", "redundant_rate", "nodes_per_crossing", "next_hit_error_rate",
-    "indirect_relmse", "indirect_flip", "total_relmse", "build_ms", "wall_s",
+    "indirect_relmse", "indirect_flip", "total_relmse", "total_z_outside", "indirect_z_outside", "build_ms",
+    "wall_s",
 )  # fmt: skip
+
+
+# The images whose mean over the reference's, with its interval, a study page shows where its rows
+# have it (the renders of several frames: evalkit/study/run.py).
+MEAN_RATIO_IMAGES = ("total", "direct", "indirect")
 
 
 # The hole model's fits as a study page shows them: per group, P(hole) = h0 + (1 - h0) exp(-c s^q) and the
@@ -74,9 +80,20 @@ def study_markdown(data: dict, source: str) -> str:
         lines += ["## The hole model's fits", ""]
         lines += _table(keys, [[_value(f.get(k)) for k in keys] for f in fits]) + [""]
     measures = [m for m in STUDY_MEASURES if any(m in r for r in rows)]
+    ratios = [image for image in MEAN_RATIO_IMAGES if any(f"{image}_mean_ratio" in r for r in rows)]
     columns = [*data["varying"], *measures]
-    lines += ["## Runs", ""] + _table(columns, [[_value(r.get(c)) for c in columns] for r in rows])
+    header = [*columns, *(f"{image} mean / reference [95 %]" for image in ratios)]
+    table = [[*(_value(r.get(c)) for c in columns), *(_mean_ratio(r, image) for image in ratios)] for r in rows]
+    lines += ["## Runs", ""] + _table(header, table)
     return "\n".join(lines) + "\n"
+
+
+def _mean_ratio(row: dict, image: str) -> str:
+    """The image's mean over the reference's with its 95 % interval (evalkit.metrics.confidence)."""
+    ratio = row.get(f"{image}_mean_ratio")
+    if ratio is None:
+        return "-"
+    return f"{ratio:.4f} [{row[f'{image}_mean_ratio_lo']:.4f}, {row[f'{image}_mean_ratio_hi']:.4f}]"
 
 
 def _plot_markdown(rows: list[dict], spec: dict) -> list[str]:

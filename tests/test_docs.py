@@ -21,7 +21,7 @@ from evalkit.metrics.bundles import NEXT_HIT_ERROR_TARGET
 from evalkit.records import read_record, write_record
 from evalkit.reference_docs import commands
 from evalkit.results_docs import PAGES as RESULT_PAGES
-from evalkit.results_docs import results_pages
+from evalkit.results_docs import results_pages, study_markdown
 from gpu_impl.registry import all_units
 
 REPO = Path(__file__).resolve().parent.parent
@@ -162,6 +162,23 @@ def test_a_study_recorded_with_its_command_becomes_a_results_page(tmp_path):
     assert '## Holes against s\n\n<img alt="Holes against s" src="data:image/png;base64,' in page
     holes = {row["splat_scale"]: row["hole_rate"] for row in record["rows"]}
     assert f"| 1.2 | {holes[1.2]:.4g} |" in page  # each row's value as the study measured it
+
+
+def test_a_study_page_gives_each_images_mean_over_the_reference_with_its_interval():
+    row = {"status": "ok", "method": "perfect", "total_relmse": 0.01, "total_z_outside": 0.002}
+    row |= {"total_mean_ratio": 0.99871, "total_mean_ratio_lo": 0.99512, "total_mean_ratio_hi": 1.00234}
+    data = {
+        "title": "Accuracy",
+        "description": "D.",
+        "reduced": "R.",
+        "varying": ["method"],
+        "rows": [row, {"status": "ok", "method": "mitsuba", "total_relmse": 0.02}],
+        "record": {"command": "evalkit study a.toml", "date": "2026-12-02", "versions": {"python": "3.11"}},
+    }
+    page = study_markdown(data, "docs/results/data/a.json").splitlines()
+    assert "| method | total_relmse | total_z_outside | total mean / reference [95 %] |" in page
+    assert "| perfect | 0.01 | 0.002 | 0.9987 [0.9951, 1.0023] |" in page
+    assert "| mitsuba | 0.02 | - | - |" in page  # a run without frames has no interval
 
 
 # -- numbers typed by hand ------------------------------------------------------------------------
