@@ -89,11 +89,12 @@ def study_markdown(data: dict, source: str) -> str:
 
 
 def _mean_ratio(row: dict, image: str) -> str:
-    """The image's mean over the reference's with its 95 % interval (evalkit.metrics.confidence)."""
-    ratio = row.get(f"{image}_mean_ratio")
+    """The image's mean over the reference's with its 95 % interval (evalkit.metrics.confidence;
+    a render of one frame has none)."""
+    ratio, lo, hi = (row.get(f"{image}_mean_ratio{end}") for end in ("", "_lo", "_hi"))
     if ratio is None:
         return "-"
-    return f"{ratio:.4f} [{row[f'{image}_mean_ratio_lo']:.4f}, {row[f'{image}_mean_ratio_hi']:.4f}]"
+    return f"{ratio:.4f} " + ("(one frame: no interval)" if lo is None else f"[{lo:.4f}, {hi:.4f}]")
 
 
 def _plot_markdown(rows: list[dict], spec: dict) -> list[str]:

@@ -167,18 +167,20 @@ def test_a_study_recorded_with_its_command_becomes_a_results_page(tmp_path):
 def test_a_study_page_gives_each_images_mean_over_the_reference_with_its_interval():
     row = {"status": "ok", "method": "perfect", "total_relmse": 0.01, "total_z_outside": 0.002}
     row |= {"total_mean_ratio": 0.99871, "total_mean_ratio_lo": 0.99512, "total_mean_ratio_hi": 1.00234}
+    one_frame = {**row, "method": "one frame", "total_mean_ratio_lo": None, "total_mean_ratio_hi": None}
     data = {
         "title": "Accuracy",
         "description": "D.",
         "reduced": "R.",
         "varying": ["method"],
-        "rows": [row, {"status": "ok", "method": "mitsuba", "total_relmse": 0.02}],
+        "rows": [row, {"status": "ok", "method": "mitsuba", "total_relmse": 0.02}, one_frame],
         "record": {"command": "evalkit study a.toml", "date": "2026-12-02", "versions": {"python": "3.11"}},
     }
     page = study_markdown(data, "docs/results/data/a.json").splitlines()
     assert "| method | total_relmse | total_z_outside | total mean / reference [95 %] |" in page
     assert "| perfect | 0.01 | 0.002 | 0.9987 [0.9951, 1.0023] |" in page
-    assert "| mitsuba | 0.02 | - | - |" in page  # a run without frames has no interval
+    assert "| mitsuba | 0.02 | - | - |" in page  # Mitsuba's runs are not compared so
+    assert "| one frame | 0.01 | 0.002 | 0.9987 (one frame: no interval) |" in page
 
 
 # -- numbers typed by hand ------------------------------------------------------------------------
