@@ -289,6 +289,9 @@ class ComputeSplatTracer(SplatTracer):
             self._uniforms(count, nearest_only=self.merge)
             gl.dispatch(count, self.K * self.N)
             raw = self._scan_lists()
+            # The splats whose lines were beyond their record's box, which the count pass queued:
+            # read while the GPU is idle after the scan's own read, not after the scatter.
+            found = int(gl.read(self.buffers["COUNTERS"], np.uint32, 1, first=COUNTERS["FOUND_AGAIN"])[0])
             # Every list's end (its next list's offset) as the scatter's cursor, counting down.
             lists = self.buffers["LIST_COUNTS"]
             gl.copy_buffer(lists, self.buffers["LIST_OFFSETS"], 4 * self.list_count, read_offset=4)
@@ -296,8 +299,6 @@ class ComputeSplatTracer(SplatTracer):
             scatter = gl.program("splat_lists", SCATTER_SPLATS=True)
             self._uniforms(scatter, nearest_only=self.merge)
             gl.dispatch(scatter, self.K * self.N)
-            # The splats whose lines were beyond their record's box, found again.
-            found = int(gl.read(self.buffers["COUNTERS"], np.uint32, 1, first=COUNTERS["FOUND_AGAIN"])[0])
             if found:
                 again = gl.program("splat_lists", SCATTER_SPLATS=True, FIND_AGAIN=True)
                 self._uniforms(again, nearest_only=self.merge)

@@ -63,10 +63,6 @@ uvec4 splat_point(uint point) {
     SplatPoint p = points[point];
     return uvec4(p.triangle, p.barycentrics, floatBitsToUint(p.radius), p.cut_lines);
 }
-
-vec3 splat_triangle_normal(uint t) {
-    return triangle_normal(t);
-}
 #endif
 
 vec2 point_barycentrics(uint point) {
