@@ -25,7 +25,8 @@ TEST_WORKERS = 2
 test: setup-test lint
 	.venv/bin/python -m pytest -m "not slow and not long" -q -n $(TEST_WORKERS)
 
-# The tests of 25 s or more (converged images, sweeps, the full demo), which CI runs after make test.
+# The tests of 10 s or more on 2 cores (converged images, sweeps, the site build, every shader
+# variant compiled), which CI runs after make test.
 test-long: setup-test
 	.venv/bin/python -m pytest -m long -q -n $(TEST_WORKERS)
 

@@ -66,6 +66,7 @@ def test_bidirectional_paths_converge_on_cornell_box_with_less_noise_than_eye_pa
     assert whole["lo"] <= 1.0 <= whole["hi"], describe_interval(whole)
 
 
+@pytest.mark.long
 def test_imperfect_shadow_maps_light_the_lit_room_as_exact_maps_do(gl):
     # Every pixel of the lit room is lit after a bounce off the ceiling: connections to the light
     # path vertices there carry it. Imperfect maps splat the room from 4096 points per vertex.
@@ -158,7 +159,9 @@ def small_textures(gl, monkeypatch, side: int, most_layers: int) -> None:
     monkeypatch.setattr(gl, "allocate", capped)
 
 
-@pytest.mark.parametrize("visibility, most_layers", [("exact", 8), ("imperfect", 2)])
+@pytest.mark.parametrize(
+    "visibility, most_layers", [("exact", 8), pytest.param("imperfect", 2, marks=pytest.mark.long)]
+)
 def test_light_vertices_past_one_texture_render_as_they_do_in_one(gl, monkeypatch, visibility, most_layers):
     """Light vertices' shadow maps past the GL texture limit go on more atlas pages, and pages past
     what the driver allocates in one texture on more textures (as many as `MAX_ATLAS_TEXTURES`,
@@ -611,6 +614,7 @@ def traced_light_flux(scene: Scene, light: Light, centre, radius: float, bounces
     return per_depth
 
 
+@pytest.mark.long
 def test_light_paths_from_fixed_lights_carry_the_flux_that_embree_light_paths_do(gl):
     # The light paths of a point, a spot and a directional light (their first surface from the
     # light's shadow map read as a reflective shadow map, the next over the bundles) against light
@@ -696,6 +700,7 @@ def test_light_paths_leave_a_curved_lamp_as_they_would_with_perfect_bundles(gl):
     assert found["perfect"] > 0.95 * 4096 and found["imperfect"] >= 0.99 * found["perfect"], found
 
 
+@pytest.mark.long
 def test_light_path_steps_over_the_bundles_land_on_the_first_surface_along_their_ray(gl):
     # Each step of atrium's light paths past the first surface (a bundle step, shaders/
     # bundle_step.glsl) against an Embree ray from the vertex towards the next: the next vertex

@@ -82,6 +82,7 @@ def test_a_render_accounts_for_its_noise_frame_by_frame(gl):
     assert np.allclose(last.frame_means["total"], last.frame_means["direct"] + last.frame_means["indirect"])
 
 
+@pytest.mark.long
 def test_render_files_and_compare_carry_the_confidence(tmp_path):
     out, ref = tmp_path / "render", tmp_path / "ref"
     args = ("--bounces", "1", "--width", "16", "--height", "16")

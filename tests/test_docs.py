@@ -59,6 +59,7 @@ def site(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.long
 def test_the_reference_covers_every_command_unit_and_setting(site):
     cli = (site / "reference" / "cli.html").read_text()
     names = [name for name, _ in commands()]
@@ -72,6 +73,7 @@ def test_the_reference_covers_every_command_unit_and_setting(site):
     assert not missing, missing
 
 
+@pytest.mark.long
 def test_the_pages_open_from_the_file_system_without_console_errors(site, browser):
     for page in PAGES:
         browser.get((site / f"{page}.html").as_uri())
@@ -80,6 +82,7 @@ def test_the_pages_open_from_the_file_system_without_console_errors(site, browse
         assert not severe, (page, severe)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     "page, notebook, shown",
     [
@@ -101,6 +104,7 @@ def test_a_tutorial_is_its_notebook_run_when_the_site_was_built(site, page, note
     assert re.search(ran, html)
 
 
+@pytest.mark.long
 def test_every_results_page_comes_from_a_data_file_that_names_its_command_and_versions(site):
     data = sorted((REPO / "docs" / "results" / "data").glob("*.json"))
     benchmarks = {read_record(path).get("benchmark") for path in data} - {None}

@@ -28,6 +28,7 @@ print(len(work))
 """
 
 
+@pytest.mark.long
 def test_every_shader_compiles(gl):
     programs = {p.stem for p in SHADER_DIR.glob("*.glsl") if is_program(p.read_text())}
     assert programs == set(SHADER_VARIANTS), "every program file needs its variants listed in SHADER_VARIANTS"

@@ -76,7 +76,8 @@ def interval(frame_ratios) -> dict:
     return mean_ratio(frames, ones, 0 * ones)["all"]
 
 
-@pytest.mark.parametrize("bounces", [1, pytest.param(3, marks=pytest.mark.long)])
+@pytest.mark.long
+@pytest.mark.parametrize("bounces", [1, 3])
 def test_furnace_matches_the_analytic_radiance(gl, bounces):
     # The bundles' transport alone: paths find the emitting walls by hitting them.
     ratios = furnace_ratio(gl, 128, 1024, bounces)
@@ -336,7 +337,7 @@ def normalized(image: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return image / ref.mean(), ref / ref.mean()
 
 
-@pytest.mark.parametrize("light", [SKY, ENVMAP], ids=["constant", "envmap"])
+@pytest.mark.parametrize("light", [SKY, pytest.param(ENVMAP, marks=pytest.mark.long)], ids=["constant", "envmap"])
 def test_environment_light_matches_mitsuba(gl, tmp_path, images, light):
     scene = sky_stage(light)
     ref = reference(scene, bounces=1, spp=1024, width=32, height=32, store=tmp_path, progress=lambda line: None)
@@ -366,6 +367,7 @@ def sun_box() -> Scene:
     return assemble("sun-box", "sun-box", [floor, cube], materials, [sun], camera)
 
 
+@pytest.mark.long
 def test_a_sun_in_the_environment_map_is_sampled_where_its_power_is(gl, tmp_path):
     # Measured (this test's settings, Mitsuba 1024 spp), ratio to Mitsuba with its 95 % interval over
     # the frames, seeds 0, 1, 2: with 32 environment samples a frame, direct 1.0008 [0.970, 1.031],
@@ -398,6 +400,7 @@ def sky_stage_renders(gl, tmp_path, frames: int, strategies=("eye", "bidirection
     return ref, {strategy: render(gl, scene, strategy=strategy, **kw) for strategy in strategies}
 
 
+@pytest.mark.long
 def test_light_paths_from_the_environment_cut_the_noise_of_its_indirect_light(gl, tmp_path):
     # The environment is the stage's only light, so every light path starts there. Measured (this
     # test's settings), indirect relMSE with both images divided by the reference's mean: eye
@@ -502,7 +505,7 @@ def test_imperfect_bundles_render_the_furnace_close_to_its_value(gl):
     assert result.images["indirect"].mean() == pytest.approx(furnace_radiance(3) - furnace_radiance(2), rel=0.05)
 
 
-@pytest.mark.parametrize("name", ["cornell-box", "furnace", "atrium"])
+@pytest.mark.parametrize("name", ["cornell-box", "furnace", pytest.param("atrium", marks=pytest.mark.long)])
 def test_cli_renders_every_builtin_scene_both_ways(tmp_path, name):
     for method in METHODS.names:
         out = tmp_path / method
@@ -572,6 +575,7 @@ def test_cli_preset_and_bad_settings(tmp_path):
 # -- animation ------------------------------------------------------------------------------------
 
 
+@pytest.mark.long
 def test_animated_scene_moves_rigidly_and_renders_each_pose(gl):
     scene = load_scene("atrium-animated")
     assert scene.animated and not scene.at(3.0).animated
@@ -660,7 +664,7 @@ def contact_scene(light: str, view: str) -> Scene:
     return assemble(f"contact-{light}-{view}", "contact", meshes, materials, lights, camera)
 
 
-@pytest.mark.parametrize("light", ["point", "area"])
+@pytest.mark.parametrize("light", ["point", pytest.param("area", marks=pytest.mark.long)])
 @pytest.mark.parametrize("view", ["ball", "box"])
 def test_contact_shadows_match_mitsuba(gl, tmp_path, images, light, view):
     # Light leaking under objects resting on a floor (shadow-map bias near the contact) would

@@ -276,6 +276,7 @@ def test_the_demo_renders_compares_and_reports(tmp_path):
     assert "Images" in (tmp_path / "demo" / "report.html").read_text()
 
 
+@pytest.mark.long
 def test_the_demo_study_at_two_frames_runs_every_stage_and_draws_the_figure(tmp_path):
     # The demo's own study (evalkit/demo.toml) with 2 frames of 4 paths per pixel in place of 32 of
     # 16: the same scene, bundles, Embree comparison, committed reference, report and figure, in

@@ -17,7 +17,7 @@ CASES = load_thresholds(DEFAULT_THRESHOLDS)
 ARTIFACTS = os.path.join(REPO, "out", "thresholds")
 
 
-# The cases that take 25 s or more on 2 cores (sweeps, converged relMSE) run with the long tests
+# The cases that take 10 s or more on 2 cores (sweeps, converged relMSE) run with the long tests
 # and in `make check`, which runs every case.
 LONG_CASES = {
     "furnace-indirect-error-falls-with-R",
