@@ -4,12 +4,13 @@ the share of triangles in the views' clusters (over every view of the atlas), an
 atlases agree bit for bit.
 
     python benchmarks/shadow_map_culling.py [--scenes atrium lit-room cornell-box] [--vertices 64]
-                                            [--map-size 256] [--repeats 3]
+                                            [--map-size 256] [--repeats 3] [--record JSON]
 
 The light vertices are the first ``--vertices`` that frame 0's light paths leave (B=2, perfect
 bundles K=32 R=128). Times are medians over the repeats after a warm-up, host time around glFinish.
 "Every triangle" is the same pass with the culling test answering yes for every cluster. Prints a
-table; the last line is one JSON object with every figure.
+table; the last line is one JSON object with every figure, which ``--record`` also saves with the
+command and versions (the documentation's results page "Shadow-map culling" is made from it).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import numpy as np
 from evalkit.core.scene import load_scene
 from evalkit.core.settings import RenderSettings
 from evalkit.metrics.light_visibility import frame_light_vertices, median_ms, vertex_shadow_maps
+from evalkit.records import write_record
 from gpu_impl import lights as gpu_lights
 from gpu_impl.context import GLContext
 from gpu_impl.registry import METHODS, resolve
@@ -57,6 +59,7 @@ def main() -> None:
     parser.add_argument("--vertices", type=int, default=64)
     parser.add_argument("--map-size", type=int, default=exact.DEFAULT_MAP_SIZE)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--record", metavar="JSON", help="also save the report with its command and versions there")
     args = parser.parse_args()
 
     gl = GLContext()
@@ -105,7 +108,10 @@ def main() -> None:
             f"{r['scene']:<13}{r['triangles']:>11,}{r['light_vertices']:>10}{fixed:>20}{vertex:>22}"
             f"{r['vertex_speedup']:>9.2f}x{100 * r['in_view']:>8.1f}%{'yes' if r['identical'] else 'NO':>11}"
         )
-    print(json.dumps({"map_size": args.map_size, "repeats": args.repeats, "rows": rows}))
+    report = {"benchmark": "shadow_map_culling", "map_size": args.map_size, "repeats": args.repeats, "rows": rows}
+    if args.record:
+        write_record(args.record, report)
+    print(json.dumps(report))
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ default size and points, pull-push hole filling against larger splats (the splat
     python benchmarks/shadow_maps.py [--scene atrium] [--vertices 256] [--receivers 2048]
                                      [--exact-sizes 256] [--sizes 32 64 128]
                                      [--points 1024 4096 16384]
-                                     [--splat-scales 1.0 1.6 2.5] [--repeats 3]
+                                     [--splat-scales 1.0 1.6 2.5] [--repeats 3] [--record JSON]
 
 The light vertices are the first ``--vertices`` that frame 0's light paths leave (B=2, perfect
 bundles K=32 R=128); the receivers are surface points the camera sees. Times are medians over the
@@ -14,7 +14,8 @@ repeats after a warm-up, host time around glFinish. "hidden" and "leaked" split 
 connections: seen through exact maps (of the default size) but not through the others, and the
 reverse. "light leaked" and "light hidden" are each map's own against the rays, weighted by what
 each connection carries (`evalkit.metrics.light_visibility.light_shares`). Prints a table; the
-last line is one JSON object with every figure.
+last line is one JSON object with every figure, which ``--record`` also saves with the command and
+versions (the documentation's results page "Shadow maps against rays" is made from it).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from evalkit.metrics.light_visibility import (
     measure,
     traced_visibility,
 )
+from evalkit.records import write_record
 from gpu_impl.context import GLContext
 from gpu_impl.registry import METHODS, resolve
 from gpu_impl.visibility import exact
@@ -54,6 +56,7 @@ def main() -> None:
     parser.add_argument("--splat-scales", type=float, nargs="+", default=[1.0, 1.6, 2.5])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--record", metavar="JSON", help="also save the report with its command and versions there")
     args = parser.parse_args()
 
     scene = load_scene(args.scene)
@@ -163,14 +166,20 @@ def main() -> None:
         == (defaults.ism_size, defaults.ism_points, defaults.ism_splat_scale, False)
     )
     summary = {
+        "benchmark": "shadow_maps",
         "scene": args.scene,
         "light_vertices": len(vertices.positions),
+        "light_paths": paths,
         "receivers": len(receivers[0]),
+        "repeats": args.repeats,
         "rows": rows,
+        "exact_ms": exact_maps["ms"],  # the default exact maps', which the ratios divide by
         "default_cost_ratio": default["ms"] / exact_maps["ms"],
         "default_differing": default["differ_exact"],
         "targets": {"cost_ratio": TARGET_COST_RATIO, "differing": TARGET_DIFFERING},
     }
+    if args.record:
+        write_record(args.record, summary)
     print(json.dumps(summary))
 
 

@@ -211,11 +211,85 @@ def resolution_probe_markdown(data: dict, source: str) -> str:
     return "\n".join(lines + _table(header, rows)) + "\n"
 
 
+def _percent(v: float) -> str:
+    return f"{100 * v:.2f} %"
+
+
+def shadow_maps_markdown(data: dict, source: str) -> str:
+    """benchmarks/shadow_maps.py: imperfect shadow maps against exact ones and both against Embree rays."""
+    exact_ms = data["exact_ms"]  # the default exact maps'
+    lines = [
+        f"# Shadow maps against rays: {data['scene']}",
+        "",
+        f"The visibility of {data['light_vertices']:,} light vertices (frame 0's light paths, {data['light_paths']} "
+        f"of them, B = 2, perfect bundles K = 32, R = 128) from {data['receivers']:,} surface points the camera sees, "
+        "through exact cube maps and imperfect paraboloid maps, against Embree rays (the truth both approximate). "
+        "*changed* is the share of connections whose visibility differs from the default exact maps', split into "
+        "*hidden* (seen through exact maps, not through these) and *leaked* (the reverse); *light leaked* and "
+        "*light hidden* are each map's own errors against the rays, weighted by the light each connection "
+        f"carries. Times: a frame's maps, median of {data['repeats']} after a warm-up.",
+        "",
+        *_provenance(data, source),
+    ]
+    rows = []
+    for r in data["rows"]:
+        imperfect = r["points"] is not None
+        rows.append(
+            [r["maps"], r["size"], f"{r['points']:,}" if imperfect else "-",
+             _value(r.get("splat_scale")) if imperfect else "-",
+             ("on" if r.get("pull_push") else "off") if imperfect else "-",
+             _ms(r["ms"]), f"{r['ms'] / exact_ms:.3f}", _percent(r["differ_exact"]), _percent(r["hidden"]),
+             _percent(r["leaked"]), _percent(r["differ_rays"]), _percent(r["light_leaked_rays"]),
+             _percent(r["light_hidden_rays"])]
+        )  # fmt: skip
+    header = ["maps", "texels", "points", "splat scale", "pull-push", "ms", "/ exact", "changed", "hidden",
+              "leaked", "differ from rays", "light leaked", "light hidden"]  # fmt: skip
+    targets, cost, differing = data["targets"], data["default_cost_ratio"], data["default_differing"]
+    met = [
+        [f"imperfect maps at the defaults cost at most {targets['cost_ratio']:g} of exact ones", f"{cost:.3f}",
+         "yes" if cost <= targets["cost_ratio"] else "**no**"],
+        [f"and change at most {_percent(targets['differing'])} of connections", _percent(differing),
+         "yes" if differing <= targets["differing"] else "**no**"],
+    ]  # fmt: skip
+    lines += _table(header, rows) + ["", "## Targets", ""] + _table(["target", "measured", "met"], met)
+    return "\n".join(lines) + "\n"
+
+
+def shadow_map_culling_markdown(data: dict, source: str) -> str:
+    """benchmarks/shadow_map_culling.py: shadow maps drawn from the clusters each view sees against every triangle."""
+    lines = [
+        "# Shadow-map culling",
+        "",
+        "Each shadow view draws only the clusters of triangles whose boxes reach into it; against every "
+        f"triangle into every view, side by side: exact maps of {data['map_size']} texels, the fixed lights' maps "
+        "and frame 0's light vertices' cube maps, medians of "
+        f"{data['repeats']}. *in view* is the share of triangles in the clusters drawn over every view of the "
+        "atlas; *same bits* says whether the two atlases agree bit for bit.",
+        "",
+        *_provenance(data, source),
+    ]
+
+    def before_after(ms: list[float]) -> str:
+        return f"{_ms(ms[0])} -> {_ms(ms[1])}" if any(ms) else "no fixed light"
+
+    rows = [
+        [r["scene"], f"{r['triangles']:,}", r["light_vertices"], before_after(r["fixed_ms"]),
+         before_after(r["vertex_ms"]), f"{r['vertex_speedup']:.2f}x",
+         _percent(r["in_view"]), "yes" if r["identical"] else "**no**"]
+        for r in data["rows"]
+    ]  # fmt: skip
+    header = ["scene", "triangles", "light vertices", "fixed lights' maps ms", "light vertices' maps ms",
+              "speed-up", "in view", "same bits"]  # fmt: skip
+    return "\n".join(lines + _table(header, rows)) + "\n"
+
+
 # A results page per data file, by the benchmark that wrote it.
 PAGES: dict[str, Callable[[dict, str], str]] = {
     "bundles": bundles_markdown,
     "poster_table": poster_table_markdown,
     "resolution_probe": resolution_probe_markdown,
+    "shadow_maps": shadow_maps_markdown,
+    "shadow_map_culling": shadow_map_culling_markdown,
 }
 
 

@@ -1,4 +1,4 @@
-"""Bidirectional paths (gpu_impl/strategies/bidirectional.py, docs/BIDIRECTIONAL.md): light paths
+"""Bidirectional paths (gpu_impl/strategies/bidirectional.py, docs/method.md): light paths
 over the bundles, connections through exact or imperfect shadow maps, every strategy weighted by
 multiple importance sampling. Thresholds were measured with the command in their comment, then
 given a margin."""

@@ -2,7 +2,7 @@
 light paths from the lights over the same bundles (shaders/light_paths.glsl), whose vertices every
 eye vertex connects to through their shadow maps (the light visibility unit's: exact or imperfect).
 The poster's future work, after Tokuyoshi and Ogaki's bidirectional path tracing via rasterization
-(I3D 2012); docs/BIDIRECTIONAL.md derives it.
+(I3D 2012); docs/method.md ("Bidirectional paths") derives it.
 
 Every strategy that can make a path is weighted by multiple importance sampling (the power
 heuristic): the eye path hitting an emitter, next-event estimation (emitter samples and the
