@@ -4,11 +4,14 @@ loop without loads. On llvmpipe a storage buffer is read lane by lane, each comp
 which is why the bundle frames are a uniform block (shaders/bundle.glsl).
 
     python benchmarks/gl_loads.py [--invocations 1048576] [--loads 16] [--records 4096] [--repeats 5]
+                                  [--record JSON]
 
 Each invocation reads ``--loads`` records at hashed indices (benchmarks/gl_loads.glsl). 4096
 records (64 KiB, a uniform block's most) stay in cache; the uniform block is left out past 4096.
 Times are medians over the repeats after a warm-up, host time around glFinish; ns per load is
-less the loop without loads. Prints a table; the last line is one JSON object with every figure.
+less the loop without loads. Prints a table; the last line is one JSON object with every figure,
+which ``--record`` also saves with the command and versions (the documentation's results page
+"Loads by memory kind" is made from it).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evalkit.records import write_record
 from gpu_impl.context import GLContext
 
 SOURCES = ("STORAGE_VEC4", "STORAGE_FLOAT", "UNIFORM_VEC4", "TEXTURE_VEC4", "NONE")
@@ -33,6 +37,7 @@ def main() -> None:
     parser.add_argument("--loads", type=int, default=16)
     parser.add_argument("--records", type=int, default=4096, help="a power of two, at least 1024")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--record", metavar="JSON", help="also save the report with its command and versions there")
     args = parser.parse_args()
     if args.records < 1024 or args.records & (args.records - 1):
         parser.error(f"--records must be a power of two of at least 1024, got {args.records}")
@@ -78,10 +83,15 @@ def main() -> None:
         cells = [f"{ms:10.1f}", f"{ns:12.2f}" if ns is not None else f"{'':12}"]
         cells += [f"{v:11.2f}" if v is not None else f"{'':11}" for v in ratio.values()]
         print(f"{name.lower():16}" + "".join(cells))
-    print(json.dumps({
-        "benchmark": "gl_loads", "device": gl.info["renderer"], "invocations": args.invocations, "loads": args.loads,
+    device = gl.info
+    report = {
+        "benchmark": "gl_loads", "device": device["renderer"], "gl_version": device["version"],
+        "timing": "host time around glFinish", "invocations": args.invocations, "loads": args.loads,
         "records": args.records, "repeats": args.repeats, "median_ms": rows, "ns_per_load": per_load,
-    }))  # fmt: skip
+    }  # fmt: skip
+    if args.record:
+        write_record(args.record, report)
+    print(json.dumps(report))
 
 
 if __name__ == "__main__":

@@ -283,6 +283,30 @@ def shadow_map_culling_markdown(data: dict, source: str) -> str:
     return "\n".join(lines + _table(header, rows)) + "\n"
 
 
+def gl_loads_markdown(data: dict, source: str) -> str:
+    """benchmarks/gl_loads.py: what one load costs in a compute shader, by the memory it reads."""
+    lines = [
+        "# Loads by memory kind",
+        "",
+        f"What one load costs in a compute shader: {data['invocations']:,} invocations, each reading "
+        f"{data['loads']} records at hashed indices of {data['records']:,} (a vec4 each), from a storage buffer, "
+        "a uniform block and an RGBA32F texture (texelFetch), against the same loop without loads; median of "
+        f"{data['repeats']} dispatches after a warm-up. Why the bundle frames are a uniform block and the splatter "
+        "reads its points and triangles as texels: [platform notes](../platform.md).",
+        "",
+        *_provenance(data, source),
+    ]
+    per_load, ms = data["ns_per_load"], data["median_ms"]
+    uniform, texture = per_load.get("UNIFORM_VEC4"), per_load["TEXTURE_VEC4"]
+    rows = [
+        [name.lower(), _ms(ms[name]), "-" if name == "NONE" else f"{per_load[name]:.2f}",
+         "-" if name == "NONE" or uniform is None else f"{per_load[name] / uniform:.2f}",
+         "-" if name == "NONE" else f"{per_load[name] / texture:.2f}"]
+        for name in ms
+    ]  # fmt: skip
+    return "\n".join(lines + _table(["source", "ms", "ns a load", "/ uniform block", "/ texture"], rows)) + "\n"
+
+
 # A results page per data file, by the benchmark that wrote it.
 PAGES: dict[str, Callable[[dict, str], str]] = {
     "bundles": bundles_markdown,
@@ -290,6 +314,7 @@ PAGES: dict[str, Callable[[dict, str], str]] = {
     "resolution_probe": resolution_probe_markdown,
     "shadow_maps": shadow_maps_markdown,
     "shadow_map_culling": shadow_map_culling_markdown,
+    "gl_loads": gl_loads_markdown,
 }
 
 

@@ -43,9 +43,10 @@ SPLATTERS = ("compute", "raster")
 # Splat radius in units of sqrt(A / (pi N)), the radius at which N disks cover area A once. With
 # independent uniform points a surface point is missed by all of them with probability
 # exp(-splat_scale^2); the stratified points leave far fewer holes, exp(-1.25 s^2.4) on cornell-box.
-# 1.8 is the hole model's recommendation for stratified points (studies/hole_vs_splat.toml: 1.81
-# on cornell-box, 1.94 on atrium whose curved-surface floor of holes no splat size removes), at
-# 3.2 nodes per crossing against 4 for the old default 2 (docs/MEASURED_FACTS.md).
+# 1.8 is the hole model's recommendation for stratified points (studies/hole_vs_splat.toml, the
+# recorded run docs/results/data/hole_vs_splat.json: 1.77 on cornell-box, 1.94 on atrium whose
+# curved-surface floor of holes no splat size removes), at 3.2 nodes per crossing against 4 for
+# the old default 2.
 DEFAULT_SPLAT_SCALE = 1.8
 # Where the shadow-mapped light splat nodes reflect is computed: "precomputed" once per splat point
 # (at its centre, up to a splat radius from a hit: cornell-box, K=256, R=128, indirect light +0.3 %
@@ -53,7 +54,8 @@ DEFAULT_SPLAT_SCALE = 1.8
 # in the frame (the renderer decides; shaders/irradiance.glsl, eye_paths.glsl).
 LIGHTING = ("auto", "precomputed", "lazy")
 # The hole model's shape per sampler, P(hole) ~ exp(-c s^q) (studies/hole_vs_splat.toml on
-# cornell-box, docs/MEASURED_FACTS.md): the tuner's hole term.
+# cornell-box): the tuner's hole term. Fitted to an earlier run; the recorded run's fits
+# (docs/results/data/hole_vs_splat.json, "hole_model") are within 5 % of these.
 HOLE_SHAPE = {"stratified": (1.26, 2.42), "random": (0.99, 1.95)}
 
 
