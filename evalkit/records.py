@@ -36,8 +36,9 @@ def write_record(path: str | os.PathLike, report: dict, command: str | None = No
 def study_record(study, rows: list[dict], out: str | os.PathLike) -> dict:
     """A study's results as a report for `write_record`: its name, title, description and what
     was reduced, the run parameters that vary, every row's scalar values, its plots' specifications
-    (the results page draws them), and the hole model's fits when its report made them
-    (``hole_model.json`` in ``out``)."""
+    (the results page draws them), the columns its report shows when the study names them
+    (``[report] columns``), and the hole model's fits when its report made them (``hole_model.json``
+    in ``out``)."""
     keys = dict.fromkeys(k for run in study.runs for k in run)
     varying = [k for k in keys if len({repr(run.get(k)) for run in study.runs}) > 1]
     scalar = (str, int, float, bool, type(None))
@@ -50,6 +51,8 @@ def study_record(study, rows: list[dict], out: str | os.PathLike) -> dict:
         "rows": [{k: v for k, v in row.items() if isinstance(v, scalar)} for row in rows],
         "plots": study.plots,
     }
+    if study.report.get("columns"):
+        report["columns"] = study.report["columns"]
     fits = Path(out) / "hole_model.json"
     if fits.is_file():
         report["hole_model"] = json.loads(fits.read_text())

@@ -65,7 +65,7 @@ HOLE_FIT_COLUMNS = (
 
 def study_markdown(data: dict, source: str) -> str:
     """A study's rows (`evalkit study FILE --record`): its plots, its parameters that vary and its
-    measures, and the hole model's fits where the study made them."""
+    measures (or the columns the study names), and the hole model's fits where the study made them."""
     rows = [r for r in data["rows"] if r.get("status") == "ok"]
     lines = [f"# {data['title']}", "", data["description"], "", f"Reduced from the paper: {data['reduced']}", ""]
     lines += _provenance(data, source)
@@ -79,9 +79,14 @@ def study_markdown(data: dict, source: str) -> str:
         keys = [k for k in HOLE_FIT_COLUMNS if k in fits[0]]
         lines += ["## The hole model's fits", ""]
         lines += _table(keys, [[_value(f.get(k)) for k in keys] for f in fits]) + [""]
-    measures = [m for m in STUDY_MEASURES if any(m in r for r in rows)]
     ratios = [image for image in MEAN_RATIO_IMAGES if any(f"{image}_mean_ratio" in r for r in rows)]
-    columns = [*data["varying"], *measures]
+    if data.get("columns"):  # the study's own choice ([report] columns); a mean ratio gets its interval
+        named = [c for c in data["columns"] if any(c in r for r in rows)]
+        ratios = [image for image in ratios if f"{image}_mean_ratio" in named]
+        columns = [c for c in named if c not in {f"{image}_mean_ratio" for image in MEAN_RATIO_IMAGES}]
+    else:
+        measures = [m for m in STUDY_MEASURES if any(m in r for r in rows)]
+        columns = [*data["varying"], *measures]
     header = [*columns, *(f"{image} mean / reference [95 %]" for image in ratios)]
     table = [[*(_value(r.get(c)) for c in columns), *(_mean_ratio(r, image) for image in ratios)] for r in rows]
     lines += ["## Runs", ""] + _table(header, table)
@@ -278,8 +283,8 @@ def shadow_map_culling_markdown(data: dict, source: str) -> str:
          _percent(r["in_view"]), "yes" if r["identical"] else "**no**"]
         for r in data["rows"]
     ]  # fmt: skip
-    header = ["scene", "triangles", "light vertices", "fixed lights' maps ms", "light vertices' maps ms",
-              "speed-up", "in view", "same bits"]  # fmt: skip
+    header = ["scene", "triangles", "light vertices", "fixed lights' maps ms (every triangle -> culled)",
+              "light vertices' maps ms (every triangle -> culled)", "speed-up", "in view", "same bits"]  # fmt: skip
     return "\n".join(lines + _table(header, rows)) + "\n"
 
 

@@ -185,6 +185,10 @@ def test_a_study_page_gives_each_images_mean_over_the_reference_with_its_interva
     assert "| perfect | 0.01 | 0.002 | 0.9987 [0.9951, 1.0023] |" in page
     assert "| mitsuba | 0.02 | - | - |" in page  # Mitsuba's runs are not compared so
     assert "| one frame | 0.01 | 0.002 | 0.9987 (one frame: no interval) |" in page
+    # A study that names its report's columns gets those on its page, a mean ratio with its interval.
+    named = study_markdown({**data, "columns": ["method", "total_mean_ratio", "nodes"]}, "a.json").splitlines()
+    assert "| method | total mean / reference [95 %] |" in named  # no row has "nodes"
+    assert "| perfect | 0.9987 [0.9951, 1.0023] |" in named
 
 
 # -- numbers typed by hand ------------------------------------------------------------------------
