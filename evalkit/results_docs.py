@@ -20,13 +20,19 @@ def _table(header: list[str], rows: list[list]) -> list[str]:
     return lines + ["| " + " | ".join(str(v) for v in row) + " |" for row in rows]
 
 
-def _provenance(data: dict, source: str) -> list[str]:
+def _heading(title: str, intro: str, data: dict, source: str) -> list[str]:
+    """A results page's title, what it measures, and where its data came from: the file, the
+    command and versions that wrote it, and the device for a benchmark that names one."""
     record = data["record"]
     versions = ", ".join(f"{k} {v}" for k, v in record["versions"].items() if v)
     device = (
         f"on {data['device']} (OpenGL {data['gl_version']}; times are {data['timing']}). " if "device" in data else ""
     )
     return [
+        f"# {title}",
+        "",
+        intro,
+        "",
         f"Data: `{source}`, written on {record['date']} by",
         "",
         f"    {record['command']}",
@@ -34,6 +40,10 @@ def _provenance(data: dict, source: str) -> list[str]:
         f"{device}Versions: {versions}.",
         "",
     ]
+
+
+def _met(ok: bool) -> str:
+    return "yes" if ok else "**no**"
 
 
 def _value(v) -> str:
@@ -67,8 +77,8 @@ def study_markdown(data: dict, source: str) -> str:
     """A study's rows (`evalkit study FILE --record`): its plots, its parameters that vary and its
     measures (or the columns the study names), and the hole model's fits where the study made them."""
     rows = [r for r in data["rows"] if r.get("status") == "ok"]
-    lines = [f"# {data['title']}", "", data["description"], "", f"Reduced from the paper: {data['reduced']}", ""]
-    lines += _provenance(data, source)
+    intro = f"{data['description']}\n\nReduced from the paper: {data['reduced']}"
+    lines = _heading(data["title"], intro, data, source)
     failed = len(data["rows"]) - len(rows)
     if failed:
         lines += [f"{failed} of {len(data['rows'])} runs failed and are not shown.", ""]
@@ -118,16 +128,15 @@ def _ms(v: float) -> str:
 
 def bundles_markdown(data: dict, source: str) -> str:
     """benchmarks/bundles.py: perfect against imperfect bundle builds, side by side."""
-    lines = [
-        "# Bundle build speed",
-        "",
+    lines = _heading(
+        "Bundle build speed",
         f"One bundle build per row, K = {data['directions']} directions of R = {data['resolution']} lines a side, "
         f"imperfect bundles from N = {data['points']} {data['sampler']} points per direction at splat scale "
         f"s = {data['splat_scale']}; median of {data['repeats']} builds after a warm-up. *raw* is the perfect "
         "bundles' geometry drawn with an empty fragment shader: what the rasterizer costs before any list is written.",
-        "",
-        *_provenance(data, source),
-    ]
+        data,
+        source,
+    )
     # The methods as the benchmark names them: the reference first, the one it is divided by second.
     methods = list(next(iter(data["scenes"].values()))["nodes"])
     first, second = methods[:2]
@@ -152,7 +161,7 @@ def bundles_markdown(data: dict, source: str) -> str:
                 pass_rows.append([name, f"{method} nodes", nodes])
     lines += _table(["scene", "method", "ms per pass"], pass_rows)
     lines += ["", "## Targets", ""]
-    lines += _table(["target", "met"], [[t, "yes" if met else "**no**"] for t, met in data["targets_met"].items()])
+    lines += _table(["target", "met"], [[t, _met(ok)] for t, ok in data["targets_met"].items()])
     return "\n".join(lines) + "\n"
 
 
@@ -160,15 +169,14 @@ def poster_table_markdown(data: dict, source: str) -> str:
     """benchmarks/poster_table.py: the poster's per-frame pass times, perfect and imperfect, 1 and 3 bounces."""
     size = f"{data['width']} x {data['height']}, {data['supersampling']} x {data['supersampling']} supersampling"
     reduced = "" if data["full_preset"] else " (reduced from the poster's 1920 x 1024 with 2 x 2 supersampling)"
-    lines = [
-        "# The poster's table",
-        "",
+    lines = _heading(
+        "The poster's table",
         f"Per-frame pass times of eye paths on `{data['scene']}` at {size}{reduced}, with the poster's bundles "
         f"(K = {data['directions']}, R = {data['resolution']}, N = {data['points']}); medians over {data['frames']} "
         "frames of one render.",
-        "",
-        *_provenance(data, source),
-    ]
+        data,
+        source,
+    )
     configs = list(data["results"])
     passes = [p for p in data["results"][configs[-1]]["median_ms"] if p != "frame"]
     rows = [[p, *(("-" if (v := data["results"][c]["median_ms"].get(p)) is None else _ms(v)) for c in configs)]
@@ -195,17 +203,16 @@ def poster_table_markdown(data: dict, source: str) -> str:
 
 def resolution_probe_markdown(data: dict, source: str) -> str:
     """benchmarks/resolution_probe.py: the resolution probe's time by stage, per scene."""
-    lines = [
-        "# The resolution probe's speed",
-        "",
+    lines = _heading(
+        "The resolution probe's speed",
         "What `evalkit scene info` takes to advise a bundle resolution R for a scene it has not probed before "
         "(the advice is then kept in the user cache): the exact tracer (Embree's scene, and the coincident "
         "triangles it keeps in layers apart) and the lookups of 1000 eye vertices at each R tried, with the "
         f"triangles' neighbours their walks cross. Median of {data['repeats']} probe(s) per scene, each of a "
         f"scene loaded afresh. The target: {data['target_s']:g} s for a scene of 2 M triangles.",
-        "",
-        *_provenance(data, source),
-    ]
+        data,
+        source,
+    )
     rows = [
         [r["scene"], f"{r['triangles']:,}", f"{r['coincident_pairs']:,}", f"{r['tracer_s']:.1f}",
          f"{r['advice_s']:.1f}", f"{r['probe_s']:.1f}", f"R >= {r['recommended']}",
@@ -223,9 +230,8 @@ def _percent(v: float) -> str:
 def shadow_maps_markdown(data: dict, source: str) -> str:
     """benchmarks/shadow_maps.py: imperfect shadow maps against exact ones and both against Embree rays."""
     exact_ms = data["exact_ms"]  # the default exact maps'
-    lines = [
-        f"# Shadow maps against rays: {data['scene']}",
-        "",
+    lines = _heading(
+        f"Shadow maps against rays: {data['scene']}",
         f"The visibility of {data['light_vertices']:,} light vertices (frame 0's light paths, {data['light_paths']} "
         f"of them, B = 2, perfect bundles K = 32, R = 128) from {data['receivers']:,} surface points the camera sees, "
         "through exact cube maps and imperfect paraboloid maps, against Embree rays (the truth both approximate). "
@@ -233,9 +239,9 @@ def shadow_maps_markdown(data: dict, source: str) -> str:
         "*hidden* (seen through exact maps, not through these) and *leaked* (the reverse); *light leaked* and "
         "*light hidden* are each map's own errors against the rays, weighted by the light each connection "
         f"carries. Times: a frame's maps, median of {data['repeats']} after a warm-up.",
-        "",
-        *_provenance(data, source),
-    ]
+        data,
+        source,
+    )
     rows = []
     for r in data["rows"]:
         imperfect = r["points"] is not None
@@ -252,9 +258,9 @@ def shadow_maps_markdown(data: dict, source: str) -> str:
     targets, cost, differing = data["targets"], data["default_cost_ratio"], data["default_differing"]
     met = [
         [f"imperfect maps at the defaults cost at most {targets['cost_ratio']:g} of exact ones", f"{cost:.3f}",
-         "yes" if cost <= targets["cost_ratio"] else "**no**"],
+         _met(cost <= targets["cost_ratio"])],
         [f"and change at most {_percent(targets['differing'])} of connections", _percent(differing),
-         "yes" if differing <= targets["differing"] else "**no**"],
+         _met(differing <= targets["differing"])],
     ]  # fmt: skip
     lines += _table(header, rows) + ["", "## Targets", ""] + _table(["target", "measured", "met"], met)
     return "\n".join(lines) + "\n"
@@ -262,17 +268,16 @@ def shadow_maps_markdown(data: dict, source: str) -> str:
 
 def shadow_map_culling_markdown(data: dict, source: str) -> str:
     """benchmarks/shadow_map_culling.py: shadow maps drawn from the clusters each view sees against every triangle."""
-    lines = [
-        "# Shadow-map culling",
-        "",
+    lines = _heading(
+        "Shadow-map culling",
         "Each shadow view draws only the clusters of triangles whose boxes reach into it; against every "
         f"triangle into every view, side by side: exact maps of {data['map_size']} texels, the fixed lights' maps "
         "and frame 0's light vertices' cube maps, medians of "
         f"{data['repeats']}. *in view* is the share of triangles in the clusters drawn over every view of the "
         "atlas; *same bits* says whether the two atlases agree bit for bit.",
-        "",
-        *_provenance(data, source),
-    ]
+        data,
+        source,
+    )
 
     def before_after(ms: list[float]) -> str:
         return f"{_ms(ms[0])} -> {_ms(ms[1])}" if any(ms) else "no fixed light"
@@ -280,7 +285,7 @@ def shadow_map_culling_markdown(data: dict, source: str) -> str:
     rows = [
         [r["scene"], f"{r['triangles']:,}", r["light_vertices"], before_after(r["fixed_ms"]),
          before_after(r["vertex_ms"]), f"{r['vertex_speedup']:.2f}x",
-         _percent(r["in_view"]), "yes" if r["identical"] else "**no**"]
+         _percent(r["in_view"]), _met(r["identical"])]
         for r in data["rows"]
     ]  # fmt: skip
     header = ["scene", "triangles", "light vertices", "fixed lights' maps ms (every triangle -> culled)",
@@ -290,17 +295,16 @@ def shadow_map_culling_markdown(data: dict, source: str) -> str:
 
 def gl_loads_markdown(data: dict, source: str) -> str:
     """benchmarks/gl_loads.py: what one load costs in a compute shader, by the memory it reads."""
-    lines = [
-        "# Loads by memory kind",
-        "",
+    lines = _heading(
+        "Loads by memory kind",
         f"What one load costs in a compute shader: {data['invocations']:,} invocations, each reading "
         f"{data['loads']} records at hashed indices of {data['records']:,} (a vec4 each), from a storage buffer, "
         "a uniform block and an RGBA32F texture (texelFetch), against the same loop without loads; median of "
         f"{data['repeats']} dispatches after a warm-up. Why the bundle frames are a uniform block and the splatter "
         "reads its points and triangles as texels: [platform notes](../platform.md).",
-        "",
-        *_provenance(data, source),
-    ]
+        data,
+        source,
+    )
     per_load, ms = data["ns_per_load"], data["median_ms"]
     uniform, texture = per_load.get("UNIFORM_VEC4"), per_load["TEXTURE_VEC4"]
     rows = [
