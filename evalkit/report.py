@@ -88,11 +88,12 @@ def loglog_at(points: list[tuple[float, float]], tx: float) -> float | None:
     return float(np.exp(np.interp(math.log(tx), lx, ly)))
 
 
-def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
+def matched_time_rows(rows: list[dict], x: str, y: str, shown: tuple[str, ...] = ()) -> list[dict]:
     """Each bundle setting (the mean of ``y`` and median of ``x`` over its seeds) beside Mitsuba's
     ``y`` at the same ``x`` in the same scene: Mitsuba's seed means interpolated linearly in log x
     and log y. A setting outside Mitsuba's range of x is not compared (no extrapolation). ``ratio``
-    below 1 means the bundles are the more accurate at matched time."""
+    below 1 means the bundles are the more accurate at matched time. ``shown``: more setting
+    columns to name each by (a unit's setting the study varies)."""
     points = setting_points(rows, x, y)
     result = []
     for first, tx, ty, seeds in points:
@@ -101,7 +102,7 @@ def matched_time_rows(rows: list[dict], x: str, y: str) -> list[dict]:
         )
         if first["method"] == "mitsuba" or len(mitsuba) < 2:
             continue
-        row = {k: first[k] for k in ("scene", "method", "frames", "spp", "directions", "resolution")}
+        row = {k: first.get(k) for k in ("scene", "method", "frames", "spp", "directions", "resolution", *shown)}
         row.update({"seeds": seeds, x: tx, y: ty})
         at = loglog_at(mitsuba, tx)
         if at is not None:

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from evalkit.records import read_record
-from evalkit.report import plot
+from evalkit.report import matched_time_rows, plot
 
 
 def _table(header: list[str], rows: list[list]) -> list[str]:
@@ -84,6 +84,8 @@ def study_markdown(data: dict, source: str) -> str:
         lines += [f"{failed} of {len(data['rows'])} runs failed and are not shown.", ""]
     for spec in data.get("plots", []):
         lines += _plot_markdown(rows, spec)
+        if spec.get("pareto"):
+            lines += _matched_time_markdown(rows, spec, data["varying"])
     fits = data.get("hole_model")
     if fits:
         keys = [k for k in HOLE_FIT_COLUMNS if k in fits[0]]
@@ -101,6 +103,42 @@ def study_markdown(data: dict, source: str) -> str:
     table = [[*(_value(r.get(c)) for c in columns), *(_mean_ratio(r, image) for image in ratios)] for r in rows]
     lines += ["## Runs", ""] + _table(header, table)
     return "\n".join(lines) + "\n"
+
+
+def _matched_time_markdown(rows: list[dict], spec: dict, varying: list[str]) -> list[str]:
+    """Per scene, the bundle setting with the least ``y`` against Mitsuba's at the same ``x`` (a
+    [[plot]] with ``pareto``: evalkit/report.py: matched_time_rows), and which is the more accurate."""
+    x, y = spec["x"], spec["y"] if isinstance(spec["y"], str) else spec["y"][0]
+    named = ("scene", "method", "frames", "spp", "directions", "seed")
+
+    def chosen(k: str) -> bool:  # a setting some scene's bundle runs take more than one value of
+        return any(
+            len({repr(r[k]) for r in rows if r["scene"] == s and r["method"] != "mitsuba" and r.get(k) is not None}) > 1
+            for s in {r["scene"] for r in rows}
+        )
+
+    shown = tuple(k for k in varying if k not in named and chosen(k))
+    compared = [r for r in matched_time_rows(rows, x, y, shown) if r.get("ratio") is not None]
+    if not compared:
+        return []
+    best = {}
+    for r in compared:
+        if r["scene"] not in best or r["ratio"] < best[r["scene"]]["ratio"]:
+            best[r["scene"]] = r
+    setting = ["method", "directions", *shown, "frames"]
+    header = ["scene", *setting, x, y, f"Mitsuba's {y} at that {x}", "ratio", "more accurate"]
+    table = [
+        [r["scene"], *(_value(r.get(k)) for k in setting), _value(r[x]), _value(r[y]), _value(r[f"mitsuba_{y}"]),
+         _value(r["ratio"]), r["more_accurate"]]
+        for r in best.values()
+    ]  # fmt: skip
+    won = [s for s, r in best.items() if r["ratio"] < 1]
+    lost = [s for s, r in best.items() if r["ratio"] >= 1]
+    verdict = (
+        f"The bundles' best setting is the more accurate at matched {x} on {', '.join(won) or 'no scene'}; "
+        f"Mitsuba is on {', '.join(lost) or 'no scene'} (this machine; ratio = the bundles' {y} over Mitsuba's)."
+    )
+    return [f"### At matched {x}", "", verdict, "", *_table(header, table), ""]
 
 
 def _mean_ratio(row: dict, image: str) -> str:

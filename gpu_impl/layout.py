@@ -96,6 +96,12 @@ MATERIAL_TWOSIDED = np.uint32(2)
 MATERIAL_NEAREST = np.uint32(4)  # nearest texel, else bilinear
 MATERIAL_WRAP_MIRROR = np.uint32(8)  # mirrored repeat; with neither wrap bit, repeat
 MATERIAL_WRAP_CLAMP = np.uint32(16)
+# Material.gloss.x: the BSDF (bsdf.glsl); .y: the microfacet distribution
+BSDF_DIFFUSE = np.uint32(0)
+BSDF_ROUGH_CONDUCTOR = np.uint32(1)
+BSDF_ROUGH_PLASTIC = np.uint32(2)
+MICROFACET_BECKMANN = np.uint32(0)
+MICROFACET_GGX = np.uint32(1)
 TRIANGLE_SMOOTH = np.uint32(0x80000000)  # Triangle.material_flags: interpolate vertex normals
 # Triangle.material_flags: the triangle bounds a solid (scene_buffers.py: solid_triangles)
 TRIANGLE_SOLID = np.uint32(0x40000000)
@@ -184,6 +190,11 @@ SHADER_CONSTANTS = {
     "MATERIAL_NEAREST": MATERIAL_NEAREST,
     "MATERIAL_WRAP_MIRROR": MATERIAL_WRAP_MIRROR,
     "MATERIAL_WRAP_CLAMP": MATERIAL_WRAP_CLAMP,
+    "BSDF_DIFFUSE": BSDF_DIFFUSE,
+    "BSDF_ROUGH_CONDUCTOR": BSDF_ROUGH_CONDUCTOR,
+    "BSDF_ROUGH_PLASTIC": BSDF_ROUGH_PLASTIC,
+    "MICROFACET_BECKMANN": MICROFACET_BECKMANN,
+    "MICROFACET_GGX": MICROFACET_GGX,
     "TRIANGLE_SMOOTH": TRIANGLE_SMOOTH,
     "TRIANGLE_MATERIAL": TRIANGLE_MATERIAL,
     "TRIANGLE_CUT": TRIANGLE_CUT,
@@ -222,7 +233,17 @@ SHADER_CONSTANTS = {
 # Records, as the shaders declare them (std430).
 # scene.glsl: Material
 MATERIAL = np.dtype(
-    [("albedo", "<f4", 4), ("emission", "<f4", 4), ("texture", "<u4", 4), ("to_uv_u", "<f4", 4), ("to_uv_v", "<f4", 4)]
+    [
+        ("albedo", "<f4", 4),
+        ("emission", "<f4", 4),
+        ("texture", "<u4", 4),
+        ("to_uv_u", "<f4", 4),
+        ("to_uv_v", "<f4", 4),
+        ("gloss", "<u4", 4),
+        ("specular", "<f4", 4),
+        ("eta", "<f4", 4),
+        ("k", "<f4", 4),
+    ]
 )
 TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.glsl: Triangle
 VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
@@ -239,6 +260,8 @@ LIGHT = np.dtype(
         ("intensity", "<f4", 4),
         ("shape", "<f4", 4),
         ("paths", "<f4", 4),
+        ("surface", "<f4", 4),
+        ("incoming", "<f4", 4),
     ]
 )  # lights.glsl: Light
 # Where a light path starts and what its first vertex leaves (light_paths.glsl).
@@ -254,7 +277,13 @@ LIGHT_PATH_START = np.dtype(
     ]
 )  # light_paths.glsl: LightPathStart
 LIGHT_PATH_VERTEX = np.dtype(
-    [("position", "<f4", 4), ("normal", "<f4", 4), ("intensity", "<f4", 4)]
+    [
+        ("position", "<f4", 4),
+        ("normal", "<f4", 4),
+        ("intensity", "<f4", 4),
+        ("surface", "<f4", 4),
+        ("incoming", "<f4", 4),
+    ]
 )  # light_paths.glsl: LightPathVertex
 SHADOW_VIEW = np.dtype(
     [("to_clip", "<f4", (4, 4)), ("tile", "<f4", 4), ("origin", "<f4", 4), ("axis", "<f4", 4)]
@@ -267,6 +296,7 @@ PATH = np.dtype(
         ("bundle", "<u4"),
         ("albedo", "<f4", 3),
         ("triangle", "<u4"),
+        ("incoming", "<f4", 4),
     ]
 )  # paths.glsl: Path
 PATH_SUMS = np.dtype([("direct", "<f4", 4), ("indirect", "<f4", 4)])  # paths.glsl: PathSums

@@ -82,6 +82,8 @@ class LightVertices(NamedTuple):
     densities: np.ndarray
     depths: np.ndarray | None = None
     mis: np.ndarray | None = None
+    surfaces: np.ndarray | None = None  # light path vertices with glossy materials: albedo and material (M, 4)
+    incoming: np.ndarray | None = None  # and the unit direction back along the path (M, 3)
 
 
 class EmitterSamples:
@@ -675,6 +677,9 @@ class ShadowLights:
             [vertices.densities, np.zeros(count), first_views, np.full(count, per_vertex)]
         )
         records["paths"][:, :2] = np.column_stack([mis, depths])
+        if vertices.surfaces is not None:
+            records["surface"] = vertices.surfaces
+            records["incoming"][:, :3] = vertices.incoming
         self.records[self.fixed_lights : self.fixed_lights + count] = records
         self.visibility.render(self, positions, vertices.normals, seed, frame)
 
@@ -719,6 +724,8 @@ class ShadowLights:
             (*direction, math.cos(cutoff)),
             (*light.intensity, math.cos(beam)),
             (cutoff, inv_transition, first_view, views),
+            (0.0, 0.0, 0.0, 0.0),
+            (0.0, 0.0, 0.0, 0.0),  # surface and incoming: a light path vertex's (`set_light_vertices`)
             (0.0, 0.0, 0.0, 0.0),
         )
 

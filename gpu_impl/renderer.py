@@ -32,7 +32,7 @@ import numpy as np
 from evalkit.core.atomic import write_text
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.display import fields_html, image_html
-from evalkit.core.errors import LimitError
+from evalkit.core.errors import InputError, LimitError
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene
 from evalkit.core.settings import IMAGES, RenderSettings
@@ -134,6 +134,16 @@ class Renderer:
         )
         self.warnings = list(scene.warnings) + self.strategy.warnings
         features = self.gpu_scene.features
+        if features.glossy:
+            glossy = ", ".join(m.name for m in scene.materials if m.gloss is not None)
+            if self.tracer.lighting == "precomputed":
+                raise InputError(
+                    scene.source,
+                    f"glossy materials ({glossy}) reflect light by direction, which precomputed irradiance "
+                    "cannot hold: use --lighting lazy or auto",
+                )
+        # Light precomputed per node or splat point is irradiance: what a diffuse surface reflects.
+        self.lazy_lighting_only = self.strategy.lazy_lighting_only or features.glossy
         # Shader variants from the scene's features: no shadow-map lookups without such lights, no
         # environment lookups without one, a node's back-side radiance only with two-sided materials.
         self.defines = {
@@ -141,6 +151,7 @@ class Renderer:
             **self.strategy.defines(),
             "NODE_SIDES": 2 if features.twosided else 1,
             "TEXTURES": int(features.textures),
+            "GLOSSY": int(features.glossy),
             **self.tracer.defines,
         }
         # The last bounce pass only collects emission and environment light; without either it adds nothing.
@@ -151,13 +162,21 @@ class Renderer:
         self.gbuffer_program = gl.program("gbuffer")
         self.gbuffer_vao = self.gpu_scene.vertex_array(self.gbuffer_program)
         d = self.defines
-        primary = ("SHADOW_LIGHTS", "ENVIRONMENT", "TEXTURES", "LIGHT_VISIBILITY", "BIDIRECTIONAL", "ATLAS_TEXTURES")
+        primary = (
+            "SHADOW_LIGHTS",
+            "ENVIRONMENT",
+            "TEXTURES",
+            "LIGHT_VISIBILITY",
+            "BIDIRECTIONAL",
+            "ATLAS_TEXTURES",
+            "GLOSSY",
+        )
         self.programs = {
             "primary": gl.program("primary", **{k: d[k] for k in primary}),
             **self.strategy.programs(d),
             "resolve_images": gl.program("resolve_images"),
         }
-        if d["SHADOW_LIGHTS"] and self.tracer.lighting != "lazy" and not self.strategy.lazy_lighting_only:
+        if d["SHADOW_LIGHTS"] and self.tracer.lighting != "lazy" and not self.lazy_lighting_only:
             irradiance = ("SHADOW_LIGHTS", "NODE_SIDES", "TEXTURES", "LIGHT_VISIBILITY", "ATLAS_TEXTURES")
             self.programs["irradiance"] = gl.program("irradiance", **{k: d[k] for k in irradiance})
         self.buffers = {
@@ -333,7 +352,7 @@ class Renderer:
         was +2.7 % at R = 64 against +0.4 %). Precomputed irradiance counts against the node
         budget; in "auto" a frame it does not fit in is lit lazily."""
         mode = self.tracer.lighting
-        if mode == "lazy" or self.strategy.lazy_lighting_only:
+        if mode == "lazy" or self.lazy_lighting_only:
             return True
         items = self.tracer.irradiance_items
         needed = 12 * self.defines["NODE_SIDES"] * items

@@ -10,12 +10,16 @@ from evalkit.core.scene.edges import edge_pairs, smooth_surfaces, solid_triangle
 from gpu_impl.context import GLContext
 from gpu_impl.layout import (
     BINDINGS,
+    BSDF_ROUGH_CONDUCTOR,
+    BSDF_ROUGH_PLASTIC,
     MATERIAL,
     MATERIAL_NEAREST,
     MATERIAL_TEXTURED,
     MATERIAL_TWOSIDED,
     MATERIAL_WRAP_CLAMP,
     MATERIAL_WRAP_MIRROR,
+    MICROFACET_BECKMANN,
+    MICROFACET_GGX,
     NO_TRIANGLE,
     TEXELS_PER_TRIANGLE,
     TRIANGLE,
@@ -81,6 +85,17 @@ class GpuScene:
                 flags |= {"repeat": 0, "mirror": MATERIAL_WRAP_MIRROR, "clamp": MATERIAL_WRAP_CLAMP}[m.wrap_mode]
                 textures.append(m.texture)
             materials["texture"][i, 3] = flags
+            if m.gloss is not None:
+                g = m.gloss
+                kind = BSDF_ROUGH_CONDUCTOR if g.kind == "roughconductor" else BSDF_ROUGH_PLASTIC
+                distribution = MICROFACET_GGX if g.distribution == "ggx" else MICROFACET_BECKMANN
+                first = sum(t.shape[0] * t.shape[1] for t in textures)
+                materials["gloss"][i] = (kind, distribution, first, int(g.nonlinear))
+                materials["specular"][i] = (*g.specular_reflectance, g.alpha)
+                materials["eta"][i] = (*g.eta, g.internal_reflectance)
+                materials["k"][i, :3] = g.k
+                if g.transmittance:  # the coat's table, one value a texel (bsdf.glsl reads its red)
+                    textures.append(np.repeat(np.asarray(g.transmittance, np.float32)[None, :, None], 3, axis=2))
         # The environment map's first texel, or None (environment.glsl reads it from the same buffer).
         envmap = next((light.envmap for light in scene.lights if light.kind == "envmap"), None)
         self.envmap_first = sum(t.shape[0] * t.shape[1] for t in textures) if envmap is not None else None

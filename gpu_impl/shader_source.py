@@ -96,6 +96,7 @@ VARIANTS = {
             "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
             "BIDIRECTIONAL": (0, 1),
             "ATLAS_TEXTURES": ATLAS_TEXTURES,
+            "GLOSSY": (0, 1),
         },
         lambda d: (d["SHADOW_LIGHTS"] or not d["BIDIRECTIONAL"]) and atlas_possible(d),
     ),
@@ -112,6 +113,7 @@ VARIANTS = {
             "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
             "BIDIRECTIONAL": (0, 1),
             "ATLAS_TEXTURES": ATLAS_TEXTURES,
+            "GLOSSY": (0, 1),
         },
         # Precomputed light (shadow-mapped lights, not lazy) is splat points' only; environment
         # samples are drawn from a map, for eye paths only.
@@ -119,6 +121,8 @@ VARIANTS = {
             (not d["SHADOW_LIGHTS"] or d["LAZY_LIGHTING"] or d["NODE_REFERENCE"] == NODE_SPLAT_POINT)
             and (not d["ENVIRONMENT_SAMPLES"] or (d["ENVIRONMENT"] == ENVMAP and not d["BIDIRECTIONAL"]))
             and atlas_possible(d)
+            # Glossy materials are lit where each path lands: irradiance holds no direction.
+            and (not d["GLOSSY"] or not d["SHADOW_LIGHTS"] or d["LAZY_LIGHTING"])
         ),
     ),
     "light_paths": {
@@ -129,6 +133,7 @@ VARIANTS = {
         "LIGHT_VISIBILITY": LIGHT_VISIBILITIES,
         "ENVIRONMENT": ENVIRONMENTS,
         "ATLAS_TEXTURES": ATLAS_TEXTURES,
+        "GLOSSY": (0, 1),
     },
     "resolve_images": [{}],
     "record_strides": {"RECORD_GROUP": (0, 1, 2, 3, 4, 5)},

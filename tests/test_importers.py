@@ -9,11 +9,12 @@ import trimesh
 from conftest import write_texture
 from PIL import Image
 
+from evalkit.core.bsdf import fresnel_conductor
 from evalkit.core.errors import InputError
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.builtin import FURNACE_ALBEDO, FURNACE_EMISSION, furnace_radiance
 from evalkit.core.scene.colour import srgb_to_linear
-from evalkit.core.scene.mitsuba_io import SPHERE_SEGMENTS, load_mitsuba_dict, to_mitsuba_dict
+from evalkit.core.scene.mitsuba_io import SMOOTH_ALPHA, SPHERE_SEGMENTS, load_mitsuba_dict, to_mitsuba_dict
 
 
 def xml_scene(tmp_path, body: str, name: str = "scene.xml") -> str:
@@ -39,7 +40,7 @@ def mixed_xml(tmp_path):
     <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="32"/></film></sensor>
   <bsdf type="twosided" id="floor"><bsdf type="diffuse">
     <texture type="bitmap" name="reflectance"><string name="filename" value="tex.png"/></texture></bsdf></bsdf>
-  <bsdf type="roughplastic" id="plastic"><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/></bsdf>
+  <bsdf type="plastic" id="plastic"><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/></bsdf>
   <medium type="homogeneous" id="fog"/>
   <shape type="obj"><string name="filename" value="quad.obj"/><ref id="floor"/></shape>
   <shape type="ply"><string name="filename" value="ball.ply"/><ref id="plastic"/></shape>
@@ -68,10 +69,11 @@ def test_mitsuba_xml_with_obj_ply_sphere_textures_and_lights(mixed_xml, tmp_path
     assert floor.twosided and not floor.approximated
     plastic = next(m for m in s.materials if m.name == "plastic")
     assert plastic.approximated and plastic.albedo == pytest.approx((0.2, 0.4, 0.6), abs=1e-5)
+    assert plastic.gloss.kind == "roughplastic" and plastic.gloss.alpha == SMOOTH_ALPHA
     # warned once per BSDF even though two shapes use it
-    assert sum("BSDF 'plastic' (RoughPlastic) is approximated as diffuse" in w for w in s.warnings) == 1
+    assert sum("BSDF 'plastic' (SmoothPlastic) is smooth" in w for w in s.warnings) == 1
     assert any("participating media" in w for w in s.warnings)
-    assert s.features().approximated_bsdfs == ("plastic (RoughPlastic)",)
+    assert s.features().approximated_bsdfs == ("plastic (SmoothPlastic)",)
     assert s.degenerate_removed == 0  # the tessellation itself makes no degenerate triangles
     # the sphere is tessellated; its area is that of the analytic sphere to 0.1 %
     n_phi, n_theta = SPHERE_SEGMENTS
@@ -181,7 +183,10 @@ def test_gltf_glb_ply(tmp_path, ext):
     m.visual = trimesh.visual.TextureVisuals(
         uv=np.random.default_rng(0).random((len(m.vertices), 2)),
         material=trimesh.visual.material.PBRMaterial(
-            baseColorFactor=[0.2, 0.4, 0.6, 1.0], emissiveFactor=[1.0, 0.5, 0.0]
+            baseColorFactor=[0.2, 0.4, 0.6, 1.0],
+            emissiveFactor=[1.0, 0.5, 0.0],
+            metallicFactor=0.0,
+            roughnessFactor=0.5,
         ),
     )
     path = tmp_path / f"box.{ext}"
@@ -192,8 +197,28 @@ def test_gltf_glb_ply(tmp_path, ext):
     if ext != "ply":  # PLY carries no materials
         (mat,) = s.materials
         assert mat.albedo == pytest.approx((0.2, 0.4, 0.6), abs=3e-3)
+        assert mat.gloss.kind == "roughplastic" and mat.gloss.alpha == pytest.approx(0.25)  # roughness^2
+        assert mat.approximated and any("glTF metallic-roughness" in w for w in s.warnings)
         assert mat.emission == pytest.approx((1.0, 0.5, 0.0))
         assert not any("default sun" in w for w in s.warnings)
+
+
+@pytest.mark.parametrize(
+    "factors, alpha", [({"metallicFactor": 1.0, "roughnessFactor": 0.3}, 0.09), ({}, 1.0)], ids=["metal", "defaults"]
+)
+def test_a_gltf_metal_is_a_rough_conductor_reflecting_its_base_colour_head_on(tmp_path, factors, alpha):
+    # glTF's defaults are metallic 1 and roughness 1: a material that names neither is a rough metal.
+    m = trimesh.creation.box()
+    m.visual = trimesh.visual.TextureVisuals(
+        material=trimesh.visual.material.PBRMaterial(baseColorFactor=[0.9, 0.6, 0.3, 1.0], **factors)
+    )
+    m.export(tmp_path / "metal.glb")
+    (mat,) = load_scene(tmp_path / "metal.glb").materials
+    gloss = mat.gloss
+    assert gloss.kind == "roughconductor" and gloss.distribution == "ggx" and gloss.alpha == pytest.approx(alpha)
+    assert mat.albedo == (0.0, 0.0, 0.0)
+    head_on = fresnel_conductor(np.ones(1), np.asarray(gloss.eta), np.asarray(gloss.k))[0]
+    assert head_on == pytest.approx(np.array([0.9, 0.6, 0.3]), abs=5e-3)
 
 
 PLY_HEADER = (
@@ -338,15 +363,15 @@ def test_texture_transforms_wrap_modes_filters_and_checkerboards_import_and_expo
     assert (np.abs(exported - truth).max(axis=1) > 1e-4).mean() < 0.002
 
 
-def test_a_conductor_never_becomes_a_diffuse_albedo_above_one(tmp_path):
+def test_a_blend_with_a_conductor_never_becomes_a_diffuse_albedo_above_one(tmp_path):
     body = (
-        '<shape type="rectangle"><bsdf type="roughconductor" id="gold">'
-        '<string name="material" value="Au"/></bsdf></shape>'
+        '<shape type="rectangle"><bsdf type="blendbsdf" id="gold"><float name="weight" value="0.5"/>'
+        '<bsdf type="roughconductor"><string name="material" value="Au"/></bsdf><bsdf type="diffuse"/></bsdf></shape>'
     )
     s = load_scene(xml_scene(tmp_path, body))
     (mat,) = s.materials
     assert mat.approximated and max(mat.albedo) <= 1.0
-    assert any("BSDF 'gold' (RoughConductor)" in w and "clamped to 1" in w for w in s.warnings), s.warnings
+    assert any("BSDF 'gold' (BlendBSDF)" in w and "clamped to 1" in w for w in s.warnings), s.warnings
 
 
 def test_instances_cylinders_and_flipped_shapes_import_as_mitsuba_sees_them(mi, tmp_path):

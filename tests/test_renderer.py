@@ -241,7 +241,7 @@ def test_emitter_samples_follow_emitted_power_and_sum_to_it():
     ]
     scene = assemble("lamps", "lamps", meshes, materials, [], None)
     samples = EmitterSamples(scene, 60)
-    positions, normals, intensities, densities, _, _ = samples.frame_lights(seed=0, frame=3)
+    positions, normals, intensities, densities = samples.frame_lights(seed=0, frame=3)[:4]
     # Power 8 x 1 against 1 x 4: two thirds of the samples on the bright quad, stratified exactly.
     bright = positions[:, 0] < 2.0 - scene.origin[0]  # the bright quad spans x 0..1, the dim one 3..5
     assert np.count_nonzero(bright) == 40

@@ -77,7 +77,9 @@ def code_hash(*sources: Path) -> str:
 def scene_key(spec: str, builtin: bool) -> str | None:
     """The cache key of the scene ``spec`` names (a built-in name or a file), or None when what it
     reads cannot be told."""
-    h = hashlib.sha256(FORMAT + code_hash(*sorted((Path(__file__).parent / "scene").glob("*.py"))).encode())
+    # The importers and what they compute with: the scene package and the BSDFs' tables.
+    readers = [*sorted((Path(__file__).parent / "scene").glob("*.py")), Path(__file__).parent / "bsdf.py"]
+    h = hashlib.sha256(FORMAT + code_hash(*readers).encode())
     h.update(os.environ.get("EVALKIT_MITSUBA_VARIANT", "").encode())
     if builtin:
         h.update(b"builtin:" + spec.encode())

@@ -77,7 +77,8 @@ class ImperfectSettings:
     merge: bool = setting(True, "merge the nodes of one surface crossing that several splats make")
     lighting: str = setting(
         "auto",
-        "splat points' shadow-mapped light: precomputed per point, lazy at each path's hit, or auto per frame",
+        "splat points' shadow-mapped light: precomputed per point, lazy at each path's hit, or auto per frame "
+        "(lazy with glossy materials, whose reflected light depends on direction)",
         choices=LIGHTING,
     )
 

@@ -6,6 +6,11 @@
 #ifndef BIDIRECTIONAL
 #define BIDIRECTIONAL 0
 #endif
+// Scenes with a glossy material compile the passes that reflect light with it (bsdf.glsl) their
+// own way; every other program is compiled without.
+#ifndef GLOSSY
+#define GLOSSY 0
+#endif
 
 #define PI 3.141592653589793
 

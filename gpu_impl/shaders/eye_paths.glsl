@@ -1,7 +1,8 @@
-// One bounce of every eye path (paths.glsl says how bounces are counted). A path at a diffuse
-// vertex scatters into a uniformly chosen bundle of the frame: its direction d or -d, whichever
-// lies in the hemisphere of the shading normal, is a uniform hemisphere sample (pdf 1 / (2 pi)),
-// so the throughput gains albedo / pi * cos / pdf = 2 albedo cos. The next vertex is the nearest
+// One bounce of every eye path (paths.glsl says how bounces are counted). A path at a vertex
+// scatters into a uniformly chosen bundle of the frame: its direction d or -d, whichever lies in
+// the hemisphere of the shading normal, is a uniform hemisphere sample (pdf 1 / (2 pi)), so the
+// throughput gains f cos / pdf: 2 albedo cos at a diffuse vertex, 2 pi f cos at a glossy one (a
+// glossy vertex may choose by its BSDF instead, below). The next vertex is the nearest
 // node beyond the vertex on the bundle line through it, found by binary search of the sorted
 // list: no ray is traced and no visibility is tested. What the node is (normal, albedo, emission)
 // is worked out there (bundle_hits.glsl). The shadow-mapped light it reflects is its precomputed
@@ -16,6 +17,7 @@
 #endif
 #include "common.glsl"
 #include "scene.glsl"
+#include "bsdf.glsl"
 #include "bundle.glsl"
 #include "bundle_hits.glsl"
 #include "bundle_step.glsl"
@@ -38,6 +40,9 @@ uniform int bounces;            // B (lights.glsl declares it for bidirectional 
 uniform int direction_count;    // K
 uniform uint seed;
 uniform uint frame;
+#if GLOSSY
+uniform int bsdf_candidates;    // M: the bundles a glossy vertex weighs by its BSDF (0: a uniform choice)
+#endif
 #if BIDIRECTIONAL
 uniform float light_path_emitter_density;  // V q_emitters / W: light paths' density of an emitter point, over w(y)
 uniform float light_path_environment_density;  // V q_environment / (4 pi^2 r^2): of a ray from the environment
@@ -74,15 +79,55 @@ void main() {
     bool any_bundle = path.bundle == PATH_FROM_CAMERA || direction_count == 1;
     int choices = any_bundle ? direction_count : direction_count - 1;
     int k = min(int(unit_float(r) * float(choices)), choices - 1);
+    uint vertex_triangle = path.triangle & ~PATH_BACK;
+#if GLOSSY
+    uint vertex_material = triangle_material(vertex_triangle);
+    vec3 wi = path.incoming.xyz;
+    vec3 weight = vec3(-1.0);  // f cos / the choice's density, once known
+    if (bsdf_candidates > 0 && materials[vertex_material].gloss.x != BSDF_DIFFUSE) {
+        // Resampled importance sampling (Talbot et al. 2005): M of the bundles, from a random one
+        // on, are candidates, uniform on the hemisphere and independent of each other (the frame's
+        // directions are), each weighed by its f cos; one is kept with probability proportional
+        // to that, by a weighted reservoir. With target p^ = the mean of f cos's channels, the
+        // estimate f cos / p^ x (1/M) sum_j p^_j / (1 / (2 pi)) is unbiased (docs/method.md).
+        int candidates = min(bsdf_candidates, choices);
+        float total = 0.0, kept = 0.0;
+        vec3 kept_f = vec3(0.0);
+        int start = k;
+        for (int j = 0; j < candidates; j++) {
+            int b = start + j < choices ? start + j : start + j - choices;
+            if (!any_bundle && b >= int(path.bundle)) b++;
+            vec3 d = frames[b].d.xyz;
+            vec3 fj = bsdf_cos(vertex_material, path.albedo, n, wi, dot(d, n) >= 0.0 ? d : -d);
+            float target = (fj.r + fj.g + fj.b) / 3.0;
+            total += target;
+            uint u = pcg4d(uvec4(id, uint(bounce), seed, frame + uint(j + 1) * 0x9E3779B9u)).y;
+            if (target > 0.0 && unit_float(u) * total < target) {
+                k = b;
+                kept = target;
+                kept_f = fj;
+            }
+        }
+        weight = kept > 0.0 ? kept_f * (2.0 * PI * total / (kept * float(candidates))) : vec3(0.0);
+    } else if (!any_bundle && k >= int(path.bundle)) {
+        k++;
+    }
+#else
     if (!any_bundle && k >= int(path.bundle)) k++;
+#endif
     BundleFrame f = frames[k];
     float c = dot(f.d.xyz, n);
     bool forward = c >= 0.0;                  // follow +d, else -d
     vec3 omega = forward ? f.d.xyz : -f.d.xyz;
     float cos_theta = abs(c);
+#if GLOSSY
+    // A uniform choice: f cos / pdf with pdf = 1 / (2 pi), the BSDF from the way the path came to omega.
+    if (weight.x < 0.0) weight = bsdf_cos(vertex_material, path.albedo, n, wi, omega) * (2.0 * PI);
+    vec3 throughput = path.throughput * weight;
+#else
     vec3 throughput = path.throughput * (2.0 * cos_theta) * path.albedo;
+#endif
 
-    uint vertex_triangle = path.triangle & ~PATH_BACK;
     vec3 ng = triangle_normal(vertex_triangle) * ((path.triangle & PATH_BACK) != 0u ? -1.0 : 1.0);
     BundleStep step = bundle_step(k, forward, path.position, ng, vertex_triangle);
     bool leaves = step.leaves;
@@ -161,7 +206,12 @@ void main() {
             nn = -nn;
         }
         if (alive) {
-#if SHADOW_LIGHTS
+#if SHADOW_LIGHTS && GLOSSY && BIDIRECTIONAL
+            reflected = throughput * (light_reflected(node.position, nn, next_mis, m, node.albedo, -omega)
+                                      + connections(node.position, nn, bounce, next_mis, m, node.albedo, -omega));
+#elif SHADOW_LIGHTS && GLOSSY
+            reflected = throughput * light_reflected(node.position, nn, 0.0, m, node.albedo, -omega);
+#elif SHADOW_LIGHTS
 #if LAZY_LIGHTING && BIDIRECTIONAL
             vec3 e = light_irradiance(node.position, nn, next_mis) + connections(node.position, nn, bounce, next_mis);
 #elif LAZY_LIGHTING
@@ -175,6 +225,7 @@ void main() {
             path.normal = encode_normal(nn);
             path.triangle = dot(node_geometric, omega) < 0.0 ? node.triangle : node.triangle | PATH_BACK;
             path.albedo = node.albedo;
+            path.incoming = vec4(-omega, 0.0);
         }
     }
     if (bounce == 1) sums[id].direct.rgb += emitted; else sums[id].indirect.rgb += emitted;

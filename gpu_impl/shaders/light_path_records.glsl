@@ -13,7 +13,9 @@ struct LightPathStart {
 struct LightPathVertex {
     vec4 position;   // xyz relative to the bundle centre; w: depth (0: no vertex)
     vec4 normal;     // xyz shading normal, on the side the path arrived at; w: L_i
-    vec4 intensity;  // rgb alpha albedo / pi
+    vec4 intensity;  // rgb alpha albedo / pi; with glossy materials (GLOSSY), alpha
+    vec4 surface;    // with glossy materials: rgb the diffuse reflectance, w the material's index
+    vec4 incoming;   // with glossy materials: xyz the unit direction back along the path
 };
 
 layout(std430, binding = BINDING_LIGHT_PATH_STARTS) readonly buffer LightPathStarts { LightPathStart starts[]; };

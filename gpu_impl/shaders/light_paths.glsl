@@ -21,7 +21,9 @@
 //
 // A vertex y_i (depth d = n - i, on a path that started at z_n) is stored as a point light whose
 // intensity falls as the cosine to its normal: alpha_i albedo / pi, with alpha_i the light path's
-// throughput (flux over density) arriving there. Its MIS share (lights.glsl) is
+// throughput (flux over density) arriving there. With glossy materials (GLOSSY) it sends light by
+// its BSDF instead: it is stored with alpha_i, its material and the direction back along the path,
+// and each connection evaluates it (lights.glsl); a glossy vertex's throughput gains f cos / pdf. Its MIS share (lights.glsl) is
 //   L_{n-1} = (e_n^2 + a_n^2) / (b_n b_{n-1})^2   (an emitter start; a delta light: a_n = 0, e_n = 1)
 //   L_i = (1 + a_{i+1}^2 L_{i+1}) / b_i^2
 // with b the light side's densities per area (b_n: V q p_A of the start), a the eye side's of the
@@ -36,6 +38,7 @@
 #define SHADOW_LIGHTS 1
 #include "common.glsl"
 #include "scene.glsl"
+#include "bsdf.glsl"
 #include "bundle.glsl"
 #include "bundle_hits.glsl"
 #include "bundle_step.glsl"
@@ -156,6 +159,7 @@ void main() {
     float b_start = start.normal.w;
     Surface y;
     vec3 alpha;      // the throughput arriving at y
+    vec3 incoming;   // the unit direction from y back along the path
     float mis;       // L of y
     int arrived = -1;  // the bundle y was reached along (none from a light's shadow map)
     // Path i leaves along bundle (i + o) mod K, o one random shift per frame: each path's bundle is
@@ -176,6 +180,7 @@ void main() {
         // own_surface), which a ray leaving a curved emitter cannot meet.
         y = landed(bundle_step(k, forward, x, start.geometric.xyz, start.triangle), omega);
         if (!y.found) return;
+        incoming = -omega;
         vec3 edge = y.position - x;
         float t2 = dot(edge, edge), cos_start = abs(dot(n, omega)), cos_y = abs(dot(y.normal, omega));
         alpha = start.radiance.rgb * cos_start / (b_start * BUNDLE_DIRECTION_PDF);
@@ -193,6 +198,7 @@ void main() {
         vec3 omega = forward ? frames[k].d.xyz : -frames[k].d.xyz;
         y = landed(bundle_step(k, forward, disk_origin(omega, start.square_point.xy), omega, NO_TRIANGLE), omega);
         if (!y.found) return;
+        incoming = -omega;
         alpha = environment(-omega) / b_start;
         // L_{n-1} = a_n^2 / (b_n b_{n-1})^2: the eye path reaches the environment along -omega
         // from y with a = 1 / (2 pi); the environment has no next-event estimation (e_n = 0).
@@ -221,14 +227,21 @@ void main() {
         }
         y = reflective_shadow_map(light, origin, omega);
         if (!y.found) return;
+        incoming = -omega;
         vec3 edge = y.position - origin;
         float t2 = light.position.w == LIGHT_DIRECTIONAL ? 1.0 : dot(edge, edge);
         float b = light.paths.x * abs(dot(y.normal, omega));  // b_n b_{n-1} t^2
         mis = min(t2 * t2 / max(b * b, 1e-30), MAX_MIS_SHARE);
     }
     for (int d = 1; d <= bounces; d++) {
+#if GLOSSY
         light_path_records[id * uint(bounces) + uint(d - 1)] = LightPathVertex(
-            vec4(y.position, float(d)), vec4(y.normal, mis), vec4(alpha * y.albedo * INV_PI, 0.0));
+            vec4(y.position, float(d)), vec4(y.normal, mis), vec4(alpha, 0.0),
+            vec4(y.albedo, float(triangle_material(y.triangle))), vec4(incoming, 0.0));
+#else
+        light_path_records[id * uint(bounces) + uint(d - 1)] = LightPathVertex(
+            vec4(y.position, float(d)), vec4(y.normal, mis), vec4(alpha * y.albedo * INV_PI, 0.0), vec4(0.0), vec4(0.0));
+#endif
         if (d == bounces) break;
         // On along any bundle but the one it arrived along (eye_paths.glsl says why).
         uint u = pcg4d(uvec4(id, uint(d), seed, frame)).x;
@@ -241,7 +254,11 @@ void main() {
         bool forward = c >= 0.0;
         vec3 omega = forward ? f.d.xyz : -f.d.xyz;
         float cos_y = abs(c);
+#if GLOSSY
+        alpha *= bsdf_cos(triangle_material(y.triangle), y.albedo, y.normal, incoming, omega) * (2.0 * PI);
+#else
         alpha *= 2.0 * cos_y * y.albedo;
+#endif
         if (all(equal(alpha, vec3(0.0)))) return;
         Surface next = landed(bundle_step(k, forward, y.position, y.geometric, y.triangle), omega);
         if (!next.found) return;
@@ -251,6 +268,7 @@ void main() {
         float a = BUNDLE_DIRECTION_PDF * cos_y, b = BUNDLE_DIRECTION_PDF * cos_next;
         mis = min((t2 * t2 + a * a * mis) / max(b * b, 1e-30), MAX_MIS_SHARE);
         y = next;
+        incoming = -omega;
         arrived = k;
     }
 }

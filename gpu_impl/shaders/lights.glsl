@@ -26,6 +26,9 @@ struct Light {
                      // starting a light path that reaches a surface, per unit cos / distance^2 (a
                      // directional light's per unit cos), V q p(omega); a light path vertex's
                      // x: L_i, y: its depth
+    vec4 surface;    // a light path vertex in a scene with glossy materials (GLOSSY): rgb its diffuse
+                     // reflectance, w its material's index
+    vec4 incoming;   // such a vertex's xyz: the unit direction back along its light path
 };
 // Light.position.w is LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL, LIGHT_EMITTER_SAMPLE,
 // LIGHT_LIGHT_PATH_VERTEX or LIGHT_ENVIRONMENT_SAMPLE (a directional light for one frame, drawn
@@ -233,7 +236,13 @@ uniform int bounces;                     // B: a connection from eye vertex j to
 // Irradiance at p on the side its normal n faces, from every shadow-mapped light: the point, spot
 // and directional lights and the emitter samples (light vertices of depth 0). eye_mis: the eye
 // vertex's share of the MIS sum (bidirectional paths; 0 at the G-buffer sample), else unused.
+// With glossy materials, the light reflected toward wi by material m of diffuse reflectance albedo:
+// each light's f(wi, to_light) cos (bsdf.glsl) in place of its cosine.
+#if GLOSSY
+vec3 light_reflected(vec3 p, vec3 n, float eye_mis, uint m, vec3 albedo, vec3 wi) {
+#else
 vec3 light_irradiance(vec3 p, vec3 n, float eye_mis) {
+#endif
     vec3 e = vec3(0.0);
     for (int l = 0; l < light_count; l++) {
         Light light = lights[l];
@@ -279,15 +288,26 @@ vec3 light_irradiance(vec3 p, vec3 n, float eye_mis) {
             arriving *= d2 * d2 / max(d2 * d2 + by_light_paths * by_light_paths * eye_mis, 1e-30);
         }
 #endif
+#if GLOSSY
+        e += arriving * bsdf_cos(m, albedo, n, wi, to_light) * visible;
+#else
         e += arriving * (cos_theta * visible);
+#endif
     }
     return e;
 }
 
 #if BIDIRECTIONAL
 // Irradiance at eye vertex `eye_vertex` (p, normal n) from the frame's light path vertices: the
-// connections, each weighted against every other strategy for its path.
+// connections, each weighted against every other strategy for its path. With glossy materials,
+// the light they reflect toward wi by material m of diffuse reflectance albedo: each end's
+// f cos (bsdf.glsl) in place of its cosine, the light vertex's intensity being its path's
+// throughput (light_paths.glsl).
+#if GLOSSY
+vec3 connections(vec3 p, vec3 n, int eye_vertex, float eye_mis, uint m, vec3 albedo, vec3 wi) {
+#else
 vec3 connections(vec3 p, vec3 n, int eye_vertex, float eye_mis) {
+#endif
     vec3 e = vec3(0.0);
     for (int l = light_path_first; l < light_path_first + light_path_vertices; l++) {
         Light light = lights[l];
@@ -302,8 +322,15 @@ vec3 connections(vec3 p, vec3 n, int eye_vertex, float eye_mis) {
         // The weight 1 / (1 + (b/d^2)^2 E + (a/d^2)^2 L) and the geometry term cos cos / d^2 are
         // taken together, so a light vertex a round-off from p adds 0, not inf x 0.
         float eye_side = BUNDLE_DIRECTION_PDF * cos_theta, light_side = BUNDLE_DIRECTION_PDF * cos_out;
+#if GLOSSY
+        float mis_d2 = d2 / max(d2 * d2 + eye_side * eye_side * eye_mis + light_side * light_side * light.paths.x, 1e-30);
+        vec3 light_end = bsdf_cos(uint(light.surface.w), light.surface.rgb, light.direction.xyz, light.incoming.xyz, -to_light);
+        vec3 eye_end = bsdf_cos(m, albedo, n, wi, to_light);
+        e += light.intensity.rgb * light_end * eye_end * mis_d2 * light_vertex_visibility(light, p, n, to_light);
+#else
         float weighted = cos_out * cos_theta * d2 / max(d2 * d2 + eye_side * eye_side * eye_mis + light_side * light_side * light.paths.x, 1e-30);
         e += light.intensity.rgb * weighted * light_vertex_visibility(light, p, n, to_light);
+#endif
     }
     return e;
 }

@@ -24,6 +24,8 @@ struct Path {
     uint bundle;      // the bundle it arrived along; PATH_FROM_CAMERA at vertex 0, PATH_ENDED once it has ended
     vec3 albedo;      // of the current vertex
     uint triangle;    // its triangle, PATH_BACK set where the path is on the side its geometric normal points away from
+    vec4 incoming;    // xyz: the unit direction back along the last segment (to the camera or the
+                      // vertex before), which a glossy BSDF needs (bsdf.glsl); w: unused
 };
 // Per path, the radiance summed over frames: bounce 0, and bounces 1..B.
 struct PathSums {

@@ -5,6 +5,7 @@
 
 #include "common.glsl"
 #include "scene.glsl"
+#include "bsdf.glsl"
 #include "lights.glsl"
 #include "environment.glsl"
 #include "paths.glsl"
@@ -38,7 +39,7 @@ void main() {
     // them (the resolve averages over the paths). It was a sample's costliest work, done spp times.
     bool gathers = id % paths_per_sample == 0u;
     float share = gathers ? float(paths_per_sample) : 0.0;
-    Path path = Path(vec3(0.0), 0u, vec3(0.0), PATH_ENDED, vec3(0.0), 0u);
+    Path path = Path(vec3(0.0), 0u, vec3(0.0), PATH_ENDED, vec3(0.0), 0u, vec4(0.0));
     vec3 direct = vec3(0.0);
     if (visible == 0u) {
 #if ENVIRONMENT != ENVIRONMENT_NONE
@@ -59,15 +60,19 @@ void main() {
             if (front) direct = materials[m].emission.rgb;  // emitters emit from their front only
             else n = -n;
             vec3 albedo = material_albedo(m, surface_uv(v, b1, b2));
-#if SHADOW_LIGHTS
+#if SHADOW_LIGHTS && GLOSSY
+            if (gathers) direct += light_reflected(eye + depth * dir, n, 0.0, m, albedo, -dir);
+#elif SHADOW_LIGHTS
             if (gathers) direct += albedo * INV_PI * light_irradiance(eye + depth * dir, n, 0.0);
 #endif
-#if BIDIRECTIONAL
+#if BIDIRECTIONAL && GLOSSY
             // Connections from the first eye vertex to light path vertices are indirect light.
+            if (gathers) sums[id].indirect.rgb += share * connections(eye + depth * dir, n, 0, 0.0, m, albedo, -dir);
+#elif BIDIRECTIONAL
             if (gathers) sums[id].indirect.rgb += share * albedo * INV_PI * connections(eye + depth * dir, n, 0, 0.0);
 #endif
             path = Path(eye + depth * dir, encode_normal(n), vec3(1.0), PATH_FROM_CAMERA, albedo,
-                        dot(triangle_normal(t), dir) < 0.0 ? t : t | PATH_BACK);
+                        dot(triangle_normal(t), dir) < 0.0 ? t : t | PATH_BACK, vec4(-dir, 0.0));
             atomicAdd(alive_paths, 1u);
         }
         // else: the back of a one-sided surface, black as in Mitsuba; the path ends.

@@ -1,5 +1,5 @@
 // The scene as the GPU sees it (gpu_impl/scene_buffers.py uploads it): indexed triangles with
-// per-triangle and per-vertex records, and diffuse materials whose textures are sampled here, in
+// per-triangle and per-vertex records, and materials (Lambertian or glossy: bsdf.glsl) whose textures are sampled here, in
 // the shader, with Mitsuba's convention so GL and the references agree texel for texel.
 
 struct Material {
@@ -8,6 +8,10 @@ struct Material {
     uvec4 texture;   // first texel, width, height, flags (MATERIAL_*)
     vec4 to_uv_u;    // the mesh's uv to texture space (Mitsuba's to_uv): u' = dot(to_uv_u.xyz, (u, v, 1))
     vec4 to_uv_v;    // v' = dot(to_uv_v.xyz, (u, v, 1))
+    uvec4 gloss;     // BSDF_*, MICROFACET_*, the coat's first transmittance texel, nonlinear (bsdf.glsl)
+    vec4 specular;   // rgb: specular reflectance; w: roughness alpha
+    vec4 eta;        // rgb: index of refraction (a plastic's coat: all alike); w: the coat's internal reflectance
+    vec4 k;          // rgb: a conductor's extinction coefficient
 };
 
 struct Triangle {

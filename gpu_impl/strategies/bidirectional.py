@@ -95,6 +95,7 @@ class BidirectionalPaths(EyePaths):
         samples = 0 if self.emitter_samples is None else self.emitter_samples.count
         total = self.sources.emitters.total if self.sources.emitters is not None else 1.0
         return {
+            "bsdf_candidates": self.bsdf_candidates,
             "emitter_sample_density": samples / total,
             "light_path_emitter_density": emitters / total,
             "light_path_emitter_ratio": emitters / samples if samples else 0.0,
@@ -110,7 +111,10 @@ class BidirectionalPaths(EyePaths):
         else:  # nothing to light or connect to
             programs["eye_paths"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=0)
         if self.path_vertices_per_frame:
-            keep = ("TEXTURES", "NODE_SIDES", "NODE_REFERENCE", "LIGHT_VISIBILITY", "ENVIRONMENT", "ATLAS_TEXTURES")
+            keep = (
+                "TEXTURES", "NODE_SIDES", "NODE_REFERENCE", "LIGHT_VISIBILITY", "ENVIRONMENT", "ATLAS_TEXTURES",
+                "GLOSSY",
+            )  # fmt: skip
             programs["light_paths"] = gl.program("light_paths", BIDIRECTIONAL=1, **{k: defines[k] for k in keep})
         return programs
 
@@ -131,9 +135,9 @@ class BidirectionalPaths(EyePaths):
         parts = []
         if self.emitter_samples is not None:
             samples = super().light_vertices(seed, frame)
-            parts.append(
-                samples._replace(depths=np.zeros(len(samples.positions)), mis=np.zeros(len(samples.positions)))
-            )
+            n = len(samples.positions)
+            none = {"surfaces": np.zeros((n, 4)), "incoming": np.zeros((n, 3))}  # an emitter sample is no surface
+            parts.append(samples._replace(depths=np.zeros(n), mis=np.zeros(n), **none))
         count = 0
         if self.path_vertices_per_frame:
             paths = self._trace(seed, frame)
@@ -168,6 +172,8 @@ class BidirectionalPaths(EyePaths):
             densities=np.zeros(len(found)),
             depths=found["position"][:, 3].astype(np.float64),
             mis=found["normal"][:, 3].astype(np.float64),
+            surfaces=found["surface"].astype(np.float64),
+            incoming=found["incoming"][:, :3].astype(np.float64),
         )
 
     def bind(self) -> None:

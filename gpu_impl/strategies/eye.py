@@ -1,6 +1,7 @@
 """Eye paths with next-event estimation (the poster's strategy): every path starts at a G-buffer
-sample (shaders/primary.glsl) and each bounce takes a uniformly chosen bundle of the frame and its
-next node (shaders/eye_paths.glsl), with no visibility test. Emissive triangles are found two ways,
+sample (shaders/primary.glsl) and each bounce takes a bundle of the frame, chosen uniformly (at a
+glossy vertex, by its BSDF among ``bsdf_candidates`` of them), and its next node
+(shaders/eye_paths.glsl), with no visibility test. Emissive triangles are found two ways,
 weighted by multiple importance sampling: by the paths hitting them, and by next-event estimation
 through ``light_samples`` points drawn on them per frame (`gpu_impl.lights.EmitterSamples`), the
 frame's light vertices, whose visibility the light visibility unit makes. An environment map is
@@ -30,6 +31,9 @@ DEFAULT_LIGHT_SAMPLES = 8
 # directions almost never meet; drawn from the map, every frame's samples hold it.
 DEFAULT_ENVIRONMENT_SAMPLES = 8
 DEFAULT_ENVIRONMENT_MAP_SIZE = 512
+# The bundles a glossy vertex weighs by its BSDF to choose its next one (resampled importance
+# sampling, shaders/eye_paths.glsl); each costs a BSDF evaluation.
+DEFAULT_BSDF_CANDIDATES = 32
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,12 @@ class EyeSettings:
         "texels per side of each environment sample's shadow map",
         minimum=8,
         unit="texels",
+    )
+    bsdf_candidates: int = setting(
+        DEFAULT_BSDF_CANDIDATES,
+        "bundles a glossy vertex weighs by its BSDF to choose the next one, by resampled importance "
+        "sampling (0: a uniform choice, as at diffuse vertices)",
+        minimum=0,
     )
 
 
@@ -95,6 +105,7 @@ class EyePaths:
             else None
         )
         self.environment_map_size = settings.environment_map_size
+        self.bsdf_candidates = settings.bsdf_candidates
         self.pdf_buffer = (
             None
             if self.environment_samples is None
@@ -151,7 +162,7 @@ class EyePaths:
             self.pdf_buffer.release()
 
     def uniforms(self) -> dict:
-        values = {}
+        values = {"bsdf_candidates": self.bsdf_candidates}
         if self.emitter_samples is not None:
             values["emitter_sample_density"] = self.emitter_samples.density_scale
         if self.environment_samples is not None:
@@ -165,7 +176,9 @@ class EyePaths:
         programs = {}
         if defines["SHADOW_LIGHTS"]:  # lit where each path lands, and (splat points) from precomputed light
             programs["eye_paths_lazy"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=1)
-        if not defines["SHADOW_LIGHTS"] or self.renderer.tracer.lighting != "lazy":
+        if not defines["SHADOW_LIGHTS"] or (
+            self.renderer.tracer.lighting != "lazy" and not self.renderer.lazy_lighting_only
+        ):
             programs["eye_paths"] = gl.program("eye_paths", **defines, LAZY_LIGHTING=0)
         return programs
 

@@ -8,7 +8,7 @@ import os
 from evalkit.core import cache
 from evalkit.core.errors import InputError
 from evalkit.core.scene.assemble import assemble
-from evalkit.core.scene.builtin import BUILTIN_SCENES
+from evalkit.core.scene.builtin import BUILTIN_SCENES, ROUGHNESS_SCENES, builtin_scene
 from evalkit.core.scene.mesh_import import load_mesh_file
 from evalkit.core.scene.mitsuba_io import load_mitsuba_file
 from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scene, SceneFeatures
@@ -18,7 +18,8 @@ MESH_EXTENSIONS = (".obj", ".ply", ".gltf", ".glb")
 
 
 def builtin_names() -> list[str]:
-    return sorted(BUILTIN_SCENES)
+    """The built-in scenes' names, and the form of those made at a roughness."""
+    return sorted(BUILTIN_SCENES) + [f"{name}-ALPHA" for name in ROUGHNESS_SCENES]
 
 
 def load_scene(spec: str | os.PathLike) -> Scene:
@@ -26,9 +27,9 @@ def load_scene(spec: str | os.PathLike) -> Scene:
     from the user cache when nothing it reads has changed since (`evalkit.core.cache`)."""
     spec = os.fspath(spec)
     ext = os.path.splitext(spec)[1].lower()
-    builtin = spec in BUILTIN_SCENES
+    builtin = builtin_scene(spec) is not None
     if builtin:
-        make = BUILTIN_SCENES[spec]
+        make = builtin_scene(spec)
     elif ext in MITSUBA_EXTENSIONS:
         make = functools.partial(load_mitsuba_file, spec)
     elif ext in MESH_EXTENSIONS:

@@ -1,6 +1,8 @@
 """Built-in scenes.
 
 - ``cornell-box`` is ``mi.cornell_box()`` itself, read through the Mitsuba importer.
+- ``glossy-box`` is cornell-box with a rough plastic floor and a rough copper sphere in place of
+  its tall box (GGX, roughness `GLOSSY_ALPHA`); ``glossy-box-0.3`` is the same at roughness 0.3.
 - ``furnace`` is a closed cube of one diffuse, emissive material seen from inside. Every surface
   has the same outgoing radiance, so each bounce adds a known amount (`furnace_radiance`).
 - ``atrium-animated`` is ``atrium`` with a ball circling the courtyard (`Motion`), the poster's
@@ -23,6 +25,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import math
 
 import numpy as np
@@ -35,12 +39,47 @@ from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scen
 from evalkit.core.scene.tessellate import box, subdivide, surface, unit_disk, unit_sphere
 
 FURNACE_ALBEDO = 0.5
+GLOSSY_ALPHA = 0.1
 FURNACE_EMISSION = 1.0
 
 
 def cornell_box() -> Scene:
     mi = mitsuba()
     return load_mitsuba_dict(mi.cornell_box(), name="cornell-box", source="cornell-box")
+
+
+def glossy_box(alpha: float = GLOSSY_ALPHA) -> Scene:
+    """cornell-box with a rough plastic floor and, in place of the tall box, a rough copper
+    sphere: both GGX of roughness ``alpha``, read through the Mitsuba importer like cornell-box."""
+    mi = mitsuba()
+    d = mi.cornell_box()
+    white = d["white"]["reflectance"]
+    d["floor"]["bsdf"] = {"type": "roughplastic", "distribution": "ggx", "alpha": alpha, "diffuse_reflectance": white}
+    d["large-box"] = {
+        "type": "sphere",
+        "center": [-0.33, -0.65, -0.28],
+        "radius": 0.35,
+        "bsdf": {"type": "roughconductor", "distribution": "ggx", "alpha": alpha, "material": "Cu"},
+    }
+    name = "glossy-box" if alpha == GLOSSY_ALPHA else f"glossy-box-{alpha:g}"
+    return load_mitsuba_dict(d, name=name, source=name)
+
+
+# Built-in scenes made at a roughness given after their name: "glossy-box-0.3".
+ROUGHNESS_SCENES = {"glossy-box": glossy_box}
+
+
+def builtin_scene(spec: str):
+    """The maker of built-in scene ``spec`` (a name of `BUILTIN_SCENES`, or of `ROUGHNESS_SCENES`
+    followed by "-" and a roughness in (0, 1]), or None."""
+    if spec in BUILTIN_SCENES:
+        return BUILTIN_SCENES[spec]
+    name, _, alpha = spec.rpartition("-")
+    if name in ROUGHNESS_SCENES:
+        with contextlib.suppress(ValueError):
+            if 0.0 < float(alpha) <= 1.0:
+                return functools.partial(ROUGHNESS_SCENES[name], float(alpha))
+    return None
 
 
 def furnace_radiance(max_depth: int) -> float:
@@ -408,6 +447,7 @@ def _stripe_texture(size: int = 256) -> np.ndarray:
 
 BUILTIN_SCENES = {
     "cornell-box": cornell_box,
+    "glossy-box": glossy_box,
     "furnace": furnace,
     "atrium": atrium,
     "atrium-animated": atrium_animated,

@@ -7,9 +7,10 @@ dropped behind our back) and `assemble` validates what came back.
 Material mapping: a PBR material's base colour (factor times texture) or a simple material's
 diffuse colour and image become the albedo; 8-bit textures are sRGB and are linearised; factors
 are linear. glTF ``doubleSided`` maps to a two-sided material; OBJ and PLY have no such notion and
-are imported two-sided. PBR metal/roughness is ignored, with a warning, because the toolkit is
-diffuse only. A file with no emissive material gets a default sun, and every file gets a default
-camera (trimesh reads none), both stated in the scene's warnings.
+are imported two-sided. A glTF metallic-roughness material becomes a rough conductor or a rough
+plastic (`_gloss` says how), with a warning, since glTF's BRDF is neither exactly. A file with no
+emissive material gets a default sun, and every file gets a default camera (trimesh reads none),
+both stated in the scene's warnings.
 """
 
 from __future__ import annotations
@@ -18,11 +19,12 @@ import os
 
 import numpy as np
 
+from evalkit.core.bsdf import MIN_ALPHA, rough_plastic_tables
 from evalkit.core.errors import InputError
 from evalkit.core.scene.assemble import assemble, default_sun
 from evalkit.core.scene.colour import rgb, srgb_to_linear
 from evalkit.core.scene.mesh_lines import check_obj, check_ply
-from evalkit.core.scene.model import Material, Mesh, Scene
+from evalkit.core.scene.model import Gloss, Material, Mesh, Scene
 
 
 def load_mesh_file(path: str | os.PathLike) -> Scene:
@@ -132,10 +134,7 @@ def _material(node, visual, has_uvs: bool, warnings: list[str]) -> Material:
         image = material.baseColorTexture
         emission = rgb(material.emissiveFactor) if material.emissiveFactor is not None else (0.0, 0.0, 0.0)
         twosided = bool(material.doubleSided)
-        metallic = material.metallicFactor
-        approximated = metallic is not None and metallic > 0
-        if approximated:
-            warnings.append(f"material '{name}': metallic {metallic} is approximated as diffuse with its base colour")
+        approximated = True  # glTF's BRDF is not Mitsuba's rough conductor or plastic (`_gloss`)
     else:  # SimpleMaterial (OBJ/MTL)
         factor = _color(getattr(material, "diffuse", None), default=(0.8, 0.8, 0.8))
         image = getattr(material, "image", None)
@@ -149,7 +148,42 @@ def _material(node, visual, has_uvs: bool, warnings: list[str]) -> Material:
         if not has_uvs:
             factor, texture = rgb(texture.reshape(-1, 3).mean(axis=0)), None
     albedo = rgb(texture.reshape(-1, 3).mean(axis=0)) if texture is not None else rgb(factor)
-    return Material(name, albedo, texture, emission, twosided, source_bsdf=kind, approximated=approximated)
+    gloss = _gloss(material, name, albedo, warnings) if kind == "PBRMaterial" else None
+    if gloss is not None and gloss.kind == "roughconductor":
+        albedo, texture = (0.0, 0.0, 0.0), None  # a metal has no diffuse base
+    return Material(name, albedo, texture, emission, twosided, source_bsdf=kind, approximated=approximated, gloss=gloss)
+
+
+# glTF's dielectrics reflect 4 % at normal incidence: Mitsuba's rough plastic of index 1.5.
+GLTF_DIELECTRIC_IOR = 1.5
+
+
+def _gloss(material, name: str, base: tuple, warnings: list[str]) -> Gloss:
+    """A glTF metallic-roughness material as the `Gloss` nearest it: GGX of alpha = roughness^2 (the
+    glTF specification's meaning), a metal (metallic >= 1/2) as a rough conductor whose Fresnel
+    reflectance at normal incidence is the base colour (a real index, eta = (1 + sqrt F0) /
+    (1 - sqrt F0), in place of glTF's Schlick approximation), a dielectric as a rough plastic of
+    index 1.5 over the base colour. Defaults as the specification's: metallic 1, roughness 1."""
+    metallic = 1.0 if material.metallicFactor is None else float(material.metallicFactor)
+    roughness = 1.0 if material.roughnessFactor is None else float(material.roughnessFactor)
+    alpha = max(roughness * roughness, MIN_ALPHA)
+    notes = [f"GGX alpha = roughness^2 = {alpha:.4g}"]
+    if material.metallicRoughnessTexture is not None:
+        notes.append("its metallic-roughness texture is replaced by its factors")
+    if 0.0 < metallic < 1.0:
+        notes.append(f"metallic {metallic:g} is taken as {round(metallic)}")
+    if metallic >= 0.5:
+        f0 = np.sqrt(np.clip(base, 0.0, 0.998))
+        eta = rgb((1.0 + f0) / (1.0 - f0))
+        gloss = Gloss("roughconductor", "ggx", alpha, eta)
+        what = "a rough conductor with the exact Fresnel of its base colour's reflectance in place of Schlick's"
+    else:
+        table, internal = rough_plastic_tables("ggx", alpha, GLTF_DIELECTRIC_IOR)
+        ior = (GLTF_DIELECTRIC_IOR,) * 3
+        gloss = Gloss("roughplastic", "ggx", alpha, ior, transmittance=table, internal_reflectance=internal)
+        what = "a rough plastic of index 1.5 over its base colour (a coated base, not glTF's uncoated diffuse term)"
+    warnings.append(f"material '{name}' (glTF metallic-roughness) is approximated as {what}; " + "; ".join(notes))
+    return gloss
 
 
 def _color(value, default):

@@ -9,8 +9,11 @@ Import rules:
   instance becomes copies of its group's shapes under the composed transforms;
 - the albedo of every BSDF is its ``eval_diffuse_reflectance``, sampled at the texel centres of
   its bitmap (or on a `BAKE_RESOLUTION` grid for a procedural texture), so any texture plugin and
-  any ``to_uv`` transform come out right. ``diffuse`` and ``twosided(diffuse)`` map exactly; every
-  other BSDF is approximated as diffuse with a warning, once per BSDF, recorded in the scene;
+  any ``to_uv`` transform come out right. ``diffuse``, ``roughconductor`` and ``roughplastic``
+  (alone or in ``twosided``) map exactly, with their parameters as Mitsuba holds them (a textured
+  roughness, specular reflectance or index, or an anisotropic roughness, is refused); the smooth
+  ``conductor`` and ``plastic`` become the rough ones of roughness `SMOOTH_ALPHA` with a warning;
+  every other BSDF is approximated as diffuse with a warning, once per BSDF, recorded in the scene;
 - emitters: area (uniform radiance), point, spot (without a projected texture), directional,
   constant and envmap; media are named in a warning;
 - sensors: perspective and orthographic;
@@ -27,15 +30,17 @@ from __future__ import annotations
 import contextlib
 import copy
 import os
+import re
 import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 
+from evalkit.core.bsdf import MIN_ALPHA, rough_plastic_tables
 from evalkit.core.errors import InputError
 from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene.assemble import assemble
 from evalkit.core.scene.colour import rgb, sample_texture
-from evalkit.core.scene.model import FILTER_TYPES, WRAP_MODES, Camera, Light, Material, Mesh, Scene
+from evalkit.core.scene.model import FILTER_TYPES, WRAP_MODES, Camera, Gloss, Light, Material, Mesh, Scene
 from evalkit.core.scene.tessellate import unit_cylinder, unit_disk, unit_sphere
 
 SPHERE_SEGMENTS = (128, 64)  # (longitude, latitude): area within 0.1 % of the analytic sphere
@@ -45,6 +50,18 @@ BAKE_RESOLUTION = 256
 # A texture whose lookups differ from Mitsuba's by more than this (relative to its largest value)
 # at probed uvs is reported as approximated: float32 bilinear weights differ by ~1e-6.
 TEXTURE_TOLERANCE = 1e-4
+# Mitsuba's glossy plugins the toolkit renders, as their `Gloss` kind.
+GLOSSY_PLUGINS = {
+    "RoughConductor": "roughconductor",
+    "RoughPlastic": "roughplastic",
+    "SmoothConductor": "roughconductor",
+    "SmoothPlastic": "roughplastic",
+}
+# A smooth (delta) lobe is reached by no finite set of bundle directions: a smooth conductor or
+# plastic is rendered as the rough one of this GGX roughness, with a warning (the scene check
+# measures what that changes).
+SMOOTH_PLUGINS = ("SmoothConductor", "SmoothPlastic")
+SMOOTH_ALPHA = 0.05
 
 
 def load_mitsuba_file(path: str | os.PathLike, variant: str | None = None) -> Scene:
@@ -311,9 +328,15 @@ def _material(mi, bsdf, shape_name: str, emission, warnings: list[str], source: 
     if "MeshAttribute[" in str(bsdf):
         raise InputError(source, f"BSDF '{name}': vertex and face colours (mesh_attribute textures) are not supported")
     diffuse = kind == "SmoothDiffuse" or (kind == "TwoSidedBRDF" and _twosided_diffuse(mi, bsdf))
-    texture, albedo, off = _reflectance(mi, bsdf, params)
+    gloss, plugin = (None, kind) if diffuse else _gloss(bsdf, params, name, source)
+    texture, albedo, off = ({}, (0.0, 0.0, 0.0), 0.0) if _conductor(gloss) else _reflectance(mi, bsdf, params)
     notes = []
-    if not diffuse:
+    if plugin in SMOOTH_PLUGINS:
+        notes.append(
+            f"BSDF '{name}' ({plugin}) is smooth, a lobe no bundle direction reaches: rendered as a "
+            f"{gloss.kind} of GGX roughness {SMOOTH_ALPHA:g}"
+        )
+    if not diffuse and gloss is None:
         # A rough conductor's "diffuse reflectance" reads as 20 or more: a diffuse surface with it
         # would create energy.
         clamped = tuple(min(a, 1.0) for a in albedo)
@@ -339,8 +362,65 @@ def _material(mi, bsdf, shape_name: str, emission, warnings: list[str], source: 
         twosided=kind == "TwoSidedBRDF",
         source_bsdf=kind,
         approximated=bool(notes),
+        gloss=gloss,
         **texture,
     )
+
+
+def _conductor(gloss: Gloss | None) -> bool:
+    return gloss is not None and gloss.kind == "roughconductor"
+
+
+def _gloss(bsdf, params, name: str, source: str) -> tuple[Gloss | None, str]:
+    """A ``roughconductor`` or ``roughplastic`` (alone or in ``twosided``) with its parameters as
+    Mitsuba holds them, a smooth ``conductor`` or ``plastic`` as the rough one of roughness
+    `SMOOTH_ALPHA`, or None for any other BSDF; and the plugin's class name. What the `Gloss`
+    cannot hold is refused."""
+    text = str(bsdf)
+    inner = re.search(r"brdf\[0\] = (\w+)\[", text) if bsdf.class_name() == "TwoSidedBRDF" else None
+    plugin = inner.group(1) if inner else bsdf.class_name()
+    if plugin not in GLOSSY_PLUGINS:
+        return None, plugin
+    kind = GLOSSY_PLUGINS[plugin]
+    keys = list(params.keys())  # noqa: SIM118 (SceneParameters iterate as items)
+    prefix = "brdf_0." if bsdf.class_name() == "TwoSidedBRDF" else ""
+    if any(k.startswith("brdf_1.") for k in keys):
+        raise InputError(source, f"BSDF '{name}': a twosided BSDF with a different BSDF on each side is not supported")
+    for part in ("alpha", "specular_reflectance", "eta", "k"):
+        if any(k.startswith(prefix + part + ".") and not k.endswith(".value") for k in keys):
+            raise InputError(source, f"BSDF '{name}' ({plugin}): a textured {part} is not supported")
+    if plugin in SMOOTH_PLUGINS:
+        alpha = SMOOTH_ALPHA
+    elif prefix + "alpha_u.value" in keys:
+        alpha_u, alpha_v = (float(np.ravel(params[prefix + f"alpha_{a}.value"])[0]) for a in "uv")
+        if alpha_u != alpha_v:
+            roughness = f"alpha_u {alpha_u:g}, alpha_v {alpha_v:g}"
+            raise InputError(source, f"BSDF '{name}' ({plugin}): anisotropic roughness ({roughness}) is not supported")
+        alpha = alpha_u
+    else:
+        value = params[prefix + "alpha.value"] if prefix + "alpha.value" in keys else params[prefix + "alpha"]
+        alpha = float(np.ravel(value)[0])
+    common = {
+        "distribution": "ggx" if plugin in SMOOTH_PLUGINS else re.search(r"distribution = (\w+)", text).group(1),
+        "alpha": max(alpha, MIN_ALPHA),
+        "specular_reflectance": rgb(_np(params[prefix + "specular_reflectance.value"]))
+        if prefix + "specular_reflectance.value" in keys
+        else (1.0, 1.0, 1.0),
+    }
+    if kind == "roughconductor":
+        eta, k = (rgb(_np(params[prefix + f"{p}.value"])) for p in ("eta", "k"))
+        return Gloss("roughconductor", eta=eta, k=k, **common), plugin
+    eta = float(np.ravel(params[prefix + "eta"])[0])
+    nonlinear = re.search(r"nonlinear = (\w+)", text).group(1) in ("1", "true")
+    transmittance, internal = rough_plastic_tables(common["distribution"], common["alpha"], eta)
+    return Gloss(
+        "roughplastic",
+        eta=(eta,) * 3,
+        nonlinear=nonlinear,
+        transmittance=transmittance,
+        internal_reflectance=internal,
+        **common,
+    ), plugin
 
 
 def _twosided_diffuse(mi, bsdf) -> bool:
@@ -558,8 +638,24 @@ def _bsdf_dict(mi, mat: Material) -> dict:
         }
         if mat.to_uv is not None:
             reflectance["to_uv"] = mi.ScalarTransform3f(mat.to_uv.tolist())
-    diffuse = {"type": "diffuse", "reflectance": reflectance}
-    return {"type": "twosided", "bsdf": diffuse} if mat.twosided else diffuse
+    gloss = mat.gloss
+    if gloss is None:
+        one_side = {"type": "diffuse", "reflectance": reflectance}
+    else:
+        one_side = {
+            "type": gloss.kind,
+            "distribution": gloss.distribution,
+            "alpha": gloss.alpha,
+            "specular_reflectance": {"type": "rgb", "value": list(gloss.specular_reflectance)},
+        }
+        if gloss.kind == "roughconductor":
+            one_side["eta"] = {"type": "rgb", "value": list(gloss.eta)}
+            one_side["k"] = {"type": "rgb", "value": list(gloss.k)}
+        else:
+            one_side.update(
+                int_ior=gloss.eta[0], ext_ior=1.0, nonlinear=gloss.nonlinear, diffuse_reflectance=reflectance
+            )
+    return {"type": "twosided", "bsdf": one_side} if mat.twosided else one_side
 
 
 def _emitter_dict(mi, light: Light) -> dict:

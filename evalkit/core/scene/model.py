@@ -34,15 +34,39 @@ ENVIRONMENT_KINDS = ("constant", "envmap")
 FOV_AXES = ("x", "y")
 
 
+@dataclass(frozen=True)
+class Gloss:
+    """A glossy BSDF, as Mitsuba's ``roughconductor`` or ``roughplastic`` with the same parameters
+    (evalkit/core/bsdf.py evaluates it, gpu_impl/shaders/bsdf.glsl on the GPU).
+
+    ``alpha`` is the isotropic roughness of a Beckmann or GGX ``distribution``. A conductor has a
+    complex index of refraction ``eta`` + i ``k`` per channel; a plastic the coat's relative index
+    ``eta`` (all channels alike), ``nonlinear``, and Mitsuba's tables of the coat
+    (``transmittance`` at cosines i / 63, ``internal_reflectance``: evalkit/core/bsdf.py:
+    rough_plastic_tables); its diffuse base is the material's albedo or texture.
+    """
+
+    kind: str  # "roughconductor" or "roughplastic"
+    distribution: str
+    alpha: float
+    eta: RGB
+    k: RGB = (0.0, 0.0, 0.0)
+    specular_reflectance: RGB = (1.0, 1.0, 1.0)
+    nonlinear: bool = False
+    transmittance: tuple[float, ...] = ()
+    internal_reflectance: float = 0.0
+
+
 @dataclass(frozen=True, eq=False)
 class Material:
-    """A diffuse material, optionally emissive.
+    """A material: Lambertian, or glossy where ``gloss`` says so; optionally emissive.
 
-    ``albedo`` is used where ``texture`` is None; with a texture it holds the texture's mean (for
-    reports). A texture is looked up through ``to_uv`` (3x3 affine map from the mesh's uv to
-    texture space, None for the identity), ``wrap_mode`` and ``filter_type``, as Mitsuba's.
-    ``source_bsdf`` names what the file asked for, and ``approximated`` says whether the import
-    approximated it (a plastic or a conductor treated as diffuse, a procedural texture baked).
+    ``albedo`` (a plastic's diffuse base; black for a conductor) is used where ``texture`` is None;
+    with a texture it holds the texture's mean (for reports). A texture is looked up through
+    ``to_uv`` (3x3 affine map from the mesh's uv to texture space, None for the identity),
+    ``wrap_mode`` and ``filter_type``, as Mitsuba's. ``source_bsdf`` names what the file asked for,
+    and ``approximated`` says whether the import approximated it (a smooth plastic or conductor
+    treated as diffuse, a procedural texture baked).
     """
 
     name: str
@@ -55,6 +79,7 @@ class Material:
     to_uv: np.ndarray | None = None  # (3, 3) float64
     wrap_mode: str = "repeat"
     filter_type: str = "bilinear"
+    gloss: Gloss | None = None
 
     @property
     def emissive(self) -> bool:
@@ -219,6 +244,7 @@ class SceneFeatures:
     depth_complexity: float  # mean surfaces crossed by a line through the bounding sphere
     twosided: bool
     approximated_bsdfs: tuple[str, ...]
+    glossy: bool = False  # a material has a `Gloss`
 
 
 @dataclass(frozen=True, eq=False)
@@ -340,6 +366,7 @@ class Scene:
             depth_complexity=depth,
             twosided=any(m.twosided for m in mats),
             approximated_bsdfs=tuple(sorted({f"{m.name} ({m.source_bsdf})" for m in mats if m.approximated})),
+            glossy=any(m.gloss is not None for m in mats),
         )
 
     def content_hash(self) -> str:
@@ -364,6 +391,8 @@ class Scene:
                 put(m.motion)
         for mat in self.materials:
             put(mat.albedo, mat.texture, mat.emission, mat.twosided)
+            if mat.gloss is not None:  # diffuse scenes keep the hashes of their stored references
+                put(mat.gloss)
             # The default lookup leaves the hashes of stored references as they were.
             if mat.texture is not None and (mat.to_uv is not None or (mat.wrap_mode, mat.filter_type) != LOOKUP):
                 put(mat.to_uv, mat.wrap_mode, mat.filter_type)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from evalkit.core.scene.model import Light, Scene
+from evalkit.core.scene.model import Gloss, Light, Scene
 
 
 def scene_summary(scene: Scene) -> dict:
@@ -31,6 +31,7 @@ def scene_summary(scene: Scene) -> dict:
                 "twosided": scene.materials[i].twosided,
                 "source_bsdf": scene.materials[i].source_bsdf,
                 "approximated": scene.materials[i].approximated,
+                "bsdf": _bsdf_summary(scene.materials[i].gloss),
             }
             for i in used
         ],
@@ -51,6 +52,7 @@ def scene_summary(scene: Scene) -> dict:
             "depth_complexity": f.depth_complexity,
             "twosided": f.twosided,
             "approximated_bsdfs": list(f.approximated_bsdfs),
+            "glossy": f.glossy,
         },
         "warnings": list(scene.warnings),
     }
@@ -65,3 +67,14 @@ def _light_summary(light: Light) -> dict:
     if light.envmap is not None:
         d["envmap"] = list(light.envmap.shape[:2])
     return d
+
+
+def _bsdf_summary(gloss: Gloss | None) -> dict:
+    """The BSDF and its parameters (Lambertian: its albedo, above)."""
+    if gloss is None:
+        return {"type": "diffuse"}
+    d = {"type": gloss.kind, "distribution": gloss.distribution, "alpha": gloss.alpha}
+    d["specular_reflectance"] = list(gloss.specular_reflectance)
+    if gloss.kind == "roughconductor":
+        return {**d, "eta": list(gloss.eta), "k": list(gloss.k)}
+    return {**d, "int_ior / ext_ior": gloss.eta[0], "nonlinear": gloss.nonlinear}
