@@ -115,6 +115,41 @@ def matched_time_rows(rows: list[dict], x: str, y: str, shown: tuple[str, ...] =
     return sorted(result, key=lambda r: (r["scene"], r["method"], r[x]))
 
 
+def chosen_settings(rows: list[dict], varying: list[str]) -> tuple[str, ...]:
+    """The settings in ``varying``, beyond scene, method, frames, spp, directions and seed, that some
+    scene's bundle runs take more than one value of (a unit's setting that is only there or not
+    is no choice)."""
+    named = ("scene", "method", "frames", "spp", "directions", "seed")
+    bundles = [r for r in rows if r["method"] != "mitsuba"]
+
+    def chosen(k: str) -> bool:
+        scenes = {r["scene"] for r in bundles}
+        return any(len({repr(r[k]) for r in bundles if r["scene"] == s and r.get(k) is not None}) > 1 for s in scenes)
+
+    return tuple(k for k in varying if k not in named and chosen(k))
+
+
+def best_at_matched_time(rows: list[dict], x: str, y: str, shown: tuple[str, ...] = ()) -> dict[str, dict]:
+    """Per scene, the bundle setting with the least ratio of ``y`` to Mitsuba's at the same ``x``
+    (`matched_time_rows`, among the settings it compares)."""
+    best: dict[str, dict] = {}
+    for r in matched_time_rows(rows, x, y, shown):
+        if r.get("ratio") is not None and (r["scene"] not in best or r["ratio"] < best[r["scene"]]["ratio"]):
+            best[r["scene"]] = r
+    return best
+
+
+def matched_time_verdict(best: dict[str, dict], x: str, y: str) -> str:
+    """One sentence of `best_at_matched_time`: the scenes where the bundles' best setting is the
+    more accurate at matched ``x``, and those where Mitsuba is."""
+    won = [s for s, r in best.items() if r["ratio"] < 1]
+    lost = [s for s, r in best.items() if r["ratio"] >= 1]
+    return (
+        f"The bundles' best setting is the more accurate at matched {x} on {', '.join(won) or 'no scene'}; "
+        f"Mitsuba is on {', '.join(lost) or 'no scene'} (this machine; ratio = the bundles' {y} over Mitsuba's)."
+    )
+
+
 def versus_rows(rows: list[dict], x: str, y: str, versus: str, shown: list[str]) -> list[dict]:
     """Each value of the run parameter ``versus`` (the path strategy, say) given its best settings,
     against each other value given theirs, per scene: every setting on a value's Pareto front (mean
@@ -281,6 +316,7 @@ def findings(study: Study, ok: list[dict], rows: list[dict]) -> list[str]:
                 f"Mitsuba (ratios {format_value(min(ratios))} to {format_value(max(ratios))}; below 1: the bundles "
                 "are the more accurate)."
             )
+            lines.append(matched_time_verdict(best_at_matched_time(ok, x, y), x, y))
         versus = spec.get("versus")
         compared = versus_rows(ok, x, y, versus, []) if versus else []
         for scene, value, other in dict.fromkeys((r["scene"], r[versus], r["against"]) for r in compared):

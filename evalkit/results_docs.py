@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from evalkit.records import read_record
-from evalkit.report import matched_time_rows, plot
+from evalkit.report import best_at_matched_time, chosen_settings, matched_time_verdict, plot
 
 
 def _table(header: list[str], rows: list[list]) -> list[str]:
@@ -109,22 +109,10 @@ def _matched_time_markdown(rows: list[dict], spec: dict, varying: list[str]) -> 
     """Per scene, the bundle setting with the least ``y`` against Mitsuba's at the same ``x`` (a
     [[plot]] with ``pareto``: evalkit/report.py: matched_time_rows), and which is the more accurate."""
     x, y = spec["x"], spec["y"] if isinstance(spec["y"], str) else spec["y"][0]
-    named = ("scene", "method", "frames", "spp", "directions", "seed")
-
-    def chosen(k: str) -> bool:  # a setting some scene's bundle runs take more than one value of
-        return any(
-            len({repr(r[k]) for r in rows if r["scene"] == s and r["method"] != "mitsuba" and r.get(k) is not None}) > 1
-            for s in {r["scene"] for r in rows}
-        )
-
-    shown = tuple(k for k in varying if k not in named and chosen(k))
-    compared = [r for r in matched_time_rows(rows, x, y, shown) if r.get("ratio") is not None]
-    if not compared:
+    shown = chosen_settings(rows, varying)
+    best = best_at_matched_time(rows, x, y, shown)
+    if not best:
         return []
-    best = {}
-    for r in compared:
-        if r["scene"] not in best or r["ratio"] < best[r["scene"]]["ratio"]:
-            best[r["scene"]] = r
     setting = ["method", "directions", *shown, "frames"]
     header = ["scene", *setting, x, y, f"Mitsuba's {y} at that {x}", "ratio", "more accurate"]
     table = [
@@ -132,13 +120,7 @@ def _matched_time_markdown(rows: list[dict], spec: dict, varying: list[str]) -> 
          _value(r["ratio"]), r["more_accurate"]]
         for r in best.values()
     ]  # fmt: skip
-    won = [s for s, r in best.items() if r["ratio"] < 1]
-    lost = [s for s, r in best.items() if r["ratio"] >= 1]
-    verdict = (
-        f"The bundles' best setting is the more accurate at matched {x} on {', '.join(won) or 'no scene'}; "
-        f"Mitsuba is on {', '.join(lost) or 'no scene'} (this machine; ratio = the bundles' {y} over Mitsuba's)."
-    )
-    return [f"### At matched {x}", "", verdict, "", *_table(header, table), ""]
+    return [f"### At matched {x}", "", matched_time_verdict(best, x, y), "", *_table(header, table), ""]
 
 
 def _mean_ratio(row: dict, image: str) -> str:

@@ -11,7 +11,7 @@ import pytest
 from conftest import describe_interval, mean_interval, render_with
 from test_renderer import DIRECT_RELMSE, LAMP, SPOT, lit_stage
 
-from evalkit.core.bsdf import eval_bsdf, rough_plastic_tables
+from evalkit.core.bsdf import eval_bsdf, fresnel_conductor, rough_plastic_tables
 from evalkit.core.errors import InputError
 from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene import assemble, load_scene
@@ -242,3 +242,22 @@ def test_precomputed_lighting_of_glossy_materials_is_refused_in_one_line(gl):
         render_with(gl, glossy_stage(LAMP), width=8, height=8, directions=4, resolution=16, method="imperfect",
                     lighting="precomputed")  # fmt: skip
     assert "glossy materials (floor, box)" in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_a_principled_bsdf_becomes_the_nearest_gloss_and_says_what_it_leaves_out():
+    mi = mitsuba()
+    metal = {"type": "principled", "base_color": {"type": "rgb", "value": [0.9, 0.6, 0.3]}, "metallic": 0.8,
+             "roughness": 0.4, "clearcoat": 0.3}  # fmt: skip
+    for bsdf, kind, alpha in ((metal, "roughconductor", 0.16), ({"type": "principled"}, "roughplastic", 0.25)):
+        d = mi.cornell_box()
+        d["floor"]["bsdf"] = bsdf
+        scene = load_mitsuba_dict(d, name="principled")
+        (mat,) = [m for m in scene.materials if m.source_bsdf == "Principled"]
+        assert mat.gloss.kind == kind and mat.gloss.alpha == pytest.approx(alpha) and mat.approximated
+        (warning,) = [w for w in scene.warnings if "(Principled)" in w]
+        assert "roughness^2" in warning and ("clearcoat 0.3 ignored" in warning) == (kind == "roughconductor")
+        if kind == "roughconductor":  # the base colour is the metal's reflectance head-on
+            head_on = fresnel_conductor(np.ones(1), np.asarray(mat.gloss.eta), np.asarray(mat.gloss.k))[0]
+            assert head_on == pytest.approx([0.9, 0.6, 0.3], abs=1e-4)
+        else:  # Mitsuba's default specular 0.5 is a dielectric of index 1.5
+            assert mat.gloss.eta[0] == pytest.approx(1.5) and mat.albedo == pytest.approx((0.5, 0.5, 0.5))

@@ -19,10 +19,10 @@ import os
 
 import numpy as np
 
-from evalkit.core.bsdf import MIN_ALPHA, rough_plastic_tables
 from evalkit.core.errors import InputError
 from evalkit.core.scene.assemble import assemble, default_sun
 from evalkit.core.scene.colour import rgb, srgb_to_linear
+from evalkit.core.scene.gloss import metallic_roughness
 from evalkit.core.scene.mesh_lines import check_obj, check_ply
 from evalkit.core.scene.model import Gloss, Material, Mesh, Scene
 
@@ -159,30 +159,14 @@ GLTF_DIELECTRIC_IOR = 1.5
 
 
 def _gloss(material, name: str, base: tuple, warnings: list[str]) -> Gloss:
-    """A glTF metallic-roughness material as the `Gloss` nearest it: GGX of alpha = roughness^2 (the
-    glTF specification's meaning), a metal (metallic >= 1/2) as a rough conductor whose Fresnel
-    reflectance at normal incidence is the base colour (a real index, eta = (1 + sqrt F0) /
-    (1 - sqrt F0), in place of glTF's Schlick approximation), a dielectric as a rough plastic of
-    index 1.5 over the base colour. Defaults as the specification's: metallic 1, roughness 1."""
+    """A glTF metallic-roughness material as the `Gloss` nearest it (evalkit/core/scene/gloss.py:
+    metallic_roughness), with the specification's defaults: metallic 1, roughness 1."""
     metallic = 1.0 if material.metallicFactor is None else float(material.metallicFactor)
     roughness = 1.0 if material.roughnessFactor is None else float(material.roughnessFactor)
-    alpha = max(roughness * roughness, MIN_ALPHA)
-    notes = [f"GGX alpha = roughness^2 = {alpha:.4g}"]
+    gloss, what = metallic_roughness(base, metallic, roughness, GLTF_DIELECTRIC_IOR)
     if material.metallicRoughnessTexture is not None:
-        notes.append("its metallic-roughness texture is replaced by its factors")
-    if 0.0 < metallic < 1.0:
-        notes.append(f"metallic {metallic:g} is taken as {round(metallic)}")
-    if metallic >= 0.5:
-        f0 = np.sqrt(np.clip(base, 0.0, 0.998))
-        eta = rgb((1.0 + f0) / (1.0 - f0))
-        gloss = Gloss("roughconductor", "ggx", alpha, eta)
-        what = "a rough conductor with the exact Fresnel of its base colour's reflectance in place of Schlick's"
-    else:
-        table, internal = rough_plastic_tables("ggx", alpha, GLTF_DIELECTRIC_IOR)
-        ior = (GLTF_DIELECTRIC_IOR,) * 3
-        gloss = Gloss("roughplastic", "ggx", alpha, ior, transmittance=table, internal_reflectance=internal)
-        what = "a rough plastic of index 1.5 over its base colour (a coated base, not glTF's uncoated diffuse term)"
-    warnings.append(f"material '{name}' (glTF metallic-roughness) is approximated as {what}; " + "; ".join(notes))
+        what += "; its metallic-roughness texture is replaced by its factors"
+    warnings.append(f"material '{name}' (glTF metallic-roughness) is approximated as {what}")
     return gloss
 
 

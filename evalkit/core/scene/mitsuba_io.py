@@ -12,7 +12,8 @@ Import rules:
   any ``to_uv`` transform come out right. ``diffuse``, ``roughconductor`` and ``roughplastic``
   (alone or in ``twosided``) map exactly, with their parameters as Mitsuba holds them (a textured
   roughness, specular reflectance or index, or an anisotropic roughness, is refused); the smooth
-  ``conductor`` and ``plastic`` become the rough ones of roughness `SMOOTH_ALPHA` with a warning;
+  ``conductor`` and ``plastic`` become the rough ones of roughness `SMOOTH_ALPHA`, and a
+  ``principled`` the nearest of them (evalkit/core/scene/gloss.py), each with a warning;
   every other BSDF is approximated as diffuse with a warning, once per BSDF, recorded in the scene;
 - emitters: area (uniform radiance), point, spot (without a projected texture), directional,
   constant and envmap; media are named in a warning;
@@ -40,6 +41,7 @@ from evalkit.core.errors import InputError
 from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene.assemble import assemble
 from evalkit.core.scene.colour import rgb, sample_texture
+from evalkit.core.scene.gloss import metallic_roughness
 from evalkit.core.scene.model import FILTER_TYPES, WRAP_MODES, Camera, Gloss, Light, Material, Mesh, Scene
 from evalkit.core.scene.tessellate import unit_cylinder, unit_disk, unit_sphere
 
@@ -56,6 +58,7 @@ GLOSSY_PLUGINS = {
     "RoughPlastic": "roughplastic",
     "SmoothConductor": "roughconductor",
     "SmoothPlastic": "roughplastic",
+    "Principled": "principled",  # the nearest of the two (`_principled`)
 }
 # A smooth (delta) lobe is reached by no finite set of bundle directions: a smooth conductor or
 # plastic is rendered as the rough one of this GGX roughness, with a warning (the scene check
@@ -328,14 +331,9 @@ def _material(mi, bsdf, shape_name: str, emission, warnings: list[str], source: 
     if "MeshAttribute[" in str(bsdf):
         raise InputError(source, f"BSDF '{name}': vertex and face colours (mesh_attribute textures) are not supported")
     diffuse = kind == "SmoothDiffuse" or (kind == "TwoSidedBRDF" and _twosided_diffuse(mi, bsdf))
-    gloss, plugin = (None, kind) if diffuse else _gloss(bsdf, params, name, source)
+    gloss, approximation = (None, None) if diffuse else _gloss(bsdf, params, name, source)
     texture, albedo, off = ({}, (0.0, 0.0, 0.0), 0.0) if _conductor(gloss) else _reflectance(mi, bsdf, params)
-    notes = []
-    if plugin in SMOOTH_PLUGINS:
-        notes.append(
-            f"BSDF '{name}' ({plugin}) is smooth, a lobe no bundle direction reaches: rendered as a "
-            f"{gloss.kind} of GGX roughness {SMOOTH_ALPHA:g}"
-        )
+    notes = [] if approximation is None else [approximation]
     if not diffuse and gloss is None:
         # A rough conductor's "diffuse reflectance" reads as 20 or more: a diffuse surface with it
         # would create energy.
@@ -371,25 +369,33 @@ def _conductor(gloss: Gloss | None) -> bool:
     return gloss is not None and gloss.kind == "roughconductor"
 
 
-def _gloss(bsdf, params, name: str, source: str) -> tuple[Gloss | None, str]:
+def _gloss(bsdf, params, name: str, source: str) -> tuple[Gloss | None, str | None]:
     """A ``roughconductor`` or ``roughplastic`` (alone or in ``twosided``) with its parameters as
     Mitsuba holds them, a smooth ``conductor`` or ``plastic`` as the rough one of roughness
-    `SMOOTH_ALPHA`, or None for any other BSDF; and the plugin's class name. What the `Gloss`
-    cannot hold is refused."""
+    `SMOOTH_ALPHA`, a ``principled`` as the nearest of them, or None for any other BSDF; and what the
+    import approximated, or None. What the `Gloss` cannot hold is refused."""
     text = str(bsdf)
     inner = re.search(r"brdf\[0\] = (\w+)\[", text) if bsdf.class_name() == "TwoSidedBRDF" else None
     plugin = inner.group(1) if inner else bsdf.class_name()
     if plugin not in GLOSSY_PLUGINS:
-        return None, plugin
+        return None, None
     kind = GLOSSY_PLUGINS[plugin]
     keys = list(params.keys())  # noqa: SIM118 (SceneParameters iterate as items)
     prefix = "brdf_0." if bsdf.class_name() == "TwoSidedBRDF" else ""
     if any(k.startswith("brdf_1.") for k in keys):
         raise InputError(source, f"BSDF '{name}': a twosided BSDF with a different BSDF on each side is not supported")
-    for part in ("alpha", "specular_reflectance", "eta", "k"):
+    for part in ("alpha", "specular_reflectance", "eta", "k", "metallic", "roughness"):
         if any(k.startswith(prefix + part + ".") and not k.endswith(".value") for k in keys):
             raise InputError(source, f"BSDF '{name}' ({plugin}): a textured {part} is not supported")
+    if kind == "principled":
+        gloss, what = _principled(params, keys, prefix, name, source)
+        return gloss, f"BSDF '{name}' ({plugin}) is approximated as {what}"
+    approximation = None
     if plugin in SMOOTH_PLUGINS:
+        approximation = (
+            f"BSDF '{name}' ({plugin}) is smooth, a lobe no bundle direction reaches: rendered as a "
+            f"{kind} of GGX roughness {SMOOTH_ALPHA:g}"
+        )
         alpha = SMOOTH_ALPHA
     elif prefix + "alpha_u.value" in keys:
         alpha_u, alpha_v = (float(np.ravel(params[prefix + f"alpha_{a}.value"])[0]) for a in "uv")
@@ -409,18 +415,44 @@ def _gloss(bsdf, params, name: str, source: str) -> tuple[Gloss | None, str]:
     }
     if kind == "roughconductor":
         eta, k = (rgb(_np(params[prefix + f"{p}.value"])) for p in ("eta", "k"))
-        return Gloss("roughconductor", eta=eta, k=k, **common), plugin
+        return Gloss("roughconductor", eta=eta, k=k, **common), approximation
     eta = float(np.ravel(params[prefix + "eta"])[0])
     nonlinear = re.search(r"nonlinear = (\w+)", text).group(1) in ("1", "true")
     transmittance, internal = rough_plastic_tables(common["distribution"], common["alpha"], eta)
-    return Gloss(
-        "roughplastic",
-        eta=(eta,) * 3,
-        nonlinear=nonlinear,
-        transmittance=transmittance,
-        internal_reflectance=internal,
-        **common,
-    ), plugin
+    return (
+        Gloss(
+            "roughplastic",
+            eta=(eta,) * 3,
+            nonlinear=nonlinear,
+            transmittance=transmittance,
+            internal_reflectance=internal,
+            **common,
+        ),
+        approximation,
+    )
+
+
+# The principled BSDF's lobes that no `Gloss` has: named in its warning where they are not zero.
+PRINCIPLED_IGNORED = ("clearcoat", "sheen", "spec_trans", "anisotropic", "spec_tint", "flatness")
+
+
+def _principled(params, keys: list[str], prefix: str, name: str, source: str) -> tuple[Gloss, str]:
+    """A ``principled`` BSDF as the `Gloss` nearest it (evalkit/core/scene/gloss.py), the index of
+    a dielectric from its ``specular`` as Mitsuba reads it (eta = 2 / (1 - sqrt(0.08 specular)) - 1),
+    and what that leaves out."""
+
+    def value(part: str) -> float:
+        return float(np.ravel(params[prefix + part + ".value"])[0])
+
+    metallic, roughness = value("metallic"), value("roughness")
+    if metallic >= 0.5 and prefix + "base_color.value" not in keys:
+        raise InputError(source, f"BSDF '{name}' (Principled): a textured base_color on a metal is not supported")
+    base = rgb(_np(params[prefix + "base_color.value"])) if prefix + "base_color.value" in keys else (0.0,) * 3
+    specular = float(np.ravel(params[prefix + "specular"])[0])
+    ior = 2.0 / (1.0 - np.sqrt(0.08 * specular)) - 1.0
+    gloss, what = metallic_roughness(base, metallic, roughness, float(ior))
+    ignored = [f"{p} {value(p):g}" for p in PRINCIPLED_IGNORED if prefix + p + ".value" in keys and value(p) != 0.0]
+    return gloss, what + ("; " + ", ".join(ignored) + " ignored" if ignored else "")
 
 
 def _twosided_diffuse(mi, bsdf) -> bool:
