@@ -72,6 +72,12 @@ class GpuScene:
 
         materials = np.zeros(len(scene.materials), dtype=MATERIAL)
         textures = []  # every texture of the scene in one texel buffer: materials', then the environment map's
+
+        def place(texture: np.ndarray) -> int:
+            """Append ``texture`` (H, W, 3) to the texel buffer; its first texel."""
+            textures.append(texture)
+            return sum(t.shape[0] * t.shape[1] for t in textures[:-1])
+
         for i, m in enumerate(scene.materials):
             materials["albedo"][i, :3] = m.albedo
             materials["emission"][i, :3] = m.emission
@@ -80,27 +86,24 @@ class GpuScene:
             materials["to_uv_u"][i, :3], materials["to_uv_v"][i, :3] = to_uv[0], to_uv[1]
             if m.texture is not None:
                 h, w = m.texture.shape[:2]
-                materials["texture"][i, :3] = (sum(t.shape[0] * t.shape[1] for t in textures), w, h)
+                materials["texture"][i, :3] = (place(m.texture), w, h)
                 flags |= MATERIAL_TEXTURED | (MATERIAL_NEAREST if m.filter_type == "nearest" else 0)
                 flags |= {"repeat": 0, "mirror": MATERIAL_WRAP_MIRROR, "clamp": MATERIAL_WRAP_CLAMP}[m.wrap_mode]
-                textures.append(m.texture)
             materials["texture"][i, 3] = flags
             if m.gloss is not None:
                 g = m.gloss
                 kind = BSDF_ROUGH_CONDUCTOR if g.kind == "roughconductor" else BSDF_ROUGH_PLASTIC
                 distribution = MICROFACET_GGX if g.distribution == "ggx" else MICROFACET_BECKMANN
-                first = sum(t.shape[0] * t.shape[1] for t in textures)
+                # A plastic's coat table, one value a texel (bsdf.glsl reads its red); a conductor has none.
+                table = np.asarray(g.transmittance, np.float32)[None, :, None]
+                first = place(np.repeat(table, 3, axis=2)) if g.transmittance else 0
                 materials["gloss"][i] = (kind, distribution, first, int(g.nonlinear))
                 materials["specular"][i] = (*g.specular_reflectance, g.alpha)
                 materials["eta"][i] = (*g.eta, g.internal_reflectance)
                 materials["k"][i, :3] = g.k
-                if g.transmittance:  # the coat's table, one value a texel (bsdf.glsl reads its red)
-                    textures.append(np.repeat(np.asarray(g.transmittance, np.float32)[None, :, None], 3, axis=2))
         # The environment map's first texel, or None (environment.glsl reads it from the same buffer).
         envmap = next((light.envmap for light in scene.lights if light.kind == "envmap"), None)
-        self.envmap_first = sum(t.shape[0] * t.shape[1] for t in textures) if envmap is not None else None
-        if envmap is not None:
-            textures.append(envmap)
+        self.envmap_first = place(envmap) if envmap is not None else None
         texels = (
             np.concatenate([np.asarray(t, dtype=np.float32).reshape(-1) for t in textures])
             if textures

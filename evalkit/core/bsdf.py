@@ -132,8 +132,8 @@ def rough_plastic_tables(distribution: str, alpha: float, eta: float) -> tuple[t
     the very numbers the references do.
 
     With only the diffuse component, Mitsuba's eval at cos wi = cos wo = mu of a white base is
-    T(mu)^2 mu / ((1 - R) pi eta^2), and the ratio of a base of 1/2 with and without ``nonlinear``
-    is (1 - R) / (1 - R / 2)."""
+    T(mu)^2 mu / ((1 - R) pi eta^2), linear in the base; a base of 1/2 with ``nonlinear`` gives
+    (1 - R) / (1 - R / 2) of half of it."""
     mi = mitsuba()
     previous = mi.variant()
     mi.set_variant("scalar_rgb")  # one direction at a time; the caller's variant comes back below
@@ -166,10 +166,10 @@ def _probed_tables(mi, distribution: str, alpha: float, eta: float) -> tuple[tup
             out.append(float(bsdf.eval(ctx, si, wo)[0]))
         return np.array(out)
 
-    half = np.array([0.5])
-    ratio = diffuse_eval(True, 0.5, half)[0] / diffuse_eval(False, 0.5, half)[0]
-    r = (1.0 - ratio) / (1.0 - ratio / 2.0)  # ratio = (1 - R) / (1 - R / 2)
     mu = np.maximum(np.linspace(0.0, 1.0, TRANSMITTANCE_RESOLUTION), 1e-6)
+    white = diffuse_eval(False, 1.0, mu)
+    ratio = diffuse_eval(True, 0.5, mu[-1:])[0] / (0.5 * white[-1])
+    r = (1.0 - ratio) / (1.0 - ratio / 2.0)  # ratio = (1 - R) / (1 - R / 2)
     scale = 1.0 / ((1.0 - r) * np.pi * eta * eta)
-    t = np.sqrt(np.maximum(diffuse_eval(False, 1.0, mu) / mu / scale, 0.0))
+    t = np.sqrt(np.maximum(white / mu / scale, 0.0))
     return tuple(float(x) for x in t), float(r)

@@ -23,7 +23,8 @@
 // intensity falls as the cosine to its normal: alpha_i albedo / pi, with alpha_i the light path's
 // throughput (flux over density) arriving there. With glossy materials (GLOSSY) it sends light by
 // its BSDF instead: it is stored with alpha_i, its material and the direction back along the path,
-// and each connection evaluates it (lights.glsl); a glossy vertex's throughput gains f cos / pdf. Its MIS share (lights.glsl) is
+// and each connection evaluates it (lights.glsl); a glossy vertex's throughput gains f cos / pdf.
+// Its MIS share (lights.glsl) is
 //   L_{n-1} = (e_n^2 + a_n^2) / (b_n b_{n-1})^2   (an emitter start; a delta light: a_n = 0, e_n = 1)
 //   L_i = (1 + a_{i+1}^2 L_{i+1}) / b_i^2
 // with b the light side's densities per area (b_n: V q p_A of the start), a the eye side's of the

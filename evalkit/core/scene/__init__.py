@@ -27,15 +27,12 @@ def load_scene(spec: str | os.PathLike) -> Scene:
     from the user cache when nothing it reads has changed since (`evalkit.core.cache`)."""
     spec = os.fspath(spec)
     ext = os.path.splitext(spec)[1].lower()
-    builtin = builtin_scene(spec) is not None
-    if builtin:
-        make = builtin_scene(spec)
-    elif ext in MITSUBA_EXTENSIONS:
+    make = builtin_scene(spec)
+    builtin = make is not None
+    if not builtin and ext in MITSUBA_EXTENSIONS:
         make = functools.partial(load_mitsuba_file, spec)
-    elif ext in MESH_EXTENSIONS:
+    elif not builtin and ext in MESH_EXTENSIONS:
         make = functools.partial(load_mesh_file, spec)
-    else:
-        make = None
     if make is not None:
         # A file that is not there has no key: its importer says so in one line.
         key = cache.scene_key(spec, builtin) if builtin or os.path.isfile(spec) else None

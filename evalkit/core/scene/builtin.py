@@ -39,8 +39,8 @@ from evalkit.core.scene.model import Camera, Light, Material, Mesh, Motion, Scen
 from evalkit.core.scene.tessellate import box, subdivide, surface, unit_disk, unit_sphere
 
 FURNACE_ALBEDO = 0.5
-GLOSSY_ALPHA = 0.1
 FURNACE_EMISSION = 1.0
+GLOSSY_ALPHA = 0.1
 
 
 def cornell_box() -> Scene:
