@@ -45,7 +45,7 @@ references: setup
 	done; done
 
 # The shipped studies (studies/*.toml), each into out/studies/<name>/ with its report; resumable.
-STUDIES = hole_vs_splat error_vs_time directions poster_table accuracy resolution gloss
+STUDIES = hole_vs_splat error_vs_time directions poster_table accuracy resolution gloss bidirectional
 studies: setup
 	for study in $(STUDIES); do .venv/bin/evalkit study studies/$$study.toml || exit 1; done
 

@@ -42,7 +42,7 @@ def probe(name: str) -> dict:
         "advice_s": done - traced,
         "probe_s": done - loaded,
         "recommended": advice["recommended"],
-        "error_rate": advice["error_rate"],
+        "wrong_lookups_per_path": advice["wrong_lookups_per_path"],
     }
 
 

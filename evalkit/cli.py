@@ -141,11 +141,11 @@ def _scene_info(args) -> int:
         f"features    textures={f['textures']} emitters={f['emitters']} environment={f['environment']} "
         f"lights={','.join(f['light_types']) or '-'}"
     )
-    advice = cached_resolution_advice(scene, args.seed)
-    probed = ", ".join(f"{100 * e:.1f} % at R={r}" for r, e in advice["error_rate"].items())
+    advice = cached_resolution_advice(scene, args.seed, bounces=args.bounces)
+    probed = ", ".join(f"{100 * e:.1f} % at R={r}" for r, e in advice["wrong_lookups_per_path"].items())
     print(
-        f"resolution  {advised(advice)}: wrong next hits {probed} "
-        f'(target {100 * advice["target"]:.0f} %, docs/MEASURED_FACTS.md "Choosing R")'
+        f"resolution  {advised(advice)} at B={advice['bounces']}: wrong next hits per path {probed} "
+        f'(target {100 * advice["target"]:.0f} %, docs/guide.md "Choosing R")'
     )
     info["resolution"] = advice
     fidelity = fidelity_of(scene)
@@ -810,6 +810,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="a built-in name (" + ", ".join(builtin_names()) + ") or a .xml/.obj/.ply/.gltf/.glb path",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the eye vertices and directions that probe R")
+    p.add_argument(
+        "--bounces",
+        type=int,
+        default=1,
+        help="the bounce count the advised R is for: every bounce looks up bundles once more (default 1)",
+    )
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_scene_info)
     p = scene.add_parser(

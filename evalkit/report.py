@@ -197,6 +197,25 @@ def versus_rows(rows: list[dict], x: str, y: str, versus: str, shown: list[str])
     return result
 
 
+def versus_verdicts(compared: list[dict], x: str, y: str, versus: str) -> list[str]:
+    """One sentence per scene and pair of values of `versus_rows`: how many settings on one value's
+    Pareto front beat the other's front at matched ``x``."""
+    lines = []
+    for scene, value, other in dict.fromkeys((r["scene"], r[versus], r["against"]) for r in compared):
+        ratios = [
+            r["ratio"]
+            for r in compared
+            if (r["scene"], r[versus], r["against"]) == (scene, value, other) and r["ratio"] is not None
+        ]
+        if ratios:
+            lines.append(
+                f"{scene}, at matched {x}: {sum(q < 1 for q in ratios)} of {len(ratios)} settings on {versus} "
+                f"{value}'s Pareto front have less {y} than {other}'s front (ratios {format_value(min(ratios))} "
+                f"to {format_value(max(ratios))}; below 1: {value} is the more accurate)."
+            )
+    return lines
+
+
 def plot(rows: list[dict], spec: dict, path: Path) -> str:
     """One figure per [[plot]]: y against x, a line per ``group`` value (``group`` names one run
     parameter or a list of them), a panel per ``facet`` (default: scene); ``log`` = "x", "y" or
@@ -318,19 +337,8 @@ def findings(study: Study, ok: list[dict], rows: list[dict]) -> list[str]:
             )
             lines.append(matched_time_verdict(best_at_matched_time(ok, x, y), x, y))
         versus = spec.get("versus")
-        compared = versus_rows(ok, x, y, versus, []) if versus else []
-        for scene, value, other in dict.fromkeys((r["scene"], r[versus], r["against"]) for r in compared):
-            ratios = [
-                r["ratio"]
-                for r in compared
-                if (r["scene"], r[versus], r["against"]) == (scene, value, other) and r["ratio"] is not None
-            ]
-            if ratios:
-                lines.append(
-                    f"{scene}, at matched {x}: {sum(r < 1 for r in ratios)} of {len(ratios)} settings on {versus} "
-                    f"{value}'s Pareto front have less {y} than {other}'s front (ratios {format_value(min(ratios))} "
-                    f"to {format_value(max(ratios))}; below 1: {value} is the more accurate)."
-                )
+        if versus:
+            lines += versus_verdicts(versus_rows(ok, x, y, versus, []), x, y, versus)
     columns = [] if study.plots else [f"{i}_{m}" for i in study.measure["images"] for m in study.measure["metrics"]]
     for column in columns:
         usable = [r for r in ok if is_number(r.get(column))]

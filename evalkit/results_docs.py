@@ -7,12 +7,22 @@ from __future__ import annotations
 
 import base64
 import html
+import math
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from evalkit.core.bsdf import lobe_directions
+from evalkit.core.scene import load_scene
 from evalkit.records import read_record
-from evalkit.report import best_at_matched_time, chosen_settings, matched_time_verdict, plot
+from evalkit.report import (
+    best_at_matched_time,
+    chosen_settings,
+    matched_time_verdict,
+    plot,
+    versus_rows,
+    versus_verdicts,
+)
 
 
 def _table(header: list[str], rows: list[list]) -> list[str]:
@@ -86,6 +96,9 @@ def study_markdown(data: dict, source: str) -> str:
         lines += _plot_markdown(rows, spec)
         if spec.get("pareto"):
             lines += _matched_time_markdown(rows, spec, data["varying"])
+        if spec.get("versus"):
+            lines += _versus_markdown(rows, spec, data["varying"])
+    lines += _lobe_markdown(rows, data["varying"])
     fits = data.get("hole_model")
     if fits:
         keys = [k for k in HOLE_FIT_COLUMNS if k in fits[0]]
@@ -121,6 +134,62 @@ def _matched_time_markdown(rows: list[dict], spec: dict, varying: list[str]) -> 
         for r in best.values()
     ]  # fmt: skip
     return [f"### At matched {x}", "", matched_time_verdict(best, x, y), "", *_table(header, table), ""]
+
+
+def _versus_markdown(rows: list[dict], spec: dict, varying: list[str]) -> list[str]:
+    """Each value of a [[plot]]'s ``versus`` parameter at its best settings against the others' at
+    the same ``x`` (evalkit/report.py: versus_rows): per scene and value, how many settings of its
+    Pareto front beat the other's front, and every such setting."""
+    x, y, versus = spec["x"], spec["y"] if isinstance(spec["y"], str) else spec["y"][0], spec["versus"]
+    shown = [k for k in ("method", "directions", "spp", "frames", *chosen_settings(rows, varying)) if k != versus]
+    compared = versus_rows(rows, x, y, versus, shown)
+    if not compared:
+        return []
+    verdicts = [f"- {line}" for line in versus_verdicts(compared, x, y, versus)]
+    lines = [f"### Each {versus} at its best settings against the other at matched {x}", "", *verdicts]
+    header = ["scene", versus, *shown, "seeds", x, y, "against", f"its {y} at that {x}", "ratio", "more accurate"]
+    table = [
+        [r["scene"], r[versus], *(_value(r.get(k)) for k in shown), r["seeds"], _value(r[x]), _value(r[y]),
+         r["against"], _value(r[f"against_{y}"]), _value(r["ratio"]), r["more_accurate"]]
+        for r in compared
+    ]  # fmt: skip
+    return [*lines, "", *_table(header, table), ""]
+
+
+def _lobe_markdown(rows: list[dict], varying: list[str]) -> list[str]:
+    """Where a study renders a glossy scene at several K with all else the same: K_lobe of the
+    scene's narrowest GGX lobe (`evalkit.core.bsdf.lobe_directions`) beside the indirect relMSE
+    measured at each K, the mean over seeds; one row per setting of the other parameters that vary."""
+    others = [k for k in varying if k not in ("scene", "directions", "seed")]
+    lines = {}  # (scene, setting) -> {K: [relMSE per seed]}
+    for r in rows:
+        if r.get("method") != "mitsuba" and None not in (r.get("directions"), r.get("indirect_relmse")):
+            key = (r["scene"], tuple(r.get(k) for k in others))
+            lines.setdefault(key, {}).setdefault(r["directions"], []).append(r["indirect_relmse"])
+    lines = {key: by_k for key, by_k in lines.items() if len(by_k) > 1}
+    alphas = {}
+    for scene in {scene for scene, _ in lines}:
+        glossy = [m.gloss.alpha for m in load_scene(scene).materials if m.gloss and m.gloss.distribution == "ggx"]
+        if glossy:
+            alphas[scene] = min(glossy)
+    lines = {key: by_k for key, by_k in lines.items() if key[0] in alphas}
+    if not lines:
+        return []
+    shown = [i for i, k in enumerate(others) if len({setting[i] for _, setting in lines}) > 1 or k == "frames"]
+    ks = sorted({k for by_k in lines.values() for k in by_k})
+    table = [
+        [scene, *(_value(setting[i]) for i in shown), f"{alphas[scene]:.3g}", math.ceil(lobe_directions(alphas[scene])),
+         *(_value(sum(by_k[k]) / len(by_k[k])) if k in by_k else "-" for k in ks)]
+        for (scene, setting), by_k in sorted(lines.items(), key=lambda item: alphas[item[0][0]])
+    ]  # fmt: skip
+    header = ["scene", *(others[i] for i in shown), "alpha", "K_lobe", *(f"indirect relMSE, K = {k}" for k in ks)]
+    intro = (
+        "K_lobe is the number of directions a frame needs before one is expected within the cone that holds "
+        "half of the scene's narrowest GGX lobe ([the method](../method.md#choosing-a-bundle-by-the-bsdf)); "
+        "below it a frame expects less than one direction in the lobe, and the error at the same frame "
+        "count shows what that costs."
+    )
+    return ["### Directions a frame needs", "", intro, "", *_table(header, table), ""]
 
 
 def _mean_ratio(row: dict, image: str) -> str:
@@ -228,18 +297,20 @@ def resolution_probe_markdown(data: dict, source: str) -> str:
         "What `evalkit scene info` takes to advise a bundle resolution R for a scene it has not probed before "
         "(the advice is then kept in the user cache): the exact tracer (Embree's scene, and the coincident "
         "triangles it keeps in layers apart) and the lookups of 1000 eye vertices at each R tried, with the "
-        f"triangles' neighbours their walks cross. Median of {data['repeats']} probe(s) per scene, each of a "
-        f"scene loaded afresh. The target: {data['target_s']:g} s for a scene of 2 M triangles.",
+        "triangles' neighbours their walks cross, for one bounce (two lookups a path). "
+        f"Median of {data['repeats']} probe(s) per scene, each of a scene loaded afresh. "
+        f"The target: {data['target_s']:g} s for a scene of 2 M triangles.",
         data,
         source,
     )
     rows = [
         [r["scene"], f"{r['triangles']:,}", f"{r['coincident_pairs']:,}", f"{r['tracer_s']:.1f}",
          f"{r['advice_s']:.1f}", f"{r['probe_s']:.1f}", f"R >= {r['recommended']}",
-         ", ".join(f"{100 * e:.2g} % at {R}" for R, e in r["error_rate"].items())]
+         ", ".join(f"{100 * e:.2g} % at {R}" for R, e in r["wrong_lookups_per_path"].items())]
         for r in data["rows"]
     ]  # fmt: skip
-    header = ["scene", "triangles", "coincident pairs", "tracer s", "advice s", "probe s", "advice", "wrong next hits"]
+    header = ["scene", "triangles", "coincident pairs", "tracer s", "advice s", "probe s", "advice",
+              "wrong next hits per path"]  # fmt: skip
     return "\n".join(lines + _table(header, rows)) + "\n"
 
 

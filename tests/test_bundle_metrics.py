@@ -18,12 +18,14 @@ from evalkit.core.settings import RenderSettings
 from evalkit.metrics.bundles import (
     NEXT_HIT_ERROR_TARGET,
     SLOPE_BINS,
+    WRONG_LOOKUPS_PER_PATH_TARGET,
     bundle_lookup,
     compare_bundles,
     eye_vertices,
     lookup_lines,
     next_hit_errors,
     resolution_advice,
+    wrong_lookups_per_path,
 )
 from evalkit.metrics.bundles import _barycentrics as scalar_barycentrics
 from gpu_impl.bundles import decode_normals
@@ -308,7 +310,7 @@ def test_gl_lookups_err_as_exact_ones_and_independent_points_leave_holes(gl):
 
 def test_fine_geometry_asks_for_a_finer_bundle_resolution():
     """Parts a few bundle pixels wide at R=32 send a third of lookups to the wrong surface; the
-    advice doubles R until the share of wrong next hits meets the target, and the flat box needs
+    advice doubles R until the wrong next hits per path meet the target, and the flat box needs
     no more than the coarsest R probed. Measured: parts 23.1 / 7.2 / 0.37 % at R = 32 / 64 / 128,
     cornell-box 0.06 % at 32. While walks stopped after 4 triangles (not 2 pixels), parts was 30.9 /
     15.8 / 3.0 / 0.15 % at R = 32 / 64 / 128 / 256 and was advised 256; before lookups walked the met
@@ -318,11 +320,36 @@ def test_fine_geometry_asks_for_a_finer_bundle_resolution():
     for name in ("cornell-box", "parts"):
         scene = load_scene(name)
         advice = resolution_advice(scene, ExactTracer(scene))
-        rates = list(advice["error_rate"].values())
-        assert rates[-1] <= NEXT_HIT_ERROR_TARGET < min(rates[:-1], default=1.0)
+        rates = list(advice["wrong_lookups_per_path"].values())
+        assert rates[-1] <= WRONG_LOOKUPS_PER_PATH_TARGET < min(rates[:-1], default=1.0)
         assert all(a > b for a, b in zip(rates, rates[1:])), rates
         coarse[name] = advice["recommended"]
     assert coarse["cornell-box"] <= 64 and coarse["parts"] >= 128 and coarse["parts"] > coarse["cornell-box"], coarse
+
+
+def test_the_advice_at_more_bounces_counts_every_lookup_a_path_makes():
+    """A path of B bounces looks up bundles up to B + 1 times, and each lookup may err: the advice
+    counts the wrong next hits along the whole path. On atrium, R = 256 meets the target at one
+    bounce and not at three, where the advice doubles R (the one-bounce advice was the advice at
+    every bounce count). Paths that leave the scene look up no further: under parts' sky each depth
+    has fewer vertices than the last, and its wrong lookups count over the paths the camera starts.
+    The first two depths are the one-bounce probe's own vertices."""
+    scene = load_scene("atrium")
+    tracer = ExactTracer(scene)
+    one, three = (resolution_advice(scene, tracer, bounces=b) for b in (1, 3))
+    assert one["recommended"] == 256 and three["recommended"] > one["recommended"], (one, three)
+    assert one["wrong_lookups_per_path"][256] <= WRONG_LOOKUPS_PER_PATH_TARGET < three["wrong_lookups_per_path"][256]
+    assert len(three["error_rate_per_depth"][256]) == 4
+    assert three["error_rate_per_depth"][256][:2] == one["error_rate_per_depth"][256]
+    parts = load_scene("parts")
+    tracer = ExactTracer(parts)
+    vertices = eye_vertices(parts, tracer, 1000, seed=0, depths=4)
+    per_depth = np.bincount(vertices["depth"])[1:]
+    assert len(per_depth) == 4 and np.all(np.diff(per_depth) < 0), per_depth
+    errors = next_hit_errors(tracer.bundles(DirectionSet.make(8, seed=0), 128), tracer, vertices, seed=0)
+    d = errors["per_depth"]
+    assert d["vertices"] == per_depth.tolist()
+    assert wrong_lookups_per_path(errors) == pytest.approx(np.dot(d["error_rate"], d["lookups"]) / per_depth[0])
 
 
 @pytest.mark.parametrize("name, R", [("cornell-box", 64), ("parts", 256)])

@@ -71,7 +71,7 @@ def test_scene_info_builtin(name, min_triangles):
     assert info["triangles"] >= min_triangles and info["name"] == name
     assert "features" in info and "depth_complexity" in info["features"]
     assert f"{info['triangles']:,}" in done.stdout
-    assert f"resolution  R >= {info['resolution']['recommended']}:" in done.stdout
+    assert f"resolution  R >= {info['resolution']['recommended']} at B=1:" in done.stdout
 
 
 def test_render_warns_below_the_resolution_scene_info_advised(tmp_path):
@@ -84,7 +84,7 @@ def test_render_warns_below_the_resolution_scene_info_advised(tmp_path):
     for r in (advised // 2, advised):
         done = run_evalkit("render", "cornell-box", *quick, "--resolution", str(r), "--out", str(tmp_path / str(r)))
         assert done.returncode == 0, done.stderr
-        warned = f"R={r} is under what `evalkit scene info` advises for cornell-box, R >= {advised}"
+        warned = f"R={r} is under what `evalkit scene info --bounces 1` advises for cornell-box, R >= {advised}"
         written = json.loads((tmp_path / str(r) / "timings.json").read_text())["warnings"]
         below = r < advised
         assert (warned in done.stdout) == below and any(warned in w for w in written) == below

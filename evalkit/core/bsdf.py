@@ -118,6 +118,13 @@ def eval_bsdf(material, n: np.ndarray, wi: np.ndarray, wo: np.ndarray, albedo: n
     return np.where(live[:, None], np.nan_to_num(value), 0.0)
 
 
+def lobe_directions(alpha: float) -> float:
+    """K_lobe: the bundle directions a frame needs before one is expected within the cone holding
+    half of a GGX lobe of roughness ``alpha`` (2 arctan alpha about the mirror direction; the
+    frame's K directions fall uniformly on a vertex's hemisphere). docs/method.md derives it."""
+    return (1.0 + alpha * alpha) / (2.0 * alpha * alpha)
+
+
 def transmittance(gloss, cos: np.ndarray) -> np.ndarray:
     """The rough plastic coat's transmittance at cos, by Mitsuba's lookup (lerp of 64 entries)."""
     table = np.asarray(gloss.transmittance, dtype=np.float64)

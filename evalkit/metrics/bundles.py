@@ -359,18 +359,22 @@ NEXT_HIT_PIXELS = 2.0
 NEXT_HIT_MIN_COS = 1e-3
 
 
-def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = None, height: int | None = None) -> dict:
+def eye_vertices(
+    scene, tracer, count: int, seed: int = 0, width: int | None = None, height: int | None = None, depths: int = 2
+) -> dict:
     """Surface points where eye paths look up bundles: the camera's first hits through uniformly
-    random film positions, and as many second vertices, one cosine-distributed bounce further.
-    Returns position, normal (shading, facing the arriving ray) and geometric normal, (M, 3), and
-    the triangle each lies on (M,)."""
+    random film positions, and at each further depth up to ``depths`` as many vertices, one
+    cosine-distributed bounce further (fewer where paths leave the scene). A path of B bounces looks
+    up bundles from its vertices at depths 1 to B + 1 (the last toward emitters and the sky).
+    Returns position, normal (shading, facing the arriving ray) and geometric normal, (M, 3), the
+    triangle each lies on and its depth along the path, from 1 (M,)."""
     rng = np.random.default_rng(seed)
     w, h = scene.camera.film_size(width, height)
     cam = scene.camera.frame(np.zeros(3), w, h)
     film = rng.random((count, 2))
     origins, rays = camera_rays(cam, film)
-    points, normals, geometric, triangles = [], [], [], []
-    for _ in range(2):
+    points, normals, geometric, triangles, depth = [], [], [], [], []
+    for d in range(1, depths + 1):
         hits = tracer.next_hit(origins, rays)
         ok = hits.prim_id >= 0
         # Each normal turned to face the arriving ray on its own: a mesh's vertex normals may
@@ -380,6 +384,7 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
         shading = np.where(np.einsum("ij,ij->i", hits.normal, rays) > 0, -1.0, 1.0)[:, None]
         ng, ns = (hits.geometric_normal * facing)[ok], (hits.normal * shading)[ok]
         points.append(hits.point[ok]), normals.append(ns), geometric.append(ng), triangles.append(hits.prim_id[ok])
+        depth.append(np.full(len(ng), d))
         # The next vertex: a cosine-distributed bounce about the geometric normal.
         t1 = np.cross(ng, np.where(np.abs(ng[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]]))
         t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
@@ -393,6 +398,7 @@ def eye_vertices(scene, tracer, count: int, seed: int = 0, width: int | None = N
         "normal": np.concatenate(normals),
         "geometric": np.concatenate(geometric),
         "triangle": np.concatenate(triangles),
+        "depth": np.concatenate(depth),
     }
 
 
@@ -821,6 +827,9 @@ def next_hit_errors(
     n_k = np.bincount(k, minlength=K)
     n_s = np.bincount(slope[exact_hit], minlength=bins)
     n = max(len(use), 1)
+    depths = vertices["depth"] if "depth" in vertices else np.ones(len(vertices["position"]), np.int64)
+    depth = depths[use]
+    n_d = np.bincount(depth, minlength=depths.max(initial=1) + 1)[1:]
     return {
         "vertices": int(len(vertices["position"])),
         "lookups": int(len(use)),
@@ -833,6 +842,11 @@ def next_hit_errors(
         # surfaces the four lines meet): the nearest meeting line's node stands in, up to a pixel off.
         "off_surface_rate": float((bundle_hit & ~look["on_surface"][use]).sum() / n),
         "wrong_surface_rate": float(wrong_surface.sum() / n),
+        "per_depth": {
+            "vertices": np.bincount(depths)[1:].tolist(),
+            "lookups": n_d.tolist(),
+            "error_rate": (np.bincount(depth[~agree], minlength=len(n_d) + 1)[1:] / np.maximum(n_d, 1)).tolist(),
+        },
         "per_direction": {
             "lookups": n_k.tolist(),
             "error_rate": (np.bincount(k[~agree], minlength=K) / np.maximum(n_k, 1)).tolist(),
@@ -847,39 +861,58 @@ def next_hit_errors(
 
 # -- choosing the bundle resolution ---------------------------------------------------------------
 
-# The largest share of wrong next hits (`next_hit_errors` of exact bundles: lines up to a bundle
-# pixel beside the ray) at which a scene's image means stayed within 1 % of Mitsuba's in the
-# resolution studies (docs/MEASURED_FACTS.md: "Choosing R"). It was 10 % while lookups settled
-# by the lines' vote what they now find by walking the met surface: parts at R = 128 errs in
-# 3.0 % of lookups and its indirect light is still 2-3 % short there, at R = 256 in 0.15 %
-# ("Lookups walk the met surface").
+# The largest share of wrong next hits per lookup (`next_hit_errors` of exact bundles: lines up
+# to a bundle pixel beside the ray) at which a scene's image means stopped moving with R, within
+# 1 % of Mitsuba's, in the resolution study at one bounce (docs/results/resolution.md).
 NEXT_HIT_ERROR_TARGET = 0.01
+# A path of B bounces looks up bundles up to B + 1 times (fewer where it leaves the scene), and a
+# wrong next hit at any depth misdirects all the light gathered beyond it, so the share of a
+# B-bounce path's light that wrong lookups touch is at most their expected number along the path.
+# At one bounce a path looks up twice: the advice holds that number, at every bounce count, to
+# what two lookups at the target rate give.
+WRONG_LOOKUPS_PER_PATH_TARGET = 2 * NEXT_HIT_ERROR_TARGET
 PROBE_RESOLUTIONS = (32, 64, 128, 256, 512, 1024, 2048)
 
 
-def resolution_advice(scene, tracer, directions: int = 4, vertices: int = 1000, seed: int = 0) -> dict:
-    """The least bundle resolution R at which eye paths' lookups in exact bundles (Embree, every
-    surface on every line) find the surface the ray from the vertex meets for all but
-    `NEXT_HIT_ERROR_TARGET` of eye vertices, doubling R from 32. A bundle pixel larger than the
+def wrong_lookups_per_path(errors: dict) -> float:
+    """The expected wrong next hits along an eye path, from `next_hit_errors` of `eye_vertices` of
+    every depth a path looks up from: the wrong lookups at every depth over the paths the camera
+    starts (its first hits)."""
+    depths = errors["per_depth"]
+    return float(np.dot(depths["error_rate"], depths["lookups"]) / max(depths["vertices"][0], 1))
+
+
+def resolution_advice(
+    scene, tracer, bounces: int = 1, directions: int = 4, vertices: int = 1000, seed: int = 0
+) -> dict:
+    """The least bundle resolution R at which eye paths of ``bounces`` bounces, looking up exact
+    bundles (Embree, every surface on every line), expect at most `WRONG_LOOKUPS_PER_PATH_TARGET`
+    wrong next hits along the way (lookups that miss the surface the ray from the vertex meets, at
+    every depth, over the paths the camera starts), doubling R from 32. A bundle pixel larger than the
     geometry's features sends paths past surfaces the ray meets (or onto surfaces it misses),
-    whatever the method: no splat size or frame count removes that bias, only R does. Returns the
-    recommendation (None: not reached by the largest R probed), the target and the error rate at
-    each R probed. `tracer` is the exact tracer (references.embree.ExactTracer) of the scene."""
-    points = eye_vertices(scene, tracer, vertices, seed=seed)
+    whatever the method: no splat size or frame count removes that bias, only R does, and it grows
+    with the bounces since every lookup may err. Returns the recommendation (None: not reached by
+    the largest R probed), the target, and at each R probed the wrong next hits per path and each
+    depth's error rate. `tracer` is the exact tracer (references.embree.ExactTracer) of the scene."""
+    points = eye_vertices(scene, tracer, vertices, seed=seed, depths=bounces + 1)
     ds = DirectionSet.make(directions, seed=seed)
     k = _lookup_directions(directions, len(points["position"]), seed)
-    probed, recommended = {}, None
+    per_path, per_depth, recommended = {}, {}, None
     for R in PROBE_RESOLUTIONS:
         # Only the lines the lookups read: the rest would not change a lookup.
         lines = lookup_lines(ds, tracer.centre, tracer.radius, R, points["position"], k)
-        probed[R] = next_hit_errors(tracer.bundles(ds, R, lines), tracer, points, seed=seed)["error_rate"]
-        if probed[R] <= NEXT_HIT_ERROR_TARGET:
+        errors = next_hit_errors(tracer.bundles(ds, R, lines), tracer, points, seed=seed)
+        per_depth[R] = errors["per_depth"]["error_rate"]
+        per_path[R] = wrong_lookups_per_path(errors)
+        if per_path[R] <= WRONG_LOOKUPS_PER_PATH_TARGET:
             recommended = R
             break
     return {
         "recommended": recommended,
-        "target": NEXT_HIT_ERROR_TARGET,
-        "error_rate": probed,
+        "bounces": bounces,
+        "target": WRONG_LOOKUPS_PER_PATH_TARGET,
+        "wrong_lookups_per_path": per_path,
+        "error_rate_per_depth": per_depth,
         "directions": directions,
         "vertices": vertices,
         "seed": seed,

@@ -21,7 +21,13 @@ from evalkit.core.bundleset import DirectionSet
 from evalkit.core.errors import LimitError
 from evalkit.core.exr import write_exr
 from evalkit.core.scene import Scene, load_scene
-from evalkit.metrics.bundles import compare_bundles, eye_vertices, next_hit_errors, scene_surfaces
+from evalkit.metrics.bundles import (
+    compare_bundles,
+    eye_vertices,
+    next_hit_errors,
+    scene_surfaces,
+    wrong_lookups_per_path,
+)
 from evalkit.metrics.confidence import confidence
 from evalkit.metrics.images import compare_images
 from evalkit.study.artefacts import exact_bundles, exact_tracer, film_size, reference_for
@@ -162,7 +168,9 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
         splat_radius = tracer.params().get("splat_radius")
     r = compare_bundles(bundles, exact, surfaces=scene_surfaces(scene))
     embree = exact_tracer(scene)
-    vertices = eye_vertices(scene, embree, int(measure["eye_vertices"]), seed=int(run["seed"]))
+    # The vertices of every depth a path of the run's bounces looks up from (`resolution_advice`).
+    depths = int(run["bounces"]) + 1
+    vertices = eye_vertices(scene, embree, int(measure["eye_vertices"]), seed=int(run["seed"]), depths=depths)
     hit = next_hit_errors(bundles, embree, vertices, seed=int(run["seed"]))
     floor = next_hit_errors(exact, embree, vertices, seed=int(run["seed"]))
     row = {
@@ -198,6 +206,7 @@ def _bundle_metrics(scene: Scene, run: dict, measure: dict, out: Path) -> dict:
         {
             "next_hit_error_rate": hit["error_rate"],
             "next_hit_exact_floor": floor["error_rate"],
+            "wrong_lookups_per_path": wrong_lookups_per_path(floor),
             "next_hit_false_miss_rate": hit["false_miss_rate"],
             "next_hit_wrong_surface_rate": hit["wrong_surface_rate"],
             "next_hit_lookups": hit["lookups"],
