@@ -134,14 +134,13 @@ class Renderer:
         )
         self.warnings = list(scene.warnings) + self.strategy.warnings
         features = self.gpu_scene.features
-        if features.glossy:
+        if features.glossy and self.tracer.lighting == "precomputed":
             glossy = ", ".join(m.name for m in scene.materials if m.gloss is not None)
-            if self.tracer.lighting == "precomputed":
-                raise InputError(
-                    scene.source,
-                    f"glossy materials ({glossy}) reflect light by direction, which precomputed irradiance "
-                    "cannot hold: use --lighting lazy or auto",
-                )
+            raise InputError(
+                scene.source,
+                f"glossy materials ({glossy}) reflect light by direction, which precomputed irradiance "
+                "cannot hold: use --lighting lazy or auto",
+            )
         # Light precomputed per node or splat point is irradiance: what a diffuse surface reflects.
         self.lazy_lighting_only = self.strategy.lazy_lighting_only or features.glossy
         # Shader variants from the scene's features: no shadow-map lookups without such lights, no

@@ -398,14 +398,13 @@ def _gloss(bsdf, params, name: str, source: str) -> tuple[Gloss | None, str | No
         )
         alpha = SMOOTH_ALPHA
     elif prefix + "alpha_u.value" in keys:
-        alpha_u, alpha_v = (float(np.ravel(params[prefix + f"alpha_{a}.value"])[0]) for a in "uv")
+        alpha_u, alpha_v = (_scalar(params, prefix + f"alpha_{a}.value") for a in "uv")
         if alpha_u != alpha_v:
             roughness = f"alpha_u {alpha_u:g}, alpha_v {alpha_v:g}"
             raise InputError(source, f"BSDF '{name}' ({plugin}): anisotropic roughness ({roughness}) is not supported")
         alpha = alpha_u
     else:
-        value = params[prefix + "alpha.value"] if prefix + "alpha.value" in keys else params[prefix + "alpha"]
-        alpha = float(np.ravel(value)[0])
+        alpha = _scalar(params, prefix + ("alpha.value" if prefix + "alpha.value" in keys else "alpha"))
     common = {
         "distribution": "ggx" if plugin in SMOOTH_PLUGINS else re.search(r"distribution = (\w+)", text).group(1),
         "alpha": max(alpha, MIN_ALPHA),
@@ -416,7 +415,7 @@ def _gloss(bsdf, params, name: str, source: str) -> tuple[Gloss | None, str | No
     if kind == "roughconductor":
         eta, k = (rgb(_np(params[prefix + f"{p}.value"])) for p in ("eta", "k"))
         return Gloss("roughconductor", eta=eta, k=k, **common), approximation
-    eta = float(np.ravel(params[prefix + "eta"])[0])
+    eta = _scalar(params, prefix + "eta")
     nonlinear = re.search(r"nonlinear = (\w+)", text).group(1) in ("1", "true")
     transmittance, internal = rough_plastic_tables(common["distribution"], common["alpha"], eta)
     return (
@@ -442,17 +441,22 @@ def _principled(params, keys: list[str], prefix: str, name: str, source: str) ->
     and what that leaves out."""
 
     def value(part: str) -> float:
-        return float(np.ravel(params[prefix + part + ".value"])[0])
+        return _scalar(params, prefix + part + ".value")
 
     metallic, roughness = value("metallic"), value("roughness")
     if metallic >= 0.5 and prefix + "base_color.value" not in keys:
         raise InputError(source, f"BSDF '{name}' (Principled): a textured base_color on a metal is not supported")
     base = rgb(_np(params[prefix + "base_color.value"])) if prefix + "base_color.value" in keys else (0.0,) * 3
-    specular = float(np.ravel(params[prefix + "specular"])[0])
+    specular = _scalar(params, prefix + "specular")
     ior = 2.0 / (1.0 - np.sqrt(0.08 * specular)) - 1.0
     gloss, what = metallic_roughness(base, metallic, roughness, float(ior))
     ignored = [f"{p} {value(p):g}" for p in PRINCIPLED_IGNORED if prefix + p + ".value" in keys and value(p) != 0.0]
     return gloss, what + ("; " + ", ".join(ignored) + " ignored" if ignored else "")
+
+
+def _scalar(params, key: str) -> float:
+    """A BSDF parameter that Mitsuba holds as a scalar (a float, or a one-value texture or array)."""
+    return float(np.ravel(params[key])[0])
 
 
 def _twosided_diffuse(mi, bsdf) -> bool:

@@ -66,7 +66,8 @@ class Material:
     ``to_uv`` (3x3 affine map from the mesh's uv to texture space, None for the identity),
     ``wrap_mode`` and ``filter_type``, as Mitsuba's. ``source_bsdf`` names what the file asked for,
     and ``approximated`` says whether the import approximated it (a smooth plastic or conductor
-    treated as diffuse, a procedural texture baked).
+    made rough, a principled or glTF material mapped to the nearest gloss, another BSDF treated as
+    diffuse, a procedural texture baked).
     """
 
     name: str
