@@ -1,6 +1,7 @@
 """MkDocs hooks (mkdocs.yml): the reference pages generated from the code (evalkit/reference_docs.py),
 the results pages generated from the committed data files in docs/results/data/
-(evalkit/results_docs.py) and the tutorials, notebooks run at build time (evalkit/notebooks.py),
+(evalkit/results_docs.py), with the design decisions and their measurements
+(docs/results/decisions.toml) and the tutorials, notebooks run at build time (evalkit/notebooks.py),
 are added to the site at build time, never written into the checkout."""
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from mkdocs.structure.files import File
 
 from evalkit.notebooks import notebook_markdown
 from evalkit.reference_docs import cli_markdown, settings_markdown
-from evalkit.results_docs import results_pages
+from evalkit.results_docs import decisions_markdown, read_decisions, results_pages
 
 GENERATED = {"reference/cli.md": cli_markdown, "reference/settings.md": settings_markdown}
 TUTORIALS = {  # page: notebook in docs/
@@ -30,4 +31,7 @@ def on_files(files, config):
         files.append(File.generated(config, page, content=notebook_markdown(docs / notebook, docs.parent)))
     for path, content in results_pages(docs / "results" / "data", docs).items():
         files.append(File.generated(config, path, content=content))
+    decisions = docs / "results" / "decisions.toml"
+    page = decisions_markdown(read_decisions(decisions), decisions.relative_to(docs.parent).as_posix())
+    files.append(File.generated(config, "results/decisions.md", content=page))
     return files

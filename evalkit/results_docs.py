@@ -8,7 +8,9 @@ from __future__ import annotations
 import base64
 import html
 import math
+import re
 import tempfile
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -405,6 +407,54 @@ def gl_loads_markdown(data: dict, source: str) -> str:
         for name in ms
     ]  # fmt: skip
     return "\n".join(lines + _table(["source", "ms", "ns a load", "/ uniform block", "/ texture"], rows)) + "\n"
+
+
+def read_decisions(path: str | Path) -> dict:
+    """docs/results/decisions.toml: the design decisions and the measurements behind each, checked:
+    every decision has an id (unique), a known topic, a title, what the code does and its evidence,
+    and every link to ``#id`` in an evidence names a decision. Raises ValueError naming the file."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        raise ValueError(f"{path}: {e}") from None
+    ids = [d.get("id") for d in data.get("decision", [])]
+    for d in data.get("decision", []):
+        missing = [k for k in ("id", "topic", "title", "decision", "evidence") if not d.get(k)]
+        if missing:
+            raise ValueError(f"{path}: decision {d.get('id') or d.get('title')!r} lacks {', '.join(missing)}")
+        if d["topic"] not in data["topics"]:
+            topics = ", ".join(data["topics"])
+            raise ValueError(f"{path}: decision {d['id']!r} has topic {d['topic']!r}, not one of {topics}")
+        for target in re.findall(r"\]\(#([\w-]+)\)", d["evidence"]):
+            if target not in ids:
+                raise ValueError(f"{path}: decision {d['id']!r} links to #{target}, which no decision has")
+    twice = sorted({i for i in ids if ids.count(i) > 1} | (set(ids) & set(data["topics"])))
+    if twice:
+        raise ValueError(f"{path}: the ids {', '.join(twice)} name more than one decision or topic")
+    return data
+
+
+def decisions_markdown(data: dict, source: str) -> str:
+    """The design decisions by topic: what the code does, then what was measured to decide it."""
+    record = data["record"]
+    versions = ", ".join(f"{k} {v}" for k, v in record["versions"].items())
+    lines = [
+        "# The measurements behind the design",
+        "",
+        "Why the toolkit does what it does where a choice was measured: each decision below says what the "
+        "code does, then what was measured to decide it, with the command or script that measured it. "
+        f"Data: `{source}`, {record['origin']}, on {record['machine']} ({versions}; {record['dates']}). "
+        "Unlike the other results pages these numbers were not written by a study or benchmark: each was "
+        "measured once, on the code of its day. The studies and benchmarks re-measure what they cover.",
+        "",
+    ]
+    for topic, title in data["topics"].items():
+        lines += [f'<a id="{topic}"></a>', "", f"## {title}", ""]
+        for d in (d for d in data["decision"] if d["topic"] == topic):
+            lines += [f'<a id="{d["id"]}"></a>', "", f"### {d['title']}", "", f"**Decision.** {d['decision']}", ""]
+            lines += [d["evidence"].strip(), ""]
+    return "\n".join(lines)
 
 
 # A results page per data file, by the benchmark that wrote it.

@@ -41,7 +41,7 @@ CLUSTER_PADDING = 1e-5
 # (surface_weights). A surface smaller than a point's share of the area got a point in only some
 # directions; a line through it found nothing in the rest: on atrium (K=16, R=128, N=16384, s=2.5)
 # 55 % of the leaks lay on surfaces of less than one point's share, 2.3 % of the crossings
-# (docs/MEASURED_FACTS.md, "Small surfaces get points of their own").
+# (docs/results/decisions.toml: small-surfaces-get-points).
 SURFACE_LEAST_POINTS = 2
 SURFACE_POINTS_SHARE = 0.1
 

@@ -427,7 +427,7 @@ def test_the_shaders_lookups_are_the_emulations_vertex_by_vertex(gl, method):
     so the direction every path takes is known) of the parts scene, whose small parts send many
     lookups to the lines' vote: each camera vertex's first step in the shader, read back from the
     paths, against the emulation on the same bundles from the same vertices. A rule tried since
-    (docs/MEASURED_FACTS.md, "Rings") passed every next-hit test in its emulation while its shader
+    (docs/results/decisions.toml: rings-not-kept) passed every next-hit test in its emulation while its shader
     left 0.2 % more lookups on a surface: this test found it."""
     parts = load_scene("parts")
     sky = replace(parts.lights[0], kind="constant", envmap=None, to_world=None)  # every miss adds light

@@ -96,7 +96,7 @@ def test_bad_lights_are_errors():
 
 def test_far_from_origin_geometry_keeps_float32_precision_after_recentring():
     # Two parallel quads 1e-4 apart, 1e4 from the world origin: in float32 world coordinates
-    # they collapse to one depth (docs/MEASURED_FACTS.md); recentred they stay distinct.
+    # they collapse to one depth (docs/results/decisions.toml: float32-far-from-origin); recentred they stay distinct.
     offset = np.array([1e4, -1e4, 1e4])
     a, b = QUAD + offset, QUAD + offset + [0, 0, 1e-4]
     assert np.float32(a[0, 2]) == np.float32(b[0, 2])

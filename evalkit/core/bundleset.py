@@ -60,7 +60,7 @@ class DirectionSet:
     random rotation) has no pair of directions closer than its spacing, so with the last bundle
     excluded paths turned back towards the surface they came from too rarely: +2.3 % indirect
     light under a constant sky at K = 16, -0.6 % on cornell-box at K = 32, B = 3
-    (docs/MEASURED_FACTS.md).
+    (docs/results/decisions.toml: no-return-bundle).
 
     directions, axis_u, axis_v: (K, 3) float64, unit, right-handed (u x v = d).
     jitter: (K, 2) float64, the shift of the grid along (u, v) in pixels.

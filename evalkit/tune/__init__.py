@@ -37,7 +37,7 @@ each.
     exact maps     + m(M), measured
     imperfect maps + i(P, n), measured
 
-b (64 / R)^2 is the squared O(1/R) bias of the line a path takes (docs/MEASURED_FACTS.md); v 16 /
+b (64 / R)^2 is the squared O(1/R) bias of the line a path takes (docs/results/decisions.toml: four-lines); v 16 /
 (F S) the paths' variance; w / (F K) what a frame's K shared directions add (the directions study),
 which more paths in the same frame do not take away; h
 the holes of the splat points, with the hole model's shape for their sampler (c, q:
@@ -60,8 +60,8 @@ stay at their defaults, with a warning (`models.unmeasured_axes`). Eye paths in 
 emissive triangles draw no map: M, P and n stay at their defaults for them (`models.idle_axes`),
 and candidates that differ only in the kind of map they never draw are tuned once.
 Each candidate fits its own v: the eye paths' variance is what the light paths take away. The
-shared terms are why S can matter to the choice of strategy: on atrium eye paths beat
-bidirectional paths from S = 16 on and lose at S = 4 (docs/BIDIRECTIONAL.md). With ``--spp tune``
+shared terms are why S can matter to the choice of strategy: on atrium which strategy leads at
+matched time moves with S (docs/results/decisions.toml: eye-paths-a-frame). With ``--spp tune``
 the calibration runs take S in a cycle of their own (`CALIBRATION_SPP`); the default keeps S = 16,
 whose recommendations measured as good or better (docs/guide.md: the same calibration time spread over
 one more setting fits it less well). ``--pin`` holds any other setting the optimiser chooses at a

@@ -22,7 +22,7 @@ TUNE_METRICS = tuple(f"{image}_{metric}" for image in IMAGES for metric in METRI
 # The settings every candidate's recommendation is chosen from (every combination is evaluated);
 # each unit adds its own axes (`axes`). No fewer than 8 directions: a path never takes the bundle
 # it arrived along, and at K = 4 that is a bias no term of the error model has (an open stage's
-# indirect light -13 %, docs/MEASURED_FACTS.md); atrium's 10 s recommendation at K = 4 measured
+# indirect light -13 %, docs/results/decisions.toml: no-return-bundle); atrium's 10 s recommendation at K = 4 measured
 # twice its prediction.
 GRID = {
     "directions": [8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256],
@@ -32,7 +32,7 @@ GRID = {
 # The eye paths per pixel per frame of the calibration runs, taken in turn (a cycle of 4 against the
 # bundle methods' 10 or 13 runs and the light paths' 3, so that no two settings move together); the
 # last two runs, the long ones, take the first two. Atrium's eye paths win or lose against
-# bidirectional paths by this setting alone (docs/BIDIRECTIONAL.md); `evalkit tune --spp tune`
+# bidirectional paths by this setting alone (docs/results/decisions.toml: eye-paths-a-frame); `evalkit tune --spp tune`
 # tunes it.
 CALIBRATION_SPP = (4, 32, 1, 16)
 # The terms every candidate's models have: a render's once-only cost, a frame's cost outside the

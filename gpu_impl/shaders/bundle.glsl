@@ -23,7 +23,7 @@ struct BundleFrame {
 // A uniform block, not a storage buffer: llvmpipe loads a storage buffer's values lane by lane (a
 // vec4 about ten times the time of a uniform block's, benchmarks/gl_loads.py), and every fragment
 // of the lists pass reads its direction's frame: that pass took 1.2 to 1.7 times as long with
-// storage (docs/MEASURED_FACTS.md).
+// storage (docs/results/decisions.toml: storage-vs-uniform).
 // The block is always MAX_DIRECTIONS frames long (bundles.py sizes the buffer so).
 layout(std140, binding = BINDING_FRAMES) uniform Frames { BundleFrame frames[MAX_DIRECTIONS]; };
 

@@ -15,7 +15,7 @@ layout(std430, binding = BINDING_COUNTERS) buffer Counters { uint counters[]; };
 // moving one key per node costs half what a depth and a reference apart cost. The raster passes
 // append keys too: one store per fragment and one load per node in the resolve, where a depth
 // and a reference apart cost two of each (llvmpipe runs every storage access lane by lane; at
-// K = 256, R = 256 on cornell-box the sort pass took a fifth less time, docs/MEASURED_FACTS.md).
+// K = 256, R = 256 on cornell-box the sort pass took a fifth less time, docs/results/decisions.toml: int64-keys).
 uint64_t node_key(float depth, uint ref) {
     return (uint64_t(depth_order_bits(depth)) << 32) | uint64_t(ref);
 }

@@ -14,7 +14,7 @@
 // that surface (the far wall beside a block), so all four are looked at. One line's node
 // taken where it lies put the next vertex half a pixel off on average, towards the open side, and
 // lost the light of lines passing beside a concave edge: +2 % and -1 % of cornell-box's and the
-// furnace's indirect light at R = 64 (docs/MEASURED_FACTS.md).
+// furnace's indirect light at R = 64 (docs/results/decisions.toml: four-lines).
 //
 // Where no point lies on a surface, the ray passes between the surfaces the lines meet (or
 // their walks stopped short), and the lines vote: the ray meets a surface where
@@ -23,7 +23,7 @@
 // that meets a surface here meets one the ray misses, so the ray leaves more often than the
 // lines do: in exact bundles of the parts scene, rays with one of four lines meeting a surface
 // left 91-95 % of the time. The line on the vertex's open side, which decided alone before, made
-// the parts' direct sky light 1-3 % short at every R (docs/MEASURED_FACTS.md: "Choosing R"). A
+// the parts' direct sky light 1-3 % short at every R (docs/results/decisions.toml: lines-vote). A
 // line below the vertex's tangent plane with no node behind the vertex does not vote: it passes
 // outside whatever the vertex lies on (under a floor, then behind the wall the ray meets), so
 // its leaving the scene says nothing of the ray's. Counted, it lost the furnace's light at
@@ -65,14 +65,15 @@ bool within_splat(uint ref, vec2 b, vec3 y) {
 //   its plane, lies in the splat's own triangle: there the splat is that surface, a real one in
 //   front of x. Skipped there, the light's splats let the ceiling above cornell-box's light, 0.01
 //   over it, see the room through the light, and the ceiling's indirect light there was twice
-//   Mitsuba's (docs/MEASURED_FACTS.md, "Another surface in front of the vertex").
+//   Mitsuba's (docs/results/decisions.toml: another-surface-in-front).
 // - it is a splat of x's smooth surface whose centre lies behind x's tangent plane, within
 //   2 (r + h) of x (a line passes up to a pixel's diagonal beside x, and meets a splat up to
 //   its radius from its centre): the surface it stands for is one the ray cannot reach, while
 //   its disk, tangent elsewhere on a convex surface, stands out over that plane where the lines
 //   beside x meet it, and they outvoted the ray. Lookups on the parts scene (N = 1048576,
 //   R = 256) let through 0.986 of the sky light that rays do at the camera's vertices and 0.962 at
-//   the second ones, against 0.996 and 0.998 for exact bundles (docs/MEASURED_FACTS.md). A splat
+//   the second ones, against 0.996 and 0.998 for exact bundles
+//   (docs/results/decisions.toml: own-surface-behind-tangent-plane). A splat
 //   of another surface behind the plane may be one the ray meets in front of it (the floor beside
 //   a column), and stays.
 bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
@@ -95,8 +96,8 @@ bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
 // within WALK_REACH bundle pixels of where the line met the node, at most MAX_WALK_HOPS triangles. The ray's point is within a pixel and a half of the line, so the walk
 // reaches it across triangles of any size; a count of 4 triangles stopped it short on triangles
 // smaller than a pixel. (On the parts scene at R = 256, one hop left the second lookups from exact
-// hits letting through 0.989 of the sky light that rays do, four 0.999: docs/MEASURED_FACTS.md,
-// "Lookups walk the met surface".) evalkit/metrics/bundles.py mirrors both.
+// hits letting through 0.989 of the sky light that rays do, four 0.999: docs/results/decisions.toml,
+// walk-the-met-surface.) evalkit/metrics/bundles.py mirrors both.
 const float WALK_REACH = 2.0;
 const uint MAX_WALK_HOPS = 64u;
 const uint WALK_MET = 0u, WALK_OUTSIDE = 1u, WALK_OPEN = 2u;
@@ -114,8 +115,8 @@ struct SurfaceWalk {
 //   alone, a ray's point a pixel from the line fell outside a splat smaller than a pixel most of
 //   the time, and the lookup landed by the lines' vote, on a node up to a pixel off the ray (the
 //   parts scene, N = 1048576, R = 256: 67 % of the second vertices' sky light came from such
-//   landings, against 37 % with perfect bundles; docs/MEASURED_FACTS.md, "Splats stand for their
-//   triangles").
+//   landings, against 37 % with perfect bundles; docs/results/decisions.toml:
+//   splats-stand-for-triangles).
 // - else the walk crosses the edge of the node's triangle that the point lies beyond, to the
 //   triangle there, and takes the ray's point on that one's plane, as far as WALK_REACH pixels
 //   from the line's node `met` (h: a pixel).
@@ -127,7 +128,7 @@ struct SurfaceWalk {
 //   passes outside that surface (WALK_OUTSIDE): the line's meeting it says nothing of the ray,
 //   which goes on to whatever the line meets behind it. Such lines outvoted the ray where it
 //   leaves past a part's outline: the parts scene's indirect light was 0.985 of Mitsuba's
-//   (docs/MEASURED_FACTS.md, "Where perfect bundles' last indirect light on parts goes").
+//   (docs/results/decisions.toml: perfect-parts-deficit.
 // - still beyond the last triangle's edge (WALK_OPEN): undecided; the line meets a surface.
 SurfaceWalk walk_surface(uint ref, vec3 x, vec3 omega, float s, uint own, vec3 met, float h) {
     const SurfaceWalk outside = SurfaceWalk(WALK_OUTSIDE, NO_TRIANGLE, 0.0);
@@ -238,7 +239,7 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
         // was 5.7 % short before (tests/test_renderer.py). A splat lies in its triangle's plane.
         // A splat of the vertex's own surface is skipped too: on a curved surface it stands off
         // the vertex and shadowed it (parts scene, N = 65536, R = 256: indirect light 0.23 of
-        // Mitsuba's with it, 0.51 without; docs/MEASURED_FACTS.md).
+        // Mitsuba's with it, 0.51 without; docs/results/decisions.toml: own-surface-cylinder).
         while (node != NO_NODE) {
             uint ref = node_ref(node);
             vec3 plane_normal = triangle_normal(ref_triangle(ref));
@@ -288,7 +289,7 @@ BundleStep bundle_step(int k, bool forward, vec3 x, vec3 ng, uint triangle) {
     // the lines that meet it weigh more than half of all four, bilinearly: the ray then lands on
     // the heaviest of those lines' nodes, where it lies. Without this, 9 % of the lookups from
     // atrium's eye vertices at R = 128 landed over half a pixel behind the ray's first surface, and
-    // 1.6 % in front of it; with it, 5.6 and 2.7 % (docs/MEASURED_FACTS.md).
+    // 1.6 % in front of it; with it, 5.6 and 2.7 % (docs/results/decisions.toml: smaller-than-a-pixel).
     bool on_surface = hit != NO_NODE;
     if (on_surface) {
         float nearer = 0.0, total = 0.0, heaviest = 0.0;

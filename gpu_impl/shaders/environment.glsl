@@ -25,9 +25,10 @@ vec3 envmap_texel(int x, int y) {
 
 // The radiance arriving along -dir from the environment (dir: the direction a path leaves in).
 // The lat-long map uses Mitsuba's orientation, u = atan2(x, -z) / (2 pi), v = acos(y) / pi in
-// the map's local frame, and Mitsuba's texel positions (docs/MEASURED_FACTS.md; the sky pixels of
-// tests/test_renderer.py::test_environment_light_matches_mitsuba): column i at u = (i + 0.5) / W,
-// wrapped, but row j at v = j / (H - 1), so the first and last rows sit on the poles; bilinear.
+// the map's local frame, and Mitsuba's texel positions (docs/results/decisions.toml:
+// mitsuba-envmap-texels; the sky pixels of tests/test_renderer.py::test_environment_light_matches_mitsuba):
+// column i at u = (i + 0.5) / W, wrapped, but row j at v = j / (H - 1), so the first and last rows
+// sit on the poles; bilinear.
 #if ENVIRONMENT == ENVIRONMENT_MAP
 vec2 environment_uv(vec3 dir) {
     vec3 v = normalize(environment_to_local * dir);

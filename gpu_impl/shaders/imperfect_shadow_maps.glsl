@@ -12,7 +12,7 @@
 // nearest. A disk facing the vertex instead would stand a radius off its surface wherever the map
 // sees it at a grazing angle (a floor between the vertex and a receiver): atrium, 64 light
 // vertices, 1024 receivers, 4096 points a map: 11.1 % of connections hidden that exact maps see,
-// 6.8 % with tangent-plane disks (docs/BIDIRECTIONAL.md).
+// 6.8 % with tangent-plane disks (docs/results/decisions.toml: imperfect-shadow-maps).
 // Lookups: light_visibility_imperfect.glsl.
 
 #define SHADOW_MAP_RASTER

@@ -167,7 +167,7 @@ void main() {
     // still uniform and independent of its start, but the frame's paths spread over the bundles
     // instead of doubling up. Paths from a small emitter that take the same bundle land side by
     // side and light the same pixels, so repeats added little: at K = V = 64 on cornell-box this
-    // took the frame means' scatter from 21 % to 15 % (docs/BIDIRECTIONAL.md).
+    // took the frame means' scatter from 21 % to 15 % (docs/results/decisions.toml: light-paths-spread).
     uint o = pcg4d(uvec4(0xFFFFFFFFu, 0xFFFFFFFFu, seed, frame)).x;
     int spread = int((id + o) % uint(direction_count));
     if (source == FROM_EMITTERS) {

@@ -75,7 +75,7 @@ uniform int shadow_filter;        // PCF: shadow_filter x shadow_filter bilinear
 // how far the receiver's own surface moves in depth across a texel (texel x slope): a closer one
 // cannot be told from the receiver's own surface by a tap a texel away (lit_tap). Measured with
 // exact maps of frame 0's light vertices against Embree rays (camera-seen receivers, light weighted
-// by each connection's geometry term, maps of 256 texels; docs/BIDIRECTIONAL.md):
+// by each connection's geometry term, maps of 256 texels; docs/results/decisions.toml: second-surfaces):
 // - atrium, light hidden: 0.51 % at 0, 0.28 % at 0.25, 0.22 % with no bound (a wall there has a
 //   second layer facing the light 0.0036 behind it, a 30th of a texel at a distance of 12);
 // - cornell-box's ceiling above its light, light leaked over the true light: 0.42 at 0 and 0.25,

@@ -19,7 +19,7 @@
 // program with every list length's code cost its length for every list on a CPU rasterizer, even
 // though it skips the blocks no invocation of a group enters (most likely the 32 keys' array no
 // longer fits in registers): at K = 256, R = 256 on cornell-box (lists of up to 6 nodes) the sort
-// took 4.8 s a build, 1.7 s with the short program alone (docs/MEASURED_FACTS.md).
+// took 4.8 s a build, 1.7 s with the short program alone (docs/results/decisions.toml: two-resolve-programs).
 //
 // Lists are sorted by depth, then by reference (node keys, bundle_build.glsl): equal node sets
 // give equal lists, whatever order the rasterizer's threads or the scatter's atomics put them in.

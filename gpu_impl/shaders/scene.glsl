@@ -176,7 +176,7 @@ uint triangle_across(uint t, uint e) {
 // others cannot cut it, and most splats meet none: `cut` false, and they skip every test;
 // bundle.glsl's SplatPoint keeps which, lines_within). Reaching over a convex crease or a
 // boundary, a flat disk would stand out into empty space, and lines passing there would find a
-// surface that is not there (docs/MEASURED_FACTS.md, "Splats end at sharp edges"); reaching past
+// surface that is not there (docs/results/decisions.toml: splats-end-at-sharp-edges; reaching past
 // a neighbour's, it stands out as well ("Cut by their neighbours' edges too"). The MAX_SPLAT_CUTS
 // = 6 lines are the columns of two matrices, (l1, l2, l0) each, so that vec3(b, 1) * lines gives
 // three distances at once, with a slack for round-off (1e-4 of the line's change per unit of
@@ -218,7 +218,7 @@ SplatShape splat_shape(uint t, uint lines) {
 // splat centre within r as often as the disk of radius r around it holds points. At a sharp edge
 // only the half of that disk on the face's own side holds any, so splats of radius r, cut there,
 // would cover the edge's crossings half as often, and light would leak along every crease
-// (docs/MEASURED_FACTS.md, "Cut splats cover their edges"). A half disk of radius sqrt(2) r has
+// (docs/results/decisions.toml: splats-end-at-sharp-edges. A half disk of radius sqrt(2) r has
 // the full disk's area, and a quarter disk (a corner) of radius 2 r: so a splat within sqrt(2) r
 // of one line takes radius sqrt(2) r, and one within sqrt(2) r of two or more takes 2 r. Growing
 // a cut splat only until what it keeps has its disk's area (the rule before) left an edge's

@@ -279,7 +279,7 @@ class LightSources:
         # share of [0, 1), the second the radical inverse of its rank among the source's paths,
         # shifted at random. Each point is still uniform, so the densities stay V q p. Independent
         # points put a frame's few sun paths on the same part of atrium and left its frame means
-        # scattered by 37 % (docs/BIDIRECTIONAL.md).
+        # scattered by 37 % (docs/results/decisions.toml: fixed-light-starts).
         first = np.concatenate([[0.0], self.cdf[:-1]])[source]
         records["square_point"][:, 0] = np.clip((u - first) / self.probabilities[source], 0.0, 1.0)
         rank = np.arange(v) - np.searchsorted(source, source)  # a source's paths are consecutive

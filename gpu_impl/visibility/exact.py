@@ -19,7 +19,7 @@ from gpu_impl.units import LightVisibility, TuneTerms
 # Measured on cornell-box (B=3, K=32, R=128, 128x128, 32 frames x 16 paths): maps of 128 and 256
 # texels gave the same errors there; 256 keeps contact shadows (a ball on a floor seen close under
 # an area light: +9 % direct light at 32 texels, +1.4 % at 64, within its interval at 256;
-# docs/BIDIRECTIONAL.md). `evalkit tune` chooses a smaller size where a scene allows it.
+# docs/results/decisions.toml: light-vertex-map-size). `evalkit tune` chooses a smaller size where a scene allows it.
 DEFAULT_MAP_SIZE = 256
 
 
@@ -83,7 +83,7 @@ def _time(x: dict) -> list:
     # t_texels: clearing, drawing and filtering the maps' texels, M^2 a face, for the frame's light
     # vertices (V light paths; the 8 emitter samples of eye paths). Their triangles' cost is the
     # strategy's t_light. Atrium, bidirectional, K=8 R=256 S=16 V=64: a frame took 4.0 s with 256
-    # texels and 2.4 s with 32 (docs/BIDIRECTIONAL.md).
+    # texels and 2.4 s with 32 (docs/results/decisions.toml: light-vertex-map-size).
     M = x["light_sample_map_size"]
     return [x["frames"] * (M / 256.0) ** 2 * x.get("light_paths", 8) / 8.0]
 
@@ -104,7 +104,7 @@ VISIBILITY = LightVisibility(
         # hidden beside contacts and edges is a band a texel or so wide. The direct light of a
         # close-up of a ball and a box on a floor under an area light, over Mitsuba's: 1.092 and
         # 0.971 with maps of 32 texels, 1.014 and 0.985 with 64, 1.003 and 1.000 with 256
-        # (docs/BIDIRECTIONAL.md): no one power of M, so renders at each M measure it.
+        # (docs/results/decisions.toml: light-vertex-map-size): no one power of M, so renders at each M measure it.
         measured={"m": ("light_sample_map_size",)},
     ),
 )

@@ -32,7 +32,8 @@ DEFAULT_ISM_POINTS = 4096
 # Tangent-plane disks of stratified points leave holes below about 1.5 (light leaking through
 # walls) and overhang edges above it (hiding light). Lit-room (studies/bidirectional.toml's
 # bidirectional runs, imperfect maps, 8 frames, seeds 0-2), indirect relMSE: 0.069 at 1.0, 0.054
-# at 1.3, 0.050 at 1.6, 0.049 at 2.0, and mean ratios at 1.6 as exact maps' (docs/BIDIRECTIONAL.md).
+# at 1.3, 0.050 at 1.6, 0.049 at 2.0, and mean ratios at 1.6 as exact maps'
+# (docs/results/decisions.toml: ism-splat-scale).
 DEFAULT_SPLAT_SCALE = 1.6
 MAX_DRAW_VERTICES = 2**31 - 1
 
@@ -197,7 +198,8 @@ def _time(x: dict) -> list:
     # t_ism_points: the maps' points, P per light vertex (V light paths; the 8 emitter samples of eye
     # paths); t_ism_texels: clearing and filtering their texels. Atrium, 256 light vertices: 240 ms
     # at 64 texels and 4096 points, 891 ms at 16384 points, 307 ms at 128 texels
-    # (docs/BIDIRECTIONAL.md): the points' cost is linear in them, the texels' about a tenth of it.
+    # (docs/results/decisions.toml: imperfect-vs-culled-exact): the points' cost is linear in them,
+    # the texels' about a tenth of it.
     P, size, vertices = x["ism_points"], x["ism_size"], x.get("light_paths", 8) / 8.0
     return [x["frames"] * vertices * P / 4096.0, x["frames"] * vertices * (size / 64.0) ** 2]
 
@@ -220,7 +222,8 @@ VISIBILITY = LightVisibility(
         # vertices. It is no product of the two: more texels lower the light leaked through the
         # slope-scaled bias and leave more of a map uncovered by P points (atrium's changed
         # connections at 4096 points: 21.8 % at 64 texels, 24.5 % at 128; at 65536 points 10.7 and
-        # 8.4 %: docs/BIDIRECTIONAL.md), so renders measure every combination, against exact maps.
+        # 8.4 %: docs/results/decisions.toml: imperfect-vs-culled-exact), so renders measure every
+        # combination, against exact maps.
         measured={"i": ("ism_points", "ism_size")},
         unbiased={"light_visibility": "exact"},
     ),

@@ -16,7 +16,7 @@ CREASE_DEGREES = 30.0
 # A splat in its triangle's plane that reaches over a convex edge, where the neighbour bends away
 # by theta, stands off the neighbour by up to r sin(theta): lines beside a small part's outline meet
 # it where the part is not. Splats end at convex edges of more than this (sharp_edges, splat_cuts;
-# docs/MEASURED_FACTS.md, "Splats end at convex edges of 10 degrees"), which cuts a 16-sided
+# docs/results/decisions.toml: convex-edges-10-degrees), which cuts a 16-sided
 # cylinder's facets (22.5 degrees) but not atrium's columns' (7.5): a facet narrower than a splat,
 # cut on both sides, keeps too few points to cover it (atrium at N = 16384, splat scale 2.5: leaks
 # 0.41 % at 10 degrees, 4.8 % at 5).
@@ -32,7 +32,7 @@ MAX_SPLAT_CUTS = 6
 # normals part by less than 60 degrees (shaders/bundle_step.glsl: own_surface). A wall's splat
 # beside a ceiling vertex is perpendicular to it: with "more than 90 degrees apart" instead, float
 # round-off of the two normals let it pass at concave corners, and lookups left cornell-box there
-# (docs/MEASURED_FACTS.md, "Splats of the vertex's own surface behind its tangent plane").
+# (docs/results/decisions.toml: own-surface-behind-tangent-plane).
 OWN_SPLAT_COS = 0.5
 
 
