@@ -418,8 +418,10 @@ def read_decisions(path: str | Path) -> dict:
         data = tomllib.loads(path.read_text())
     except (OSError, tomllib.TOMLDecodeError) as e:
         raise ValueError(f"{path}: {e}") from None
-    ids = [d.get("id") for d in data.get("decision", [])]
-    for d in data.get("decision", []):
+    if not data.get("topics") or not data.get("decision"):
+        raise ValueError(f"{path}: no [topics] table or no [[decision]]")
+    ids = [d.get("id") for d in data["decision"]]
+    for d in data["decision"]:
         missing = [k for k in ("id", "topic", "title", "decision", "evidence") if not d.get(k)]
         if missing:
             raise ValueError(f"{path}: decision {d.get('id') or d.get('title')!r} lacks {', '.join(missing)}")

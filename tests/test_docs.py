@@ -154,6 +154,7 @@ def test_every_decision_the_code_and_pages_cite_is_on_the_decisions_page():
         (lambda d: d["decision"][0].update(topic="nowhere"), "has topic 'nowhere'"),
         (lambda d: d["decision"][0].update(evidence="see [there](#no-such-id)"), "links to #no-such-id"),
         (lambda d: d["decision"][0].pop("decision"), "lacks decision"),
+        (lambda d: d["decision"].clear(), "no [topics] table or no [[decision]]"),
     ],
 )
 def test_a_decisions_file_with_a_broken_decision_is_refused_by_name(tmp_path, change, error):
