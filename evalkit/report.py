@@ -150,6 +150,11 @@ def matched_time_verdict(best: dict[str, dict], x: str, y: str) -> str:
     )
 
 
+def judged_y(spec: dict) -> str:
+    """The measure a [[plot]]'s verdicts judge: its ``y``, or the first of several."""
+    return spec["y"] if isinstance(spec["y"], str) else spec["y"][0]
+
+
 def versus_rows(rows: list[dict], x: str, y: str, versus: str, shown: list[str]) -> list[dict]:
     """Each value of the run parameter ``versus`` (the path strategy, say) given its best settings,
     against each other value given theirs, per scene: every setting on a value's Pareto front (mean
@@ -317,7 +322,7 @@ def findings(study: Study, ok: list[dict], rows: list[dict]) -> list[str]:
         return ", ".join(f"{k}={row[k]}" for k in shown) or row["run_id"]
 
     for spec in study.plots:
-        x, y = spec["x"], spec["y"] if isinstance(spec["y"], str) else spec["y"][0]
+        x, y = spec["x"], judged_y(spec)
         facet = spec.get("facet", "scene")
         usable = [r for r in ok if is_number(r.get(x)) and is_number(r.get(y))]
         for panel in dict.fromkeys(r.get(facet) for r in usable):

@@ -20,6 +20,7 @@ from evalkit.records import read_record
 from evalkit.report import (
     best_at_matched_time,
     chosen_settings,
+    judged_y,
     matched_time_verdict,
     plot,
     versus_rows,
@@ -123,7 +124,7 @@ def study_markdown(data: dict, source: str) -> str:
 def _matched_time_markdown(rows: list[dict], spec: dict, varying: list[str]) -> list[str]:
     """Per scene, the bundle setting with the least ``y`` against Mitsuba's at the same ``x`` (a
     [[plot]] with ``pareto``: evalkit/report.py: matched_time_rows), and which is the more accurate."""
-    x, y = spec["x"], spec["y"] if isinstance(spec["y"], str) else spec["y"][0]
+    x, y = spec["x"], judged_y(spec)
     shown = chosen_settings(rows, varying)
     best = best_at_matched_time(rows, x, y, shown)
     if not best:
@@ -142,7 +143,7 @@ def _versus_markdown(rows: list[dict], spec: dict, varying: list[str]) -> list[s
     """Each value of a [[plot]]'s ``versus`` parameter at its best settings against the others' at
     the same ``x`` (evalkit/report.py: versus_rows): per scene and value, how many settings of its
     Pareto front beat the other's front, and every such setting."""
-    x, y, versus = spec["x"], spec["y"] if isinstance(spec["y"], str) else spec["y"][0], spec["versus"]
+    x, y, versus = spec["x"], judged_y(spec), spec["versus"]
     shown = [k for k in ("method", "directions", "spp", "frames", *chosen_settings(rows, varying)) if k != versus]
     compared = versus_rows(rows, x, y, versus, shown)
     if not compared:
