@@ -311,27 +311,31 @@ class BundleTracer:
         # shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size,
         # past the list's end: the node buffer keeps that many slots beyond the last list.
         self._grow(("NODES",), NODE.itemsize, total + SORT_NETWORK, self.raw_nodes_are)
-        # The resolve's queue of lists longer than SHORT_LIST: each holds more than that many nodes.
+        # The resolve's queues of lists longer than SHORT_LIST: each holds more than that many nodes.
         self._grow(("LONG_LISTS",), 4, total // (SHORT_LIST + 1) + 1, "long lists queued")
         self.bind()
         return total
 
     def sort_programs(self, **defines) -> tuple:
         """shaders/resolve_lists.glsl's two passes of a sort (or merge: ``defines``)."""
-        return tuple(self.gl.program("resolve_lists", **defines, **extra) for extra in ({}, {"LONG_LISTS": True}))
+        passes = ({}, {"MEDIUM_LISTS": True}, {"LONG_LISTS": True})
+        return tuple(self.gl.program("resolve_lists", **defines, **extra) for extra in passes)
 
     def sort_lists(self, uniforms: dict | None = None, **defines) -> None:
         """Each list sorted (or merged, ``defines``) into its slot range: a pass over every list
-        sorts the short ones and queues the rest, then a pass over just those (round-trip 2 reads
-        how many)."""
+        sorts the short ones and queues the rest, the medium and the long apart, then a pass over
+        each queue (round-trip 2 reads how many)."""
         gl = self.gl
-        short, long = self.sort_programs(**defines)
-        for program in (short, long):
+        short, medium, long = programs = self.sort_programs(**defines)
+        for program in programs:
             set_uniforms(program, uniforms or {})
         gl.dispatch(short, self.list_count)
-        queued = int(self.gl.read(self.buffers["COUNTERS"], np.uint32, 1, first=COUNTERS["LONG_LISTS"])[0])
-        if queued:
-            gl.dispatch(long, queued)
+        assert COUNTERS["MEDIUM_LISTS"] == COUNTERS["LONG_LISTS"] + 1  # one read
+        longs, mediums = (int(n) for n in gl.read(self.buffers["COUNTERS"], np.uint32, 2, first=COUNTERS["LONG_LISTS"]))
+        if mediums:
+            gl.dispatch(medium, mediums)
+        if longs:
+            gl.dispatch(long, longs)
 
     def _prefix_sum(self, values, count: int, level: int) -> None:
         """Exclusive prefix sum of ``count`` uints of ``values`` in place (shaders/prefix_sum.glsl)."""

@@ -20,10 +20,12 @@ MAX_GROUPS = 65535
 # Values each invocation of the prefix sum scans (shaders/prefix_sum.glsl).
 SCAN_PER_THREAD = np.uint32(16)
 # The resolve's first pass sorts lists of up to SHORT_LIST nodes by a sorting network of that many
-# keys and queues the longer ones for its second pass, whose network sorts up to SORT_NETWORK
-# (shaders/resolve_lists.glsl). A network reads that many slots of a list, past the list's end, so
-# the node buffer keeps SORT_NETWORK slots beyond the last list.
+# keys and queues the longer ones: those of up to MEDIUM_LIST nodes for a pass with a network of
+# that many, the rest for one whose network sorts up to SORT_NETWORK (shaders/resolve_lists.glsl).
+# A network reads that many slots of a list, past the list's end, so the node buffer keeps
+# SORT_NETWORK slots beyond the last list.
 SHORT_LIST = 8
+MEDIUM_LIST = 16
 SORT_NETWORK = 32
 
 # Storage-buffer binding points (FRAMES: a uniform-block binding point).
@@ -57,7 +59,7 @@ BINDINGS = {
     # the lines each splat covers, from the compute splatter's count pass to its scatter pass
     "SPLAT_LINES": 16,
     "SPLATS_FOUND_AGAIN": 33,
-    # the lists longer than SHORT_LIST, queued by the resolve's first pass for its second
+    # the lists longer than SHORT_LIST, queued by the resolve's first pass for the others
     "LONG_LISTS": 17,
     # prefix sums, and node attributes for the host (read-back only)
     "SCAN_DATA": 20,
@@ -138,8 +140,8 @@ SAMPLERS = {"random": 0, "stratified": 1}
 # The build counters (bundle_build.glsl): nodes appended to linked lists (including any past the
 # capacity), perfect bundles' coincident duplicates (all kept; imperfect bundles' redundant nodes
 # are the written less the kept), the longest list, count/scatter mismatches (always 0), the lines
-# splats cover (the nodes there would be without merging), the nodes the merge kept, the lists
-# the resolve's first pass queued for its second, and the splats whose lines the compute
+# splats cover (the nodes there would be without merging), the nodes the merge kept, the long
+# and the medium lists the resolve's first pass queued for the others, and the splats whose lines the compute
 # splatter's scatter finds again.
 COUNTERS = {
     "NODES": 0,
@@ -149,7 +151,8 @@ COUNTERS = {
     "COVERED": 4,
     "KEPT": 5,
     "LONG_LISTS": 6,
-    "FOUND_AGAIN": 7,
+    "MEDIUM_LISTS": 7,
+    "FOUND_AGAIN": 8,
 }
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
@@ -222,6 +225,7 @@ SHADER_CONSTANTS = {
     "LOCAL_SIZE": LOCAL_SIZE,
     "SCAN_PER_THREAD": SCAN_PER_THREAD,
     "SHORT_LIST": SHORT_LIST,
+    "MEDIUM_LIST": MEDIUM_LIST,
     "SORT_NETWORK": SORT_NETWORK,
     "MAX_DIRECTIONS": MAX_DIRECTIONS,
     "TEXEL_ROW": TEXEL_ROW,

@@ -70,7 +70,7 @@ VARIANTS = {
         *(
             {**sort, **long}
             for sort in ({"SORT_LISTS": True}, {"MERGE_LISTS": True}, {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True})
-            for long in ({}, {"LONG_LISTS": True})
+            for long in ({}, {"MEDIUM_LISTS": True}, {"LONG_LISTS": True})
         ),
     ],
     "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],

@@ -13,13 +13,16 @@
 //                  copy of every node, a fifth of the build (benchmarks/bundles.py), for memory
 //                  the unmerged lists needed anyway.
 //
-// A sort or merge is two passes (bundles.py: BundleTracer.sort_lists). The first runs over every
-// list and sorts those of up to SHORT_LIST nodes, nearly all of them, in a short program; it
-// queues the longer ones in long_lists[], and the second (LONG_LISTS) runs over just those. One
-// program with every list length's code cost its length for every list on a CPU rasterizer, even
-// though it skips the blocks no invocation of a group enters (most likely the 32 keys' array no
-// longer fits in registers): at K = 256, R = 256 on cornell-box (lists of up to 6 nodes) the sort
-// took 4.8 s a build, 1.7 s with the short program alone (docs/results/decisions.toml: two-resolve-programs).
+// A sort or merge is up to three passes (bundles.py: BundleTracer.sort_lists). The first runs over
+// every list and sorts those of up to SHORT_LIST nodes, most of them, in a short program; it
+// queues the longer ones in long_lists[], those of up to MEDIUM_LIST nodes from its front and the
+// rest from its back, and a pass over each queue (MEDIUM_LISTS, LONG_LISTS) sorts them with a
+// network of its size. One program with every list length's code cost its length for every list
+// on a CPU rasterizer, even though it skips the blocks no invocation of a group enters (most
+// likely the 32 keys' array no longer fits in registers): at K = 256, R = 256 on cornell-box
+// (lists of up to 6 nodes) the sort took 4.8 s a build, 1.7 s with the short program alone
+// (docs/results/decisions.toml: two-resolve-programs). The same held for the lists of 9 to 16
+// nodes, four in five of those longer than 8 on atrium, sorted by the 32 keys' program.
 //
 // Lists are sorted by depth, then by reference (node keys, bundle_build.glsl): equal node sets
 // give equal lists, whatever order the rasterizer's threads or the scatter's atomics put them in.
@@ -63,44 +66,55 @@ void main() {
 // Lists of up to NETWORK nodes are sorted in registers by a sorting network (Batcher's odd-even
 // merge sort: every index a constant, so nothing is addressed indirectly, which a CPU rasterizer
 // runs many times faster); its first 19 compare-exchanges sort 8 keys (the first pass's network),
-// the first 63 sort 16, all 191 sort 32 (the second pass's), and a list runs only as many as its
-// length needs. Longer lists (a deep stack of surfaces, heavily overlapping splats) are
-// insertion-sorted in place, in global memory, by the second pass.
-#if SHORT_LIST != 8 || SORT_NETWORK != 32
-#error "the sorting networks below are written out for SHORT_LIST = 8 and SORT_NETWORK = 32 keys (gpu_impl/layout.py)"
+// the first 63 sort 16 (the medium lists'), all 191 sort 32 (the long lists'). Longer lists (a
+// deep stack of surfaces, heavily overlapping splats) are insertion-sorted in place, in global
+// memory, by the long lists' pass.
+#if SHORT_LIST != 8 || MEDIUM_LIST != 16 || SORT_NETWORK != 32
+#error "the sorting networks below are written out for 8, 16 and 32 keys (gpu_impl/layout.py)"
 #endif
 #if defined LONG_LISTS
 #define NETWORK uint(SORT_NETWORK)
+#elif defined MEDIUM_LISTS
+#define NETWORK uint(MEDIUM_LIST)
 #else
 #define NETWORK uint(SHORT_LIST)
+#endif
+#if defined MEDIUM_LISTS || defined LONG_LISTS
+#define QUEUED_LISTS  // a pass over the lists the first one queued
 #endif
 uint64_t key[NETWORK];
 #define PADDING 0xFFFFFFFFFFFFFFFFul  // sorts last
 
-// The first pass's queue of the lists it leaves to the second, counted in COUNTER_LONG_LISTS.
+// The first pass's queues of the lists it leaves to the others: the medium lists from the front,
+// counted in COUNTER_MEDIUM_LISTS, the long ones from the back, counted in COUNTER_LONG_LISTS.
 layout(std430, binding = BINDING_LONG_LISTS) buffer LongLists { uint long_lists[]; };
+#define LONG_QUEUE(i) long_lists[uint(long_lists.length()) - 1u - (i)]
 
 // M(i) for i = 0 .. NETWORK - 1 (and backwards), written out so that every index is a constant, in
-// blocks of 8, 8 and 16 (the second pass's lists are all longer than 8).
+// blocks of 8, 8 and 16.
 #define NODES_0(M) M(0u) M(1u) M(2u) M(3u) M(4u) M(5u) M(6u) M(7u)
 #define NODES_8(M) M(8u) M(9u) M(10u) M(11u) M(12u) M(13u) M(14u) M(15u)
 #define NODES_16(M) M(16u) M(17u) M(18u) M(19u) M(20u) M(21u) M(22u) M(23u) M(24u) M(25u) M(26u) M(27u) M(28u) M(29u) M(30u) M(31u)
+#define NODES_8_BACKWARDS(M) M(15u) M(14u) M(13u) M(12u) M(11u) M(10u) M(9u) M(8u)
+#define NODES_0_BACKWARDS(M) M(7u) M(6u) M(5u) M(4u) M(3u) M(2u) M(1u) M(0u)
 #if defined LONG_LISTS
-#define FOR_NODES(M) NODES_0(M) NODES_8(M) if (length > 16u) { NODES_16(M) }
-#define FOR_NODES_BACKWARDS(M) if (length > 16u) { M(31u) M(30u) M(29u) M(28u) M(27u) M(26u) M(25u) M(24u) M(23u) M(22u) \
-    M(21u) M(20u) M(19u) M(18u) M(17u) M(16u) } M(15u) M(14u) M(13u) M(12u) M(11u) M(10u) M(9u) M(8u) \
-    M(7u) M(6u) M(5u) M(4u) M(3u) M(2u) M(1u) M(0u)
+#define FOR_NODES(M) NODES_0(M) NODES_8(M) NODES_16(M)
+#define FOR_NODES_BACKWARDS(M) M(31u) M(30u) M(29u) M(28u) M(27u) M(26u) M(25u) M(24u) M(23u) M(22u) \
+    M(21u) M(20u) M(19u) M(18u) M(17u) M(16u) NODES_8_BACKWARDS(M) NODES_0_BACKWARDS(M)
+#elif defined MEDIUM_LISTS
+#define FOR_NODES(M) NODES_0(M) NODES_8(M)
+#define FOR_NODES_BACKWARDS(M) NODES_8_BACKWARDS(M) NODES_0_BACKWARDS(M)
 #else
 #define FOR_NODES(M) NODES_0(M)
-#define FOR_NODES_BACKWARDS(M) M(7u) M(6u) M(5u) M(4u) M(3u) M(2u) M(1u) M(0u)
+#define FOR_NODES_BACKWARDS(M) NODES_0_BACKWARDS(M)
 #endif
 
 #define CE(a, b) { uint64_t lower = min(key[a], key[b]); key[b] = max(key[a], key[b]); key[a] = lower; }
 
-void sort_network(uint length) {
+void sort_network() {
     CE(0, 1) CE(2, 3) CE(0, 2) CE(1, 3) CE(1, 2) CE(4, 5) CE(6, 7) CE(4, 6) CE(5, 7) CE(5, 6)
     CE(0, 4) CE(2, 6) CE(2, 4) CE(1, 5) CE(3, 7) CE(3, 5) CE(1, 2) CE(3, 4) CE(5, 6)
-#if defined LONG_LISTS
+#if defined QUEUED_LISTS
     {
         CE(8, 9) CE(10, 11) CE(8, 10) CE(9, 11) CE(9, 10) CE(12, 13) CE(14, 15) CE(12, 14) CE(13, 15) CE(13, 14)
         CE(8, 12) CE(10, 14) CE(10, 12) CE(9, 13) CE(11, 15) CE(11, 13) CE(9, 10) CE(11, 12) CE(13, 14) CE(0, 8)
@@ -108,7 +122,9 @@ void sort_network(uint length) {
         CE(5, 9) CE(3, 11) CE(7, 15) CE(7, 11) CE(3, 5) CE(7, 9) CE(11, 13) CE(1, 2) CE(3, 4) CE(5, 6)
         CE(7, 8) CE(9, 10) CE(11, 12) CE(13, 14)
     }
-    if (length > 16u) {
+#endif
+#if defined LONG_LISTS
+    {
         CE(16, 17) CE(18, 19) CE(16, 18) CE(17, 19) CE(17, 18) CE(20, 21) CE(22, 23) CE(20, 22) CE(21, 23) CE(21, 22)
         CE(16, 20) CE(18, 22) CE(18, 20) CE(17, 21) CE(19, 23) CE(19, 21) CE(17, 18) CE(19, 20) CE(21, 22) CE(24, 25)
         CE(26, 27) CE(24, 26) CE(25, 27) CE(25, 26) CE(28, 29) CE(30, 31) CE(28, 30) CE(29, 31) CE(29, 30) CE(24, 28)
@@ -146,18 +162,22 @@ void insert_global(uint first, uint count, uint64_t k) {
 void main() {
 #if defined LONG_LISTS
     if (linear_id() >= invocations) return;
+    uint list = LONG_QUEUE(linear_id());
+#elif defined MEDIUM_LISTS
+    if (linear_id() >= invocations) return;
     uint list = long_lists[linear_id()];
 #else
     uint list = linear_id();
     if (list >= invocations) return;
 #endif
     uint first = list_offsets[list], length = list_offsets[list + 1u] - first;
-#if defined MERGE_LISTS && !defined FROM_LINKED_LISTS && !defined LONG_LISTS
+#if defined MERGE_LISTS && !defined FROM_LINKED_LISTS && !defined QUEUED_LISTS
     if (list_counts[list] != first) atomicAdd(counters[COUNTER_MISMATCH], 1u);  // the scatter's cursor is off the list's start
 #endif
-#if !defined LONG_LISTS
+#if !defined QUEUED_LISTS
     if (length > NETWORK) {
-        long_lists[atomicAdd(counters[COUNTER_LONG_LISTS], 1u)] = list;
+        if (length > uint(MEDIUM_LIST)) LONG_QUEUE(atomicAdd(counters[COUNTER_LONG_LISTS], 1u)) = list;
+        else long_lists[atomicAdd(counters[COUNTER_MEDIUM_LISTS], 1u)] = list;
         return;
     }
 #endif
@@ -172,7 +192,7 @@ void main() {
 #define LOAD(i) { key[i] = i < length ? nodes[first + i] : PADDING; }
 #endif
         FOR_NODES(LOAD)
-        sort_network(length);
+        sort_network();
 #if defined SORT_LISTS
         uint64_t previous = key[0];
 #define STORE(i) if (i < length) { if (i > 0u && key_depth(key[i]) == key_depth(previous)) redundant++; previous = key[i]; nodes[first + i] = key[i]; }
