@@ -57,7 +57,7 @@ def below_advice(scene: Scene, resolution: int, bounces: int) -> str | None:
     return (
         f"R={resolution} is under what `evalkit scene info --bounces {b}` advises for {scene.name}, {advised(advice)}"
         + (f" (wrong next hits per path: {100 * rate:.1f} % at R={resolution})" if rate is not None else "")
-        + ': paths pass surfaces the rays meet, a bias no frame count removes (docs/guide.md, "Choosing R")'
+        + ': paths pass surfaces the rays meet, a bias no frame count removes (docs/reference/metrics.md, "Choosing R")'
     )
 
 

@@ -145,7 +145,7 @@ def _scene_info(args) -> int:
     probed = ", ".join(f"{100 * e:.1f} % at R={r}" for r, e in advice["wrong_lookups_per_path"].items())
     print(
         f"resolution  {advised(advice)} at B={advice['bounces']}: wrong next hits per path {probed} "
-        f'(target {100 * advice["target"]:.0f} %, docs/guide.md "Choosing R")'
+        f'(target {100 * advice["target"]:.0f} %, docs/reference/metrics.md "Choosing R")'
     )
     info["resolution"] = advice
     fidelity = fidelity_of(scene)

@@ -8,6 +8,7 @@ import argparse
 import dataclasses
 
 from evalkit.cli import build_parser
+from evalkit.core.scene.builtin import BUILTIN_SCENES
 from evalkit.core.settings import RenderSettings, declared
 from gpu_impl.registry import KINDS
 
@@ -43,6 +44,11 @@ def cli_markdown() -> str:
         "",
         "Generated from the parser (`evalkit.cli.build_parser`). Bad input prints one line naming the "
         "file and the problem and exits 2; `--json` ends the output with one JSON object.",
+        "",
+        "`SCENE` is a built-in scene, "
+        + ", ".join(f"`{name}`" for name in BUILTIN_SCENES)
+        + " (`evalkit/core/scene/builtin.py` says what each is for), or a path to a Mitsuba XML, OBJ, PLY, "
+        "glTF or GLB file ([scenes and importers](scenes.md)).",
         "",
     ]
     for name, parser in commands(root):

@@ -63,7 +63,7 @@ Each candidate fits its own v: the eye paths' variance is what the light paths t
 shared terms are why S can matter to the choice of strategy: on atrium which strategy leads at
 matched time moves with S (docs/results/decisions.toml: eye-paths-a-frame). With ``--spp tune``
 the calibration runs take S in a cycle of their own (`CALIBRATION_SPP`); the default keeps S = 16,
-whose recommendations measured as good or better (docs/guide.md: the same calibration time spread over
+whose recommendations measured as good or better (docs/reference/studies.md: the same calibration time spread over
 one more setting fits it less well). ``--pin`` holds any other setting the optimiser chooses at a
 value (`calibration.pins`); its calibration runs still vary it, which its terms need.
 

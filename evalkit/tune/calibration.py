@@ -199,7 +199,7 @@ def tune(
     among the candidates of ``method``, ``strategy`` and ``light_visibility`` (each a registered
     unit's name, or "both" for every registered one; the strategy and light visibility default to
     the default units), with ``spp`` eye paths per pixel per frame (None: tuned as well:
-    on atrium and cornell-box no better than 16, and worse at short budgets, docs/guide.md),
+    on atrium and cornell-box no better than 16, and worse at short budgets, docs/reference/studies.md),
     and (``check``) measure the recommendation; ``grid``: a study's folder to compare it with
     (`compare_with_grid`); ``pin``: settings the optimiser keeps at the values given (`pins`).
     Returns everything `evalkit tune --json` prints; writes ``tune.json`` and ``report.html`` to

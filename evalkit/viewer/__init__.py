@@ -6,7 +6,7 @@ A group is images of one size compared with each other: a run's test image, its 
 error maps. The viewer shows one at a time with shared zoom, pan and exposure, lists every image's
 RGB values at the cursor, and draws error maps through a colour map with a colour bar. Pages are
 self-contained and work from file:// (scripts, not fetches; nothing from a network). Its keys are
-listed at the top of viewer.js and in docs/guide.md.
+listed at the top of viewer.js and in docs/getting-started.md.
 """
 
 from __future__ import annotations
