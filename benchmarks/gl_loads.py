@@ -1,7 +1,7 @@
 """What one load costs in a compute shader, side by side in one run: a vec4 from a storage buffer
 (and a float), from a uniform block, and by texelFetch from an RGBA32F texture, against the same
 loop without loads. On llvmpipe a storage buffer is read lane by lane, each component on its own,
-which is why the bundle frames are a uniform block (shaders/bundle.glsl).
+which is why the bundle frames are a uniform block (shaders/include/bundle.glsl).
 
     python benchmarks/gl_loads.py [--invocations 1048576] [--loads 16] [--records 4096] [--repeats 5]
                                   [--record JSON]

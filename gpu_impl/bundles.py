@@ -1,7 +1,7 @@
 """The shared core of every bundle method's builder: ray bundles on the GPU, read back as a `BundleSet`.
 
 A node is 8 bytes on the GPU: its depth along the bundle direction and a reference, a triangle or
-a splat point (``NODE_REFERENCE``, shaders/bundle.glsl); shaders/bundle_hits.glsl computes the rest
+a splat point (``NODE_REFERENCE``, shaders/include/bundle.glsl); shaders/include/bundle_hits.glsl computes the rest
 where it is needed. A build is a few passes and three GPU-CPU round-trips, whatever K is:
 
 - ``lists``: the method's builder (`BundleTracer.build_lists`) puts every node of every line
@@ -9,7 +9,7 @@ where it is needed. A build is a few passes and three GPU-CPU round-trips, whate
   re-run past the buffer's capacity), or straight into exact-size slot ranges (the compute
   splatter, gpu_impl/methods/imperfect.py); round-trip 1 reads how many there are.
 - ``resolve``: each list sorted (and, for splats, its redundant nodes merged) at the front of its
-  slot range (shaders/resolve_lists.glsl), in two passes: the short lists, then the long ones the
+  slot range (shaders/bundles/resolve_lists.glsl), in two passes: the short lists, then the long ones the
   first queued (round-trip 2 reads how many); round-trip 3 reads the statistics.
 
 The resolved lists (``LIST_OFFSETS``, ``LIST_COUNTS``, ``NODES``) stay on the GPU for the renderer.
@@ -51,9 +51,9 @@ from gpu_impl.timing import PassTimer
 # How much a buffer grows past a measured count, so the next frame's rotated directions (a
 # slightly different count) rarely need it to grow again.
 CAPACITY_SLACK = 1.125
-# The frames' uniform block is always its whole size, MAX_DIRECTIONS frames (shaders/bundle.glsl).
+# The frames' uniform block is always its whole size, MAX_DIRECTIONS frames (shaders/include/bundle.glsl).
 FRAMES_BYTES = BUNDLE_FRAME.itemsize * MAX_DIRECTIONS
-SCAN_BLOCK = SCAN_PER_THREAD * LOCAL_SIZE  # values one workgroup of shaders/prefix_sum.glsl scans
+SCAN_BLOCK = SCAN_PER_THREAD * LOCAL_SIZE  # values one workgroup of shaders/bundles/prefix_sum.glsl scans
 
 
 class NodeBudgetExceeded(InputError):
@@ -105,7 +105,7 @@ class BundleTracer:
         if self.K > MAX_DIRECTIONS:
             raise LimitError(
                 f"K={self.K} directions exceed the {MAX_DIRECTIONS} a frame holds (their frames are one uniform "
-                "block of 64 KiB, shaders/bundle.glsl); render more frames instead",
+                "block of 64 KiB, shaders/include/bundle.glsl); render more frames instead",
                 ("directions",),
             )
         self.node_budget = int(settings.node_budget)
@@ -163,7 +163,7 @@ class BundleTracer:
 
     @property
     def irradiance_items(self) -> int:
-        """The items precomputed node light is stored per (shaders/irradiance.glsl): none for a
+        """The items precomputed node light is stored per (shaders/lights/irradiance.glsl): none for a
         method whose light is computed where each path lands."""
         return 0
 
@@ -308,7 +308,7 @@ class BundleTracer:
         self.gl.copy_buffer(offsets, self.buffers["LIST_COUNTS"], 4 * (self.list_count + 1))
         self._prefix_sum(offsets, self.list_count + 1, level=0)
         total = int(self.gl.read(offsets, np.uint32, 1, first=self.list_count)[0])
-        # shaders/resolve_lists.glsl reads a short list's slots up to its sorting network's size,
+        # shaders/bundles/resolve_lists.glsl reads a short list's slots up to its sorting network's size,
         # past the list's end: the node buffer keeps that many slots beyond the last list.
         self._grow(("NODES",), NODE.itemsize, total + SORT_NETWORK, self.raw_nodes_are)
         # The resolve's queues of lists longer than SHORT_LIST: each holds more than that many nodes.
@@ -317,7 +317,7 @@ class BundleTracer:
         return total
 
     def sort_programs(self, **defines) -> tuple:
-        """shaders/resolve_lists.glsl's two passes of a sort (or merge: ``defines``)."""
+        """shaders/bundles/resolve_lists.glsl's two passes of a sort (or merge: ``defines``)."""
         passes = ({}, {"MEDIUM_LISTS": True}, {"LONG_LISTS": True})
         return tuple(self.gl.program("resolve_lists", **defines, **extra) for extra in passes)
 
@@ -338,7 +338,7 @@ class BundleTracer:
             gl.dispatch(long, longs)
 
     def _prefix_sum(self, values, count: int, level: int) -> None:
-        """Exclusive prefix sum of ``count`` uints of ``values`` in place (shaders/prefix_sum.glsl)."""
+        """Exclusive prefix sum of ``count`` uints of ``values`` in place (shaders/bundles/prefix_sum.glsl)."""
         gl = self.gl
         blocks = math.ceil(count / SCAN_BLOCK)
         if len(self._scan_sums) <= level:
@@ -383,7 +383,7 @@ class BundleTracer:
 
     def read(self) -> BundleSet:
         """The last build as a `BundleSet` (host memory): the nodes with the attributes an eye path
-        sees at them (shaders/expand_nodes.glsl)."""
+        sees at them (shaders/bundles/expand_nodes.glsl)."""
         offsets, depth, refs, slots = self.node_refs()
         used = int(slots[-1]) + 1 if len(slots) else 0
         attributes = self.gl.buffer(reserve=16 * max(used, 1))
@@ -592,7 +592,7 @@ class LinkedListTracer(BundleTracer):
 
 
 def _frames(directions: DirectionSet) -> np.ndarray:
-    """The per-direction frames as shaders/bundle.glsl's BundleFrame array (K,)."""
+    """The per-direction frames as shaders/include/bundle.glsl's BundleFrame array (K,)."""
     frames = np.zeros(directions.count, dtype=BUNDLE_FRAME)
     frames["u"][:, :3], frames["u"][:, 3] = directions.axis_u, directions.jitter[:, 0]
     frames["v"][:, :3], frames["v"][:, 3] = directions.axis_v, directions.jitter[:, 1]
@@ -601,13 +601,13 @@ def _frames(directions: DirectionSet) -> np.ndarray:
 
 
 def order_bits_depth(bits: np.ndarray) -> np.ndarray:
-    """Depths from their order bits, a node key's high word (shaders/common.glsl)."""
+    """Depths from their order bits, a node key's high word (shaders/include/common.glsl)."""
     sign = np.uint32(0x80000000)
     return np.where(bits & sign, bits ^ sign, ~bits).astype(np.uint32).view(np.float32)
 
 
 def decode_normals(packed: np.ndarray) -> np.ndarray:
-    """Octahedral snorm16x2 normals (shaders/common.glsl: encode_normal) to unit (M, 3) float32."""
+    """Octahedral snorm16x2 normals (shaders/include/common.glsl: encode_normal) to unit (M, 3) float32."""
     e = np.clip(packed.astype(np.uint32).view(np.int16).reshape(-1, 2).astype(np.float64) / 32767.0, -1.0, 1.0)
     n = np.stack([e[:, 0], e[:, 1], 1.0 - np.abs(e[:, 0]) - np.abs(e[:, 1])], axis=1)
     back = n[:, 2] < 0

@@ -14,13 +14,14 @@ import ctypes
 import functools
 import math
 import os
+from pathlib import Path
 
 import moderngl
 import numpy as np
 
 from evalkit.core.errors import InputError, LimitError
 from gpu_impl.layout import LOCAL_SIZE, MAX_GROUPS, TEXEL_ROW
-from gpu_impl.shader_source import COMPILED, program_sources, variant_key
+from gpu_impl.shader_source import COMPILED, program_path, program_sources, variant_key
 
 GL_REQUIRED = 450  # SSBOs, image atomics, compute shaders
 GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX = 0x9049  # in KiB
@@ -102,7 +103,7 @@ class GLContext:
         return None
 
     def program(self, name: str, **defines):
-        """The program in ``shaders/<name>.glsl`` (its stages selected by ``#if defined
+        """Program ``name`` (gpu_impl/shaders/*/<name>.glsl, its stages selected by ``#if defined
         VERTEX_SHADER`` guards), compiled once per set of ``defines`` and cached."""
         key = variant_key(name, defines)
         if key not in self._programs:
@@ -120,7 +121,7 @@ class GLContext:
                 complaint = (errors or lines[-1:] or ["no log"])[0]
                 variant = ", ".join(f"{k}={v}" for k, v in sorted(defines.items())) or "no defines"
                 raise InputError(
-                    f"gpu_impl/shaders/{name}.glsl",
+                    str(program_path(name).relative_to(Path(__file__).parent.parent)),
                     f"the GL driver ({self.ctx.info['GL_RENDERER']}) cannot compile it ({variant}): {complaint}",
                 ) from e
             COMPILED.add(key)
@@ -176,7 +177,7 @@ class GLContext:
 
     def record_texture(self, records: int, components: int, dtype: str, what: str, settings: tuple[str, ...] = ()):
         """A texture of ``records`` texels, `TEXEL_ROW` a row (the last row padded), that shaders read
-        records from by texel fetch (shaders/bundle.glsl: record_texel); ``what`` names them, and
+        records from by texel fetch (shaders/include/bundle.glsl: record_texel); ``what`` names them, and
         ``settings`` the settings that make them as many, in the refusal when the driver makes no
         such texture."""
         rows = max(1, -(-records // TEXEL_ROW))

@@ -17,11 +17,11 @@ from evalkit.core.scene.edges import MAX_SPLAT_CUTS, OWN_SPLAT_COS
 # The workgroup size of every 1-D compute pass, and the most workgroups along one dispatch axis.
 LOCAL_SIZE = 256
 MAX_GROUPS = 65535
-# Values each invocation of the prefix sum scans (shaders/prefix_sum.glsl).
+# Values each invocation of the prefix sum scans (shaders/bundles/prefix_sum.glsl).
 SCAN_PER_THREAD = np.uint32(16)
 # The resolve's first pass sorts lists of up to SHORT_LIST nodes by a sorting network of that many
 # keys and queues the longer ones: those of up to MEDIUM_LIST nodes for a pass with a network of
-# that many, the rest for one whose network sorts up to SORT_NETWORK (shaders/resolve_lists.glsl).
+# that many, the rest for one whose network sorts up to SORT_NETWORK (shaders/bundles/resolve_lists.glsl).
 # A network reads that many slots of a list, past the list's end, so the node buffer keeps
 # SORT_NETWORK slots beyond the last list.
 SHORT_LIST = 8
@@ -132,7 +132,7 @@ ENVIRONMENT_KINDS = {None: 0, "constant": 1, "envmap": 2}  # the ENVIRONMENT def
 # How a node's reference is read (bundle.glsl, NODE_REFERENCE): a triangle or a splat point. Each
 # bundle method's tracer says which of them its nodes hold.
 NODE_TRIANGLE, NODE_SPLAT_POINT = 0, 1
-# How light vertices' shadow maps are looked up (LIGHT_VISIBILITY, shaders/lights.glsl): each light
+# How light vertices' shadow maps are looked up (LIGHT_VISIBILITY, shaders/include/lights.glsl): each light
 # visibility unit's value.
 LIGHT_VISIBILITY_EXACT, LIGHT_VISIBILITY_IMPERFECT = 0, 1
 # How imperfect bundles' points are drawn (splat_points.glsl).

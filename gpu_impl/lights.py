@@ -1,4 +1,4 @@
-"""Shadow-mapped lights and the environment on the GPU (shaders/lights.glsl, shadow_maps.glsl).
+"""Shadow-mapped lights and the environment on the GPU (shaders/include/lights.glsl, shadow_maps.glsl).
 
 Point, spot and directional lights (the fixed lights) get shadow maps in one atlas (a stack of
 pages, the layers of a texture array, as many as its tiles need: `pack_tiles`): a directional
@@ -7,7 +7,7 @@ its cone (six when the cone is wider than a cube face), a point light six cube f
 face is widened by two texels so that filtering near a face's edge reads rendered texels. A view
 draws only the clusters of triangles (runs of the scene's order) whose boxes reach into it
 (`view_clusters`): a cube face sees a sixth of the space around its light. Every view of a pass
-is drawn by one indirect multi-draw per atlas page (shaders/shadow_maps.glsl).
+is drawn by one indirect multi-draw per atlas page (shaders/lights/shadow_maps.glsl).
 
 Light vertices are points that light the scene for one frame, each a point light whose intensity
 falls as the cosine to its surface's normal: the path strategy says which (the eye paths' emitter
@@ -55,11 +55,11 @@ GUARD_TEXELS = 2
 # triangles' (light paths; the renderer's G-buffer takes unit 0).
 ATLAS_UNIT = 1
 TRIANGLES_UNIT = ATLAS_UNIT + MAX_ATLAS_TEXTURES
-# The distance of a texel without a surface (shaders/lights.glsl: NO_SURFACE), and its bits.
+# The distance of a texel without a surface (shaders/include/lights.glsl: NO_SURFACE), and its bits.
 NO_SURFACE = float(np.finfo(np.float32).max)
 NO_SURFACE_BITS = int(np.float32(NO_SURFACE).view(np.uint32))
 # A light vertex sits this far (times the bounding radius) in front of its surface, so that the
-# surface lies behind it and its shadow views leave that surface out (shaders/shadow_maps.glsl).
+# surface lies behind it and its shadow views leave that surface out (shaders/lights/shadow_maps.glsl).
 LIGHT_VERTEX_OFFSET = 1e-5
 # An indirect draw of indexed triangles (glMultiDrawElementsIndirect), and how many views' clusters
 # are culled in one batch of arrays.
@@ -252,7 +252,7 @@ def _face_normals(triangles: np.ndarray) -> np.ndarray:
 class Atlas(NamedTuple):
     """Where `pack_tiles` put the tiles: each tile's corner (x, y), the page size (width, height)
     and how many pages. The atlas is a stack of pages, the layers of a texture array, and a tile's
-    y counts down the whole stack: its page is y // height (shaders/lights.glsl: atlas_texel)."""
+    y counts down the whole stack: its page is y // height (shaders/include/lights.glsl: atlas_texel)."""
 
     corners: list[tuple[int, int]]
     page: tuple[int, int]
@@ -323,7 +323,7 @@ def cube_views(positions: np.ndarray, far: np.ndarray, size: int, axes: np.ndarr
     """The six views of a cube map at each of ``positions`` (M, 3; relative to the bundle centre),
     seeing as far as ``far`` (M,): 6 M views, each cube's in the order of `CUBE_FACES`, each
     widened by `GUARD_TEXELS`. ``axes``: the surface normals of light vertices (M, 3;
-    shaders/shadow_maps.glsl keeps only what lies in front of them), else none."""
+    shaders/lights/shadow_maps.glsl keeps only what lies in front of them), else none."""
     positions, far = np.atleast_2d(positions).astype(np.float64), np.atleast_1d(far).astype(np.float64)
     m = len(positions)
     tan_half = 1.0 + 2.0 * GUARD_TEXELS / size
@@ -348,7 +348,7 @@ def view_clusters(
     """Per view (N) and cluster box (C; corners ``lo`` and ``hi``), whether any of the box lies
     inside the view's clip volume (``to_clip``: (N, 4, 4), acting on column vectors) and, for a
     perspective view with an axis (``origin`` and ``axis``: (N, 4) as in `SHADOW_VIEW`), in front
-    of the plane through the origin across the axis, which shaders/shadow_maps.glsl keeps. GL
+    of the plane through the origin across the axis, which shaders/lights/shadow_maps.glsl keeps. GL
     clips away every triangle of a box that lies outside the clip volume, and the shader discards
     every fragment of a triangle wholly behind the plane, so drawing only the boxes that reach in
     leaves the map as it was, bit for bit. (N, C) booleans."""
@@ -414,7 +414,7 @@ class AtlasTextures:
     sampler, more through an array of `MAX_ATLAS_TEXTURES`). Per array: the distances (RG32F:
     the first surface, the second), the triangle each texel saw (R32UI; with light paths), the
     two nearest surfaces facing the light (R32UI each; where second surfaces are kept:
-    shaders/shadow_maps.glsl) and a framebuffer per page (`LayerTargets`)."""
+    shaders/lights/shadow_maps.glsl) and a framebuffer per page (`LayerTargets`)."""
 
     def __init__(self, gl: GLContext, atlas: Atlas, triangles: bool, facing: bool, most: int):
         self.page, self.pages = atlas.page, atlas.pages
@@ -525,7 +525,7 @@ class ShadowLights:
     vertices' shadow maps; ``light_vertices`` is how many emitter samples there are each frame, and
     ``path_vertices`` the most light path vertices (bidirectional paths), whose records follow.
     With light path vertices, the atlas keeps the triangle each texel saw too: the fixed lights'
-    maps are where light paths start (shaders/light_paths.glsl).
+    maps are where light paths start (shaders/paths/light_paths.glsl).
     """
 
     def __init__(
@@ -591,7 +591,7 @@ class ShadowLights:
             new_rows = (self.static_views, self.fixed_views)
             atlas = pack_tiles(sizes, side, new_rows=new_rows, max_pages=max_pages)
             # Each texel's two nearest surfaces that face the light, which the raster pass keeps
-            # and `second_surfaces` reads and clears again (shaders/shadow_second_surface.glsl);
+            # and `second_surfaces` reads and clears again (shaders/lights/shadow_second_surface.glsl);
             # a scene whose every triangle bounds a solid has no second surfaces to keep.
             facing = not gpu_scene.solids().all()
             self._check_memory(atlas, bool(path_vertices), facing, visibility.map_size_setting)
@@ -711,7 +711,7 @@ class ShadowLights:
         return cube_views(position, far, s)
 
     def _record(self, light: Light, first_view: int, views: int) -> tuple:
-        """The light's `LIGHT` record (shaders/lights.glsl: Light)."""
+        """The light's `LIGHT` record (shaders/include/lights.glsl: Light)."""
         kind = LIGHT_KINDS[light.kind]
         position = np.zeros(3) if light.position is None else np.asarray(light.position) - self.gpu_scene.centre
         direction = np.zeros(3) if light.direction is None else np.asarray(light.direction, dtype=np.float64)
@@ -807,7 +807,7 @@ class ShadowLights:
     def draw_commands(self, views) -> np.ndarray:
         """Indirect draw commands (`DRAW_COMMAND`) of the triangles each view can see, a command per
         run of consecutive clusters whose boxes reach into the view (`view_clusters`), whose base
-        instance is the view (shaders/shadow_maps.glsl: in_view)."""
+        instance is the view (shaders/lights/shadow_maps.glsl: in_view)."""
         lo, hi = self.gpu_scene.cluster_bounds()
         triangles = self.gpu_scene.triangle_count
         views = np.asarray(views, dtype=np.int64)

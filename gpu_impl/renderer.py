@@ -114,7 +114,7 @@ class Renderer:
         self.gpu_scene = GpuScene(gl, first, sphere=sphere)
         units, own = self.resolved.units, self.resolved.unit_settings
         self.tracer = units["method"].tracer(gl, self.gpu_scene, settings)
-        # The paths' lookups walk across met triangles' edges (shaders/bundle_step.glsl:
+        # The paths' lookups walk across met triangles' edges (shaders/include/bundle_step.glsl:
         # walk_surface), reading the triangles across them, which come with the splats' facts.
         self.gpu_scene.splat_facts()
         # A static scene seen along the same directions every frame has the same bundles and the

@@ -47,7 +47,7 @@ SURFACE_POINTS_SHARE = 0.1
 
 
 class GpuScene:
-    """The scene's triangles, materials and textures in GPU buffers (shaders/scene.glsl).
+    """The scene's triangles, materials and textures in GPU buffers (shaders/include/scene.glsl).
 
     Positions are uploaded as float32 relative to the bounding-sphere centre, where float32 keeps
     the most precision; ``centre`` (float64, scene space) and ``radius`` (the padded frame radius)
@@ -110,7 +110,7 @@ class GpuScene:
             else np.zeros(3, np.float32)
         )
 
-        # The area CDF for area-weighted point sampling (shaders/area_sampling.glsl) over the
+        # The area CDF for area-weighted point sampling (shaders/include/area_sampling.glsl) over the
         # triangles in the order of a space-filling curve through their centroids, so that
         # stratifying the CDF stratifies the surface however the mesh orders its triangles. The
         # imperfect shadow maps' points draw from it; the imperfect bundles' from their own
@@ -119,7 +119,7 @@ class GpuScene:
         cdf, guide = area_cdf(a.tri_area, self.curve_order)
 
         # The raster passes draw each triangle with a provoking vertex (its last) of its own, which
-        # hands them the triangle's index as a flat attribute (shaders/perfect_bundles.glsl): on a
+        # hands them the triangle's index as a flat attribute (shaders/bundles/perfect_bundles.glsl): on a
         # CPU rasterizer that costs a fraction of gl_PrimitiveID.
         self.raster_faces, self.raster_sources = provoking_vertices(a.faces, len(a.positions))
         raster_triangle = np.zeros(len(self.raster_sources), dtype=np.uint32)
@@ -149,7 +149,7 @@ class GpuScene:
         splats (`evalkit.core.scene.edges.splat_cuts`: its sharp edges and its flat neighbours';
         TRIANGLE_CUT in the triangle records), its smooth surface (`smooth_surfaces`) and the
         triangles across its edges (`triangle_neighbours`), with the edge pairs found once for all.
-        One SPLAT_SHAPES buffer holds them (shaders/scene.glsl: splat_shape, triangle_surface,
+        One SPLAT_SHAPES buffer holds them (shaders/include/scene.glsl: splat_shape, triangle_surface,
         triangle_across). Found the first time splats or lookups ask; rigid poses keep them."""
         if self._cuts is None:
             a = self.arrays
@@ -175,7 +175,7 @@ class GpuScene:
     def surfaces(self) -> np.ndarray:
         """Per triangle, its smooth surface (`smooth_surfaces`): what the imperfect bundles' point
         CDF gives each a share of (`surface_area_cdf`), and what tells a lookup's splats of the
-        vertex's own surface (shaders/bundle_step.glsl: own_surface)."""
+        vertex's own surface (shaders/include/bundle_step.glsl: own_surface)."""
         self.splat_facts()
         return self._surfaces
 
@@ -200,7 +200,7 @@ class GpuScene:
         return self._cluster_bounds
 
     def triangle_texels(self):
-        """The triangles as the splat builders read them (shaders/scene.glsl: SPLAT_TEXELS), a
+        """The triangles as the splat builders read them (shaders/include/scene.glsl: SPLAT_TEXELS), a
         texture of `TEXELS_PER_TRIANGLE` texels a triangle: its three corners as the vertex
         records hold them, each with its vertex index, then its normal as the triangle records hold
         it with the texel of its first cut line; a record past the last with where its lines end;

@@ -1,7 +1,20 @@
-"""The shaders as source: the program files (gpu_impl/shaders/*.glsl, one program per file with
-``#if defined VERTEX_SHADER`` stage guards, shared code through ``#include``), the header every
-stage gets (the shared table of gpu_impl/layout.py and the variant's defines), and the variants the
-code compiles.
+"""The shaders as source: the program files (one program per file with ``#if defined
+VERTEX_SHADER`` stage guards, shared code through ``#include``), the header every stage gets (the
+shared table of gpu_impl/layout.py and the variant's defines), and the variants the code compiles.
+
+gpu_impl/shaders/ holds the programs by the part of a frame they make, and apart from them the code
+they share:
+
+    bundles/   the bundles: perfect lists, splat points and lists, the resolve, its prefix sum, and
+               the nodes expanded for the host
+    lights/    shadow maps (exact and imperfect, their second surfaces and pull-push) and the
+               light that splat points precompute
+    paths/     the camera's G-buffer and first hits, eye and light paths, their connections, and
+               the images they resolve into
+    include/   what programs ``#include`` by name (``#include "common.glsl"``): never a program
+
+A program is named by its file's stem (``gl.program("eye_paths")``), so stems are unique across
+the folders.
 
 `SHADER_VARIANTS` lists, per program, every set of defines the code can compile it with: a list
 of flag sets, or the axes of the scene features and settings it is compiled over (every product of
@@ -30,6 +43,7 @@ from gpu_impl.layout import (
 )
 
 SHADER_DIR = Path(__file__).parent / "shaders"
+INCLUDE_DIR = SHADER_DIR / "include"
 STAGES = {"VERTEX_SHADER": "vertex_shader", "FRAGMENT_SHADER": "fragment_shader", "COMPUTE_SHADER": "compute_shader"}
 
 NODE_REFERENCES = (NODE_TRIANGLE, NODE_SPLAT_POINT)
@@ -185,21 +199,42 @@ def expand_includes(text: str, within: tuple[str, ...] = ()) -> str:
         name = match.group(1)
         if name in within:
             raise ValueError(f"shaders/{name} includes itself through {' -> '.join(within)}")
-        path = SHADER_DIR / name
+        path = INCLUDE_DIR / name
         if not path.is_file():
-            raise ValueError(f"shaders/{within[-1] if within else '?'}: no include file shaders/{name}")
+            raise ValueError(f"shaders/{within[-1] if within else '?'}: no include file shaders/include/{name}")
         return expand_includes(path.read_text(), (*within, name))
 
     return INCLUDE.sub(include, text)
 
 
+def program_files() -> dict[str, Path]:
+    """Every program file, by name (its stem), from the folders beside include/."""
+    files: dict[str, Path] = {}
+    for path in sorted(SHADER_DIR.glob("*/*.glsl")):
+        if path.parent != INCLUDE_DIR:
+            if path.stem in files:
+                raise ValueError(f"{path}: a second program named {path.stem} (the first: {files[path.stem]})")
+            files[path.stem] = path
+    return files
+
+
+def program_path(name: str) -> Path:
+    """The file of program ``name``."""
+    path = program_files().get(name)
+    if path is None:
+        hint = " (an include file, not a program)" if (INCLUDE_DIR / f"{name}.glsl").is_file() else ""
+        raise ValueError(f"no shader program {name} in {SHADER_DIR}/*/{hint}")
+    return path
+
+
 def program_sources(name: str, defines: dict) -> dict[str, str]:
-    """The stages of ``shaders/<name>.glsl`` (moderngl's keyword per stage), each with its header
-    and its includes expanded."""
-    text = (SHADER_DIR / f"{name}.glsl").read_text()
+    """The stages of program ``name`` (moderngl's keyword per stage), each with its header and its
+    includes expanded."""
+    path = program_path(name)
+    text = path.read_text()
     stages = shader_stages(text)  # the program's own guards: its includes have theirs
     if not is_program(text) or not stages:
-        raise ValueError(f"shaders/{name}.glsl has no main() under a stage guard; it is an include")
+        raise ValueError(f"{path}: no main() under a stage guard; programs have one, include files none")
     text = expand_includes(text, (f"{name}.glsl",))
     return {STAGES[s]: with_header(text, s, defines) for s in stages}
 

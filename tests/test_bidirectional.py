@@ -233,7 +233,7 @@ def test_imperfect_shadow_maps_agree_with_exact_maps_and_rays_on_most_connection
     # (64 texels, 4096 points, splat scale 1.6) with exact maps on 3.1 % (1.0 % hidden, 2.1 %
     # leaked), at 32 texels and 1024 points on 7.1 % (5.6 % and 10.3 % with splats facing the vertex,
     # independent points, 1.0). Before splats ended at their triangles' sharp edges (the boxes'
-    # edges: shaders/scene.glsl, inside_sharp_edges), the defaults hid 2.1 % and leaked 1.7 %.
+    # edges: shaders/include/scene.glsl, inside_sharp_edges), the defaults hid 2.1 % and leaked 1.7 %.
     scene = load_scene("lit-room")
     base = dict(method="perfect", strategy="bidirectional", directions=32, resolution=128, bounces=2, frames=1)
     settings = {
@@ -366,7 +366,7 @@ def test_shadow_maps_drawn_by_the_clusters_each_view_sees_are_those_of_every_tri
 
 def test_every_shadow_view_of_a_draw_stays_in_its_own_tile(gl):
     # A pass draws all its views in one draw over the whole atlas, each view's clip space put onto
-    # its tile (shaders/shadow_maps.glsl); clip distances cut each view's triangles at its sides,
+    # its tile (shaders/lights/shadow_maps.glsl); clip distances cut each view's triangles at its sides,
     # as the view's own viewport did. Without them, the floor and the walls, which cross every
     # view's sides, spill into the tiles around. Each view is drawn alone here, so that a spill
     # shows wherever it lands.
@@ -449,7 +449,7 @@ def test_exact_shadow_maps_hide_the_ceiling_above_a_light_that_hangs_just_under_
     # of the connections visible to Embree's rays): leaked (visible through the maps, hidden from
     # the rays) 0.8 %, hidden 0.5 %; with the bias unbounded by the second surface 91.7 % leaked.
     # Maps of 64 texels are too coarse to tell the ceiling from the light (SECOND_SURFACE_MARGIN,
-    # shaders/lights.glsl): 75.3 % leaked, against 92.2 %.
+    # shaders/include/lights.glsl): 75.3 % leaked, against 92.2 %.
     scene = load_scene("cornell-box")
     base = dict(method="perfect", strategy="bidirectional", directions=32, resolution=128, bounces=2, frames=1)
     settings = resolve(RenderSettings(**base, light_paths=64, light_visibility="exact"), "drop").settings

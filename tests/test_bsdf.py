@@ -1,5 +1,5 @@
 """Glossy BSDFs: the Python mirror (evalkit/core/bsdf.py) evaluates as Mitsuba does, the GLSL
-library (gpu_impl/shaders/bsdf.glsl) as the mirror does, and the Mitsuba importer and export carry
+library (gpu_impl/shaders/include/bsdf.glsl) as the mirror does, and the Mitsuba importer and export carry
 rough conductors and rough plastics both ways with their parameters."""
 
 from __future__ import annotations

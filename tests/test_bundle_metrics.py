@@ -69,7 +69,7 @@ def test_every_lookup_between_two_planes_finds_the_ceiling_where_the_ray_does(gl
 def test_lookups_from_a_ball_leave_it_as_rays_do(gl, rng):
     """A splat lies in its own triangle's plane. On a ball, the splats of the surface around a
     vertex stand out over its tangent plane where the lines beside it meet them, and those lines
-    outvoted the ray, which never meets a convex surface again (shaders/bundle_step.glsl:
+    outvoted the ray, which never meets a convex surface again (shaders/include/bundle_step.glsl:
     own_surface). A smaller ball beside it is a surface the lookups must still find. Measured (this
     test's settings, three draws of the vertices): the lookups that stopped where the ray leaves
     the scene, 3.4 to 3.7 % before the rule and 0.10 to 0.18 % with it (exact bundles: 0 to 0.03
@@ -101,7 +101,7 @@ def test_a_wall_s_splats_stay_walls_beside_a_floor_vertex(gl):
     pass, and lookups from its floor by the wall left the closed room. Lines that pass outside the
     room beside the vertex, where the floor's splats reach past the wall, do not vote: they lie
     behind the front of the wall another line meets; nor do lines under the floor whose only nodes
-    before the bound are the wall's splats reaching below it (shaders/bundle_step.glsl). Measured
+    before the bound are the wall's splats reaching below it (shaders/include/bundle_step.glsl). Measured
     (this test's vertices, three draws): the lookups that left where the ray meets the room, 4.6 to
     5.5 % with the old facing rule, 2.3 to 2.9 % with the lines outside voting, 0.27 to 0.45 % with
     those under the floor voting, 0.10 to 0.25 % now; exact and perfect bundles 0.03 to 0.05 %."""
@@ -126,7 +126,7 @@ def test_lookups_from_a_ceiling_meet_the_lamp_hung_under_it(gl):
     splats of the vertex's own surface, they let its lookups pass through the light to the room,
     which its rays never reach, and the ceiling there took twice Mitsuba's indirect light. A splat
     of another surface stays where the ray meets its plane inside the splat's own triangle
-    (shaders/bundle_step.glsl: own_surface). Measured (this test's vertices, K=32, R=128), next-hit
+    (shaders/include/bundle_step.glsl: own_surface). Measured (this test's vertices, K=32, R=128), next-hit
     errors (lookups that land on another surface than the ray, false misses): imperfect 60.5 %
     (45.1, 15.2) before, 10.5 % (6.5, 3.8) now; perfect bundles 3.7 % (1.5, 1.6)."""
     scene = load_scene("cornell-box")
@@ -153,7 +153,7 @@ def test_lookups_land_where_the_ray_meets_the_surface(gl, rng, method):
     """The four-line lookup puts the next vertex at the ray's own hit, not on a line beside it. A
     splat stands for its triangle: the ray's point inside the triangle is on its surface though
     it lies beyond the splat's disk, as it mostly does with splats smaller than a bundle pixel
-    (here 0.045 wide against 0.089; shaders/bundle_step.glsl: walk_surface). Measured (three
+    (here 0.045 wide against 0.089; shaders/include/bundle_step.glsl: walk_surface). Measured (three
     draws of the vertices), the ray's hits landed on: perfect 100 %; imperfect 11.9-14.9 % with
     the disk alone, 100 % with the triangle too."""
     scene = two_planes()
@@ -191,7 +191,7 @@ def test_lookups_between_small_parts_leave_the_scene_as_often_as_their_rays():
     ray = tracer.next_hit(vertices["position"] + tracer.epsilon * vertices["geometric"], look["omega"])
     lookup_sky, ray_sky = (np.sum(weight * leave) for leave in (look["node"] < 0, ray.prim_id < 0))
     # Measured (this test, 41540 vertices): 0.9992; before lookups walked the met surface
-    # (shaders/bundle_step.glsl: walk_surface), 1.0012; before lines past a met triangle's outline
+    # (shaders/include/bundle_step.glsl: walk_surface), 1.0012; before lines past a met triangle's outline
     # stopped voting, 0.9937, and with the open side's line deciding alone, 0.9713. With 10000
     # camera samples at seeds 4, 5: 0.9979, 0.9979 (0.9992, 1.0026 before the walk; 0.9885, 0.9872
     # before the outline; 0.963, 0.970 with the open side's line). Rays with two or three of the four
@@ -225,7 +225,7 @@ def test_lookups_stop_at_columns_of_facets_smaller_than_a_pixel():
     """Atrium's columns are 48 facets around, a sixth of a bundle pixel wide at R = 128: a ray's
     point on a facet's plane that a line meets is rarely inside that facet, while a line beside
     the column meets the wall behind it, and the ray's point on that plane is. Where lines meeting
-    such small surfaces in front weigh more than half (shaders/bundle_step.glsl), the lookup stops
+    such small surfaces in front weigh more than half (shaders/include/bundle_step.glsl), the lookup stops
     there; it no longer lands behind the ray's first surface far more often than in front of it."""
     scene = load_scene("atrium")
     tracer = ExactTracer(scene)
@@ -292,12 +292,12 @@ def test_gl_lookups_err_as_exact_ones_and_independent_points_leave_holes(gl):
     # Measured (K=16, R=128), error rate (false misses, false hits): floor 0.09 % (0.03, 0.03),
     # perfect 0.09 % (0.03, 0.03); imperfect with independent points at splat scale 2 (the old
     # default) 0.25 % (0.16, 0.03), with the default stratified points at 1.8 0.09 % (0.03, 0.03).
-    # Before lookups walked the met surface (shaders/bundle_step.glsl: walk_surface), 0.16 % (0.06,
+    # Before lookups walked the met surface (shaders/include/bundle_step.glsl: walk_surface), 0.16 % (0.06,
     # 0.03), 0.19 %, 0.34 % and 0.19 %. Before lines past a met triangle's outline stopped voting,
     # 0.28 % (0.06, 0.16), 0.31 %, 0.47 % and 0.31 %, the false hits 0.16 %.
     # Before splats ended at their triangles' sharp edges, 5.58 % (1.19, 1.50) and 4.42 % (0.60,
     # 1.41): disks reaching over the boxes' edges stopped rays that pass beside them. Before a
-    # ray's point inside a splat's triangle counted as on its surface (shaders/bundle_step.glsl:
+    # ray's point inside a splat's triangle counted as on its surface (shaders/include/bundle_step.glsl:
     # walk_surface), 1.41 % (0.66, 0.16) and 0.72 % (0.16, 0.16): lookups whose point fell
     # beyond the splat's disk landed by the lines' vote, up to a pixel off, and where a hole left
     # fewer lines meeting a splat, they missed. Independent points still leave more holes.
@@ -314,7 +314,7 @@ def test_fine_geometry_asks_for_a_finer_bundle_resolution():
     no more than the coarsest R probed. Measured: parts 23.1 / 7.2 / 0.37 % at R = 32 / 64 / 128,
     cornell-box 0.06 % at 32. While walks stopped after 4 triangles (not 2 pixels), parts was 30.9 /
     15.8 / 3.0 / 0.15 % at R = 32 / 64 / 128 / 256 and was advised 256; before lookups walked the met
-    surface at all (shaders/bundle_step.glsl: walk_surface), 15.2 % at R = 128 and 7.3 % at 256,
+    surface at all (shaders/include/bundle_step.glsl: walk_surface), 15.2 % at R = 128 and 7.3 % at 256,
     against a target of 10 %."""
     coarse = {}
     for name in ("cornell-box", "parts"):
@@ -422,7 +422,7 @@ def test_the_slope_breakdown_adds_up(gl):
 
 @pytest.mark.parametrize("method", ["perfect", "imperfect"])
 def test_the_shaders_lookups_are_the_emulations_vertex_by_vertex(gl, method):
-    """`bundle_lookup` is the renderer's lookup (shaders/bundle_step.glsl) in float64, and every
+    """`bundle_lookup` is the renderer's lookup (shaders/include/bundle_step.glsl) in float64, and every
     next-hit figure, `evalkit scene info`'s choice of R among them, rests on that. One bundle (K = 1,
     so the direction every path takes is known) of the parts scene, whose small parts send many
     lookups to the lines' vote: each camera vertex's first step in the shader, read back from the
@@ -487,7 +487,7 @@ def test_the_shaders_lookups_are_the_emulations_vertex_by_vertex(gl, method):
     # Measured: none of the 6,392 lookups differs, perfect or imperfect (72 and 91 dark; 3205 and
     # 3232 landed on a surface); before lookups walked the met surface, none either (166 and 785
     # dark), nor, perfect, in 3 runs of 25,000 vertices at R = 256.
-    # Where the ray lands on a surface, the surface too: a walk's triangle (shaders/bundle_step.glsl:
+    # Where the ray lands on a surface, the surface too: a walk's triangle (shaders/include/bundle_step.glsl:
     # walk_surface) may be another than the node's. At a point on the edge between two triangles
     # of one smooth surface round-off picks either (4 of the imperfect lookups).
     surface = smooth_surfaces(arrays.positions, arrays.faces, arrays.tri_normal)

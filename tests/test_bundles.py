@@ -98,7 +98,7 @@ def test_perfect_bundles_agree_with_exact_lines(gl, name):
 def test_splat_nodes_lie_on_their_splats(gl):
     """Each splat node's triangle and centre, read back from the GPU's point records, are those of
     the splat that made it: the node is in the triangle's plane and within the splat's radius, which
-    grows where lines (its wall's outline) cut the disk (shaders/scene.glsl: sharp_splat_radius);
+    grows where lines (its wall's outline) cut the disk (shaders/include/scene.glsl: sharp_splat_radius);
     no node lies beyond those lines, and what lies beyond the radius it grew from lies inside the
     triangle."""
     scene = load_scene("cornell-box")
@@ -178,7 +178,7 @@ def test_every_small_surface_has_a_point_in_every_direction(gl, sampler):
 
 @pytest.mark.parametrize("subdivisions", [1, pytest.param(12, marks=pytest.mark.long)])
 def test_splats_end_at_their_triangles_sharp_edges(gl, subdivisions):
-    """A splat ends at the lines that cut it (shaders/scene.glsl: SplatShape): its triangle's sharp
+    """A splat ends at the lines that cut it (shaders/include/scene.glsl: SplatShape): its triangle's sharp
     edges and its flat neighbours', in both splatters alike. No node of a box's splats lies beyond
     its own triangle's edges on the box's outline, almost none outside the box, and the lines
     through the box still find both of its faces. Cut by their own triangle's sharp edges alone,
@@ -219,7 +219,7 @@ def test_splats_cut_at_sharp_edges_cover_their_edges_as_their_faces(gl, splatter
     disk there, splats left a box's lines within a splat radius of its edges 2.3 times as many holes
     as its faces' interior (6.2 % against 2.7 % at splat scale 1.5); grown until the part kept had
     the disk's area, 1.3 times (seeds 3 and 4: 3.1-3.2 % against 2.4-2.5 %, and 7.6-7.7 % within a
-    quarter radius). Grown to sqrt(2) r within sqrt(2) r of an edge (shaders/scene.glsl:
+    quarter radius). Grown to sqrt(2) r within sqrt(2) r of an edge (shaders/include/scene.glsl:
     sharp_splat_radius), so that the half disk of centres that can reach an edge's crossing holds
     as many points as a full disk inside a face: 0.37-0.41 % against 2.0 %, and 0.8-0.9 % within a
     quarter radius (the band from one to two radii in, which the grown splats reach too, counts as
@@ -363,7 +363,7 @@ def test_redundant_splat_nodes_merge_into_one_per_crossing(gl):
     # On a flat square every splat over a line crosses it at the same depth: merging leaves one
     # node per crossing (the holes aside), and what it removes is counted.
     # Most never get written: the compute splatter leaves a line to the nearest of a triangle's
-    # splats (shaders/splat_lists.glsl).
+    # splats (shaders/bundles/splat_lists.glsl).
     scene = flat_square()
     merged = build(gl, scene, "imperfect", K=8, R=64, points=8192, splat_scale=2.0)
     unmerged = build(gl, scene, "imperfect", K=8, R=64, points=8192, splat_scale=2.0, merge=False)
@@ -503,7 +503,7 @@ def test_cli_builds_and_saves_bundles(tmp_path):
 def edge_gain(scene, splat_radius: float) -> float:
     """What cut splats gain over pi r^2 each at the scene's sharp edges, as a share of all disks'
     area: a disk centred delta < sqrt(2) r from a straight edge grows to radius sqrt(2) r
-    (shaders/scene.glsl: sharp_splat_radius) and keeps 2 pi r^2 less a segment; over delta that is
+    (shaders/include/scene.glsl: sharp_splat_radius) and keeps 2 pi r^2 less a segment; over delta that is
     sqrt(2) (pi - 4 / 3) r^3 more than pi r^2 per unit of edge, a share sqrt(2) (pi - 4 / 3) r L /
     (pi A) for sharp edges of length L. Where edges lie within a radius of each other (corners,
     thin parts) their gains overlap and the share is less."""
@@ -621,7 +621,7 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl, 
                 stats = splats.build(directions)
                 if splatter == "compute":
                     # Splats 4 times the covering radius have lines beyond their record's 8 x 8 box:
-                    # the scatter finds those again (shaders/splat_lists.glsl: FIND_AGAIN).
+                    # the scatter finds those again (shaders/bundles/splat_lists.glsl: FIND_AGAIN).
                     assert (stats["splats_found_again"] > 0) == (splat_scale > 2), stats["splats_found_again"]
                 offsets, depth, ref, _ = splats.node_refs()
                 lists = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
@@ -714,7 +714,7 @@ def test_covered_lines_count_every_splat_node_merging_may_remove(gl):
 
 
 def test_prefix_sum_is_exact_across_block_and_level_boundaries(gl):
-    """The list offsets' scan (shaders/prefix_sum.glsl): blocks of 4096 values, scanned
+    """The list offsets' scan (shaders/bundles/prefix_sum.glsl): blocks of 4096 values, scanned
     recursively, so sizes around one block and past one block of blocks use every path."""
     scene = scene_of([Mesh("quad", QUAD, QUAD_FACES, 0)], [Material("grey")])
     rng = np.random.default_rng(5)

@@ -11,7 +11,7 @@ import pytest
 from evalkit.core.errors import InputError
 from gpu_impl.context import GLContext, default_context, gl_integer, system_free_memory
 from gpu_impl.layout import BINDINGS, BUNDLE_FRAME, MAX_DIRECTIONS, RECORDS, SHADER_CONSTANTS, glsl_literal
-from gpu_impl.shader_source import SHADER_DIR, SHADER_VARIANTS, is_program
+from gpu_impl.shader_source import INCLUDE_DIR, SHADER_DIR, SHADER_VARIANTS, is_program, program_files
 
 # Compiles every other listed variant (from argv[1] on, in steps of argv[2]) in a GL context of
 # its own; prints how many.
@@ -30,7 +30,7 @@ print(len(work))
 
 @pytest.mark.long
 def test_every_shader_compiles(gl):
-    programs = {p.stem for p in SHADER_DIR.glob("*.glsl") if is_program(p.read_text())}
+    programs = set(program_files())
     assert programs == set(SHADER_VARIANTS), "every program file needs its variants listed in SHADER_VARIANTS"
     name, defines = next(iter(SHADER_VARIANTS.items()))
     assert gl.program(name, **defines[0]) is gl.program(name, **defines[0])  # compiled once, cached
@@ -46,7 +46,7 @@ def test_every_shader_compiles(gl):
     assert sum(int(out.split()[-1]) for out, _ in done) == sum(len(v) for v in SHADER_VARIANTS.values())
 
 
-# The records of gpu_impl/layout.py by RECORD_GROUP of shaders/record_strides.glsl, in its order.
+# The records of gpu_impl/layout.py by RECORD_GROUP of shaders/paths/record_strides.glsl, in its order.
 RECORD_GROUPS = {
     0: ["Material", "Triangle", "Vertex", "SplatPoint", "SplatShapeWord"],
     1: ["Light", "ShadowView"],
@@ -100,9 +100,14 @@ def test_shared_constants_are_written_as_glsl_literals_of_their_type():
     }
 
 
-def test_include_files_are_not_programs(gl):
-    includes = {p.name for p in SHADER_DIR.glob("*.glsl") if not is_program(p.read_text())}
-    assert {"common.glsl", "scene.glsl", "bundle.glsl"} <= includes
+def test_programs_and_include_files_sit_apart(gl):
+    # Every .glsl file is in a folder of its role: include/ holds code without main(), the others
+    # programs with one; nothing lies loose beside them.
+    assert not list(SHADER_DIR.glob("*.glsl"))
+    includes = list(INCLUDE_DIR.glob("*.glsl"))
+    assert {"common.glsl", "scene.glsl", "bundle.glsl"} <= {p.name for p in includes}
+    assert not any(is_program(p.read_text()) for p in includes)
+    assert all(is_program(p.read_text()) for p in program_files().values())
     with pytest.raises(ValueError, match="include"):
         gl.program("common")
 
@@ -137,9 +142,9 @@ def test_a_shader_the_driver_cannot_compile_is_one_line_naming_its_file(gl, monk
     broken = "#version 450\nlayout(local_size_x = 1) in;\nvoid main() { undeclared_name += 1.0; }\n"
     monkeypatch.setattr("gpu_impl.context.program_sources", lambda name, defines: {"compute_shader": broken})
     with pytest.raises(InputError) as caught:
-        gl.program("broken_for_test", SOME_FLAG=1)
+        gl.program("prefix_sum", SOME_FLAG=1)  # a program's file, its source broken
     message = str(caught.value)
-    assert message.startswith("gpu_impl/shaders/broken_for_test.glsl: the GL driver (")
+    assert message.startswith("gpu_impl/shaders/bundles/prefix_sum.glsl: the GL driver (")
     assert "SOME_FLAG=1" in message and "undeclared_name" in message and "\n" not in message
 
 

@@ -45,7 +45,7 @@ def block_mean(image: np.ndarray, b: int) -> np.ndarray:
 # interval: B=1 seed 0 0.9971 [0.9886, 1.0056], seed 1 0.9961 [0.9875, 1.0048], seed 2 0.9913
 # [0.9826, 0.9999]; B=3 0.9947 [0.9855, 1.0038], 0.9922 [0.9829, 1.0016], 0.9887 [0.9792,
 # 0.9982]; direct 0.9976 to 0.9998, +-0.3 %. Before eye paths landed where their ray does
-# (shaders/eye_paths.glsl), B=1 -0.47, -0.52, -1.05 % and B=3 -0.73, -0.97, -1.36 %.
+# (shaders/paths/eye_paths.glsl), B=1 -0.47, -0.52, -1.05 % and B=3 -0.73, -0.97, -1.36 %.
 FURNACE_TOLERANCE = 0.01
 
 
@@ -174,7 +174,7 @@ def cornell_indirect_ratios(gl, bounces: int, resolution: int, seeds: int) -> li
 @pytest.mark.slow
 @pytest.mark.parametrize("bounces", [1, 3])
 def test_cornell_box_at_256_directions_is_within_one_percent_at_r64(gl, bounces):
-    # Paths land where their ray meets the surface (shaders/eye_paths.glsl), so the O(1/R) bias of
+    # Paths land where their ray meets the surface (shaders/paths/eye_paths.glsl), so the O(1/R) bias of
     # taking one line's node is gone. Measured with this test's settings (R=64, seeds 0-3),
     # indirect ratio per channel and 95 % interval: B=1 0.9982 [0.9955, 1.0009], 1.0019 [0.9990,
     # 1.0048], 0.9990 [0.9953, 1.0027]; B=3 1.0002 [0.9971, 1.0034], 1.0042 [1.0007, 1.0076],
@@ -612,7 +612,7 @@ def test_precomputed_and_lazy_lighting_render_the_same_image(gl, images):
 
 
 def test_perfect_bundles_light_each_hit_where_its_ray_lands(gl):
-    # A hit moves off its node onto the ray (shaders/eye_paths.glsl), where no node's precomputed
+    # A hit moves off its node onto the ray (shaders/paths/eye_paths.glsl), where no node's precomputed
     # light can follow: lighting is the imperfect method's setting alone.
     with pytest.raises(ValueError, match="lighting is a setting of the imperfect bundle method, not of"):
         resolve(RenderSettings(method="perfect", lighting="precomputed"))

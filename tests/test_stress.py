@@ -182,7 +182,7 @@ def test_depth_complexity_beyond_the_first_node_buffer_loses_nothing(gl):
 def test_lists_of_every_length_sort_and_merge_in_either_pass(gl):
     # Stacks of 4, 12, 24 and 40 quads side by side: lines through them make lists for the resolve's
     # first pass (up to 8 nodes), the medium lists' sorting network (9 to 16), the long lists'
-    # (17 to 32) and their sort in global memory (over 32), all in one build (shaders/resolve_lists.glsl).
+    # (17 to 32) and their sort in global memory (over 32), all in one build (shaders/bundles/resolve_lists.glsl).
     meshes = [
         Mesh(f"s{n}q{i}", QUAD + [1.5 * column, 0.0, 0.025 * i], QUAD_FACES, 0)
         for column, n in enumerate((4, 12, 24, 40))

@@ -1,4 +1,4 @@
-"""Glossy BSDFs, as Mitsuba 3 evaluates them: the Python mirror of gpu_impl/shaders/bsdf.glsl.
+"""Glossy BSDFs, as Mitsuba 3 evaluates them: the Python mirror of gpu_impl/shaders/include/bsdf.glsl.
 
 A `Gloss` (evalkit/core/scene/model.py) makes a material Mitsuba's ``roughconductor`` or
 ``roughplastic``; a material without one is Lambertian. Both use a microfacet distribution D

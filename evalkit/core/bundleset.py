@@ -55,7 +55,7 @@ class DirectionSet:
     with its orthographic frame and a grid jitter in bundle pixels (|jitter| <= 0.5).
 
     Independent, not an evenly spread set: an eye path's next bundle is any of the frame's others
-    (shaders/eye_paths.glsl), and only independent directions make that next direction independent
+    (shaders/paths/eye_paths.glsl), and only independent directions make that next direction independent
     of the last, as a path tracer's are. An evenly spread set (spherical Fibonacci points under a
     random rotation) has no pair of directions closer than its spacing, so with the last bundle
     excluded paths turned back towards the surface they came from too rarely: +2.3 % indirect

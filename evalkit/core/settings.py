@@ -103,8 +103,8 @@ class RenderSettings:
     ``supersampling^2 * spp * frames`` paths. ``time_budget`` > 0 (seconds) ends the render
     before ``frames`` once the next frame would not fit in it (at least one frame). ``width`` and
     ``height`` default to the scene camera's. ``self_hit_bias`` is in bundle pixels
-    (gpu_impl/shaders/eye_paths.glsl); the shadow biases are in shadow-map texels
-    (gpu_impl/shaders/lights.glsl).
+    (gpu_impl/shaders/paths/eye_paths.glsl); the shadow biases are in shadow-map texels
+    (gpu_impl/shaders/include/lights.glsl).
     """
 
     method: str | None = setting(None, "the bundle method (default: the first registered)")

@@ -45,7 +45,7 @@ and the node's surface normal, in `SLOPE_BINS` (0 is grazing, 1 head-on). Holes 
 the exact node's surface, spurious and redundant nodes at the test node's.
 
 `next_hit_errors` measures what the renderer sees: from eye vertices, the next hit that a bundle
-lookup returns (the rule of shaders/eye_paths.glsl) against an exact Embree ray from the vertex.
+lookup returns (the rule of shaders/paths/eye_paths.glsl) against an exact Embree ray from the vertex.
 """
 
 from __future__ import annotations
@@ -379,7 +379,7 @@ def eye_vertices(
         ok = hits.prim_id >= 0
         # Each normal turned to face the arriving ray on its own: a mesh's vertex normals may
         # oppose its winding, and the renderer orients the shading normal by itself
-        # (shaders/eye_paths.glsl), so such hits are sampled as paths meet them.
+        # (shaders/paths/eye_paths.glsl), so such hits are sampled as paths meet them.
         facing = np.where(np.einsum("ij,ij->i", hits.geometric_normal, rays) > 0, -1.0, 1.0)[:, None]
         shading = np.where(np.einsum("ij,ij->i", hits.normal, rays) > 0, -1.0, 1.0)[:, None]
         ng, ns = (hits.geometric_normal * facing)[ok], (hits.normal * shading)[ok]
@@ -412,17 +412,17 @@ def bundle_lookup(
     self_hit_bias: float = DEFAULT_SELF_HIT_BIAS,
     triangle: np.ndarray | None = None,
 ) -> dict:
-    """The renderer's next-vertex lookup (shaders/eye_paths.glsl) on a `BundleSet`, in float64.
+    """The renderer's next-vertex lookup (shaders/paths/eye_paths.glsl) on a `BundleSet`, in float64.
 
     ``arrays`` is the scene's `SceneArrays` (the triangles' corners and planes); ``triangle``, each
     vertex's triangle (-1 or None: on none), which tells splats of its own surface behind it
-    (shaders/bundle_step.glsl: own_surface). Per vertex: the
+    (shaders/include/bundle_step.glsl: own_surface). Per vertex: the
     direction taken (d_k or -d_k, in the shading hemisphere), whether it leaves the geometric
     surface, the node landed on (index into the set's nodes, -1: none), the landing point, and
     whether it lies on the node's surface (the ray's own point on it, or on a triangle a walk from
     the node's reached) or is a node where it lies: the heaviest line's where lines that meet a
     surface smaller than a pixel in front of the ray's point weigh more than half, else the nearest
-    line's that meets a surface where the lines' vote says the ray meets one (shaders/bundle_step.glsl
+    line's that meets a surface where the lines' vote says the ray meets one (shaders/include/bundle_step.glsl
     says why and how they vote); and the triangle landed on where it lies on a surface (-1 where
     not). The four lines around the vertex are searched as the shader searches them."""
     ds = bundles.directions
@@ -453,7 +453,7 @@ def bundle_lookup(
         x, o, f = position[i], omega[i], forward[i]
         hit = near_hit = hit_triangle = -1
         hit_t, near_distance, near_origin = 0.0, 4.0, None  # near_*: the nearest line meeting a surface
-        meet_votes = leave_votes = 0  # the lines' votes (shaders/bundle_step.glsl)
+        meet_votes = leave_votes = 0  # the lines' votes (shaders/include/bundle_step.glsl)
         near_voter, near_voter_meets = 4.0, False
         lines, fronts = [], []  # (distance, voter, meets, point at x's depth); (normal, node) met from the front
         blockers, total = [], 0.0  # (weight, t, node, origin) of lines meeting a surface smaller than a pixel
@@ -472,7 +472,7 @@ def bundle_lookup(
             j = lo + np.searchsorted(depths[lo:hi], bound, side="right" if f else "left")
             # Not a voter: a line under the vertex's tangent plane with no node behind the vertex. A
             # front the ray meets ahead, which the line meets before it crosses that plane, is not
-            # one (shaders/bundle_step.glsl).
+            # one (shaders/include/bundle_step.glsl).
             voter = crossing <= depth if f else crossing >= depth
             for jj in range(lo, j) if f else range(hi - 1, j - 1, -1):
                 if voter:
@@ -562,7 +562,7 @@ def _in_triangle(b: np.ndarray) -> bool:
 
 class _SplatShapes:
     """The splats of an imperfect set as the shaders cut and grow them, per node j: the lines that
-    cut its triangle's splats (shaders/scene.glsl: SplatShape) and its radius (sharp_splat_radius).
+    cut its triangle's splats (shaders/include/scene.glsl: SplatShape) and its radius (sharp_splat_radius).
     A set built before splats ended at sharp edges (no ``crease_degrees`` in its params) has no
     lines; one built before cut splats grew (no ``splats_keep_area``) keeps every radius at
     splat_radius; one built before they grew to cover their edges (no ``splat_growth``) grew them
@@ -626,7 +626,7 @@ class _SplatShapes:
 
 def _own_surface_test(splats: _SplatShapes | None, plane, h: float):
     """Whether the lines around vertex x (geometric normal ng, towards the side the ray leaves, on
-    triangle t, -1: none) skip node j, the ray meeting its plane at y (shaders/bundle_step.glsl:
+    triangle t, -1: none) skip node j, the ray meeting its plane at y (shaders/include/bundle_step.glsl:
     own_surface): x within the splat's cylinder of its radius, across and along its normal, facing
     the same way (normals within 60 degrees, `OWN_SPLAT_COS`), unless it is a splat of another
     smooth surface than t's and y lies in its triangle; or a splat of t's smooth surface whose
@@ -666,7 +666,7 @@ def _triangle_facts(arrays) -> dict:
 
 
 def _smaller_than_pixel(bundles: BundleSet, arrays):
-    """Whether node j's surface is smaller than a bundle pixel, as shaders/bundle_hits.glsl tells: a
+    """Whether node j's surface is smaller than a bundle pixel, as shaders/include/bundle_hits.glsl tells: a
     splat's diameter, or its triangle's longest edge."""
     h = bundles.pixel_size()
     if bundles.has_splats:
@@ -677,11 +677,11 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
     return lambda j: small[triangles[j]]
 
 
-WALK_REACH, MAX_WALK_HOPS = 2.0, 64  # shaders/bundle_step.glsl: how far a walk goes
+WALK_REACH, MAX_WALK_HOPS = 2.0, 64  # shaders/include/bundle_step.glsl: how far a walk goes
 
 
 def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
-    """Where the ray from x along o meets node j's plane, at distance s (shaders/bundle_step.glsl:
+    """Where the ray from x along o meets node j's plane, at distance s (shaders/include/bundle_step.glsl:
     walk_surface): ("met", -1, s) on the node's surface (inside its triangle, up to 1e-4 of the
     barycentrics; or, for a splat, within its radius, up to 1e-4 of its square, and its shape:
     `_SplatShapes.inside`), else, walking across its triangle's edges, ("met", triangle, distance)

@@ -9,7 +9,7 @@ lies within r of it: for a Poisson process, P(hole) = exp(-N pi r^2 / A). With t
     P(hole) ~ h0 + (1 - h0) exp(-c s^q),        nodes per surface crossing ~ c_n s^2,
 
 with q = 2 for independent points (the sampler "random"); points stratified over the surface
-(the sampler "stratified", shaders/splat_points.glsl) leave no large gaps, so their holes fall
+(the sampler "stratified", shaders/bundles/splat_points.glsl) leave no large gaps, so their holes fall
 faster with the splat size, q > 2. c absorbs what the ideal model leaves out (the per-direction
 point sets, splats cut at triangle edges), and the second line is the expected number of splats
 covering a point, each one node before merging (the lines splats cover: BundleTracer's

@@ -4,22 +4,22 @@ points on the surfaces, each a disk of radius ``splat_scale * sqrt(A / (pi N))``
 disks. A splat ends at its triangle's sharp edges (convex creases and boundaries:
 `evalkit.core.scene.edges.sharp_edges`) and at those of the triangle's neighbours in its plane
 (`splat_cuts`), where a disk would stand out into empty space, and grows there, on its own triangle,
-until a crossing at the edge is covered as often as one inside the face (shaders/scene.glsl:
+until a crossing at the edge is covered as often as one inside the face (shaders/include/scene.glsl:
 sharp_splat_radius, inside_splat).
 
-- ``points``: N points per direction (shaders/splat_points.glsl), stratified along a space-filling
+- ``points``: N points per direction (shaders/bundles/splat_points.glsl), stratified along a space-filling
   curve or independent (``sampler``), each with its splat's radius. They are drawn by area, but
   every smooth surface has at least `SURFACE_LEAST_POINTS` points' share
   (gpu_impl/scene_buffers.py: surface_area_cdf), and A is the area so weighted.
 - ``lists``, compute splatter (the default): every splat counts the lines it covers, a prefix sum
   makes exact-size slot ranges, round-trip 1 reads their total, and every splat writes its nodes
-  (shaders/splat_lists.glsl): no linked list, no re-run. The count pass leaves each splat's lines
+  (shaders/bundles/splat_lists.glsl): no linked list, no re-run. The count pass leaves each splat's lines
   behind (`SPLAT_LINES`, an 8 x 8 box) so the scatter does not search for them again; the few
   splats larger than that box are queued, and a pass over just those finds their lines again.
 - ``lists``, raster splatter: the poster's splats drawn by the rasterizer as triangles with a
-  circular cut-out into linked lists (shaders/imperfect_bundles.glsl).
+  circular cut-out into linked lists (shaders/bundles/imperfect_bundles.glsl).
 - ``resolve``: each list sorted and its redundant nodes (one surface crossing covered by several
-  splats) merged in place, at the front of its range (shaders/resolve_lists.glsl).
+  splats) merged in place, at the front of its range (shaders/bundles/resolve_lists.glsl).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ DEFAULT_SPLAT_SCALE = 1.8
 # Where the shadow-mapped light splat nodes reflect is computed: "precomputed" once per splat point
 # (at its centre, up to a splat radius from a hit: cornell-box, K=256, R=128, indirect light +0.3 %
 # over lazy light), "lazy" where each path lands, "auto" whichever costs fewer light evaluations
-# in the frame (the renderer decides; shaders/irradiance.glsl, eye_paths.glsl).
+# in the frame (the renderer decides; shaders/lights/irradiance.glsl, eye_paths.glsl).
 LIGHTING = ("auto", "precomputed", "lazy")
 # The hole model's shape per sampler, P(hole) ~ exp(-c s^q) (studies/hole_vs_splat.toml on
 # cornell-box): the tuner's hole term. Fitted to an earlier run; the recorded run's fits
@@ -146,13 +146,13 @@ class SplatTracer(BundleTracer):
     def bind(self) -> None:
         super().bind()
         # The points pass, and the compute splatter's count and scatter, read the triangles as
-        # texels (shaders/scene.glsl: SPLAT_TEXELS).
+        # texels (shaders/include/scene.glsl: SPLAT_TEXELS).
         self.gpu_scene.triangle_texels().use(SPLAT_TEXEL_UNITS["triangle_texels"])
 
     @property
     def merge_tolerance(self) -> float:
         """How far apart in depth two nodes of one line may be and still be merged as one surface
-        (shaders/resolve_lists.glsl): the depth tolerance under which the bundle metrics call two
+        (shaders/bundles/resolve_lists.glsl): the depth tolerance under which the bundle metrics call two
         nodes one surface (`DEPTH_TOLERANCE` of the frame radius), so merging removes what they
         count redundant; negative (nothing merges) without merging. Splats of one plane cross a
         line at one depth; a wider tolerance (a splat radius) also merged a corner's two walls
@@ -177,7 +177,7 @@ class SplatTracer(BundleTracer):
         """Every splat's nodes into the lists; returns (re-runs, nodes written)."""
         raise NotImplementedError
 
-    # shaders/resolve_lists.glsl's merge variant: where the splatter left each list.
+    # shaders/bundles/resolve_lists.glsl's merge variant: where the splatter left each list.
     merge_defines: ClassVar[dict]
 
     def resolve_lists(self) -> None:
@@ -208,7 +208,7 @@ class SplatTracer(BundleTracer):
             "splatter": self.splatter,
             "merged": self.merge,
             "crease_degrees": SPLAT_CREASE_DEGREES,
-            # how cut splats grow (shaders/scene.glsl: sharp_splat_radius; edges.py: SPLAT_GROWTH)
+            # how cut splats grow (shaders/include/scene.glsl: sharp_splat_radius; edges.py: SPLAT_GROWTH)
             "splat_growth": SPLAT_GROWTH,
             "flat_degrees": FLAT_DEGREES,  # cut by flat neighbours' sharp edges too (edges.splat_cuts)
             # every smooth surface has this many points' share (scene_buffers.py: surface_weights)
@@ -231,7 +231,7 @@ class SplatTracer(BundleTracer):
 
 
 def splat_centres(points: np.ndarray, arrays) -> np.ndarray:
-    """The centres (P, 3) float64, in scene space, of `SPLAT_POINT` records, as shaders/bundle.glsl
+    """The centres (P, 3) float64, in scene space, of `SPLAT_POINT` records, as shaders/include/bundle.glsl
     places them: the triangle's first corner plus its two unorm16 barycentrics along its edges."""
     triangle = points["triangle"].astype(np.int64)
     b = np.stack([points["barycentrics"] & 0xFFFF, points["barycentrics"] >> 16], axis=-1) / 65535.0
@@ -252,7 +252,7 @@ class ComputeSplatTracer(SplatTracer):
         self.count_variant = {"COUNT_SPLATS": True, **({"COUNT_COVERED": True} if self.count_covered else {})}
         self._ensure("SPLAT_LINES", SPLAT_LINES.itemsize * self.K * self.N)
         self._ensure("SPLATS_FOUND_AGAIN", 4 * self.K * self.N)
-        # The count and scatter read the points, and their triangles, as texels (shaders/bundle.glsl:
+        # The count and scatter read the points, and their triangles, as texels (shaders/include/bundle.glsl:
         # SPLAT_TEXELS): the points copied from POINTS after the points pass, so POINTS holds whole
         # rows of them.
         self.point_texels = gl.record_texture(self.K * self.N, 4, "u4", "splat points", ("directions", "points"))

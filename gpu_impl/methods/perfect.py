@@ -1,7 +1,7 @@
 """Perfect ray bundles: every triangle drawn once per direction, instanced into an atlas of R x R
 tiles (one draw call per atlas), each fragment appending a node to its pixel's linked list
-(shaders/perfect_bundles.glsl), then each list sorted into its slot range
-(shaders/resolve_lists.glsl). The rasterizer only decides coverage: a node's depth is where its
+(shaders/bundles/perfect_bundles.glsl), then each list sorted into its slot range
+(shaders/bundles/resolve_lists.glsl). The rasterizer only decides coverage: a node's depth is where its
 pixel's line meets the triangle's plane, exact to float32.
 """
 

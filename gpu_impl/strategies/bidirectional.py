@@ -1,5 +1,5 @@
 """Bidirectional paths over ray bundles: eye paths as the eye strategy makes them, and each frame V
-light paths from the lights over the same bundles (shaders/light_paths.glsl), whose vertices every
+light paths from the lights over the same bundles (shaders/paths/light_paths.glsl), whose vertices every
 eye vertex connects to through their shadow maps (the light visibility unit's: exact or imperfect).
 The poster's future work, after Tokuyoshi and Ogaki's bidirectional path tracing via rasterization
 (I3D 2012); docs/method.md ("Bidirectional paths") derives it.
@@ -295,7 +295,7 @@ def radical_inverse(i: np.ndarray) -> np.ndarray:
 
 def mean_radiance(environment) -> float:
     """The environment's radiance averaged over the sphere and the channels: a lat-long map's rows
-    weighted by their solid angle (row j at polar angle pi j / (H - 1), shaders/environment.glsl)."""
+    weighted by their solid angle (row j at polar angle pi j / (H - 1), shaders/include/environment.glsl)."""
     scale = float(np.mean(environment.intensity))
     if environment.kind == "constant":
         return scale

@@ -1,7 +1,7 @@
 """Eye paths with next-event estimation (the poster's strategy): every path starts at a G-buffer
-sample (shaders/primary.glsl) and each bounce takes a bundle of the frame, chosen uniformly (at a
+sample (shaders/paths/primary.glsl) and each bounce takes a bundle of the frame, chosen uniformly (at a
 glossy vertex, by its BSDF among ``bsdf_candidates`` of them), and its next node
-(shaders/eye_paths.glsl), with no visibility test. Emissive triangles are found two ways,
+(shaders/paths/eye_paths.glsl), with no visibility test. Emissive triangles are found two ways,
 weighted by multiple importance sampling: by the paths hitting them, and by next-event estimation
 through ``light_samples`` points drawn on them per frame (`gpu_impl.lights.EmitterSamples`), the
 frame's light vertices, whose visibility the light visibility unit makes. An environment map is
@@ -32,7 +32,7 @@ DEFAULT_LIGHT_SAMPLES = 8
 DEFAULT_ENVIRONMENT_SAMPLES = 8
 DEFAULT_ENVIRONMENT_MAP_SIZE = 512
 # The bundles a glossy vertex weighs by its BSDF to choose its next one (resampled importance
-# sampling, shaders/eye_paths.glsl); each costs a BSDF evaluation.
+# sampling, shaders/paths/eye_paths.glsl); each costs a BSDF evaluation.
 DEFAULT_BSDF_CANDIDATES = 32
 
 

@@ -1,7 +1,7 @@
 """Exact shadow maps for light vertices: a cube of shadow maps per vertex, rasterized from the
 scene's triangles (those of the clusters each face sees) into tiles of the shadow atlas
-(shaders/shadow_maps.glsl), looked up with the same filtering and bias as the point lights' maps
-(shaders/light_visibility_exact.glsl). Faces wholly behind the vertex's surface are never looked
+(shaders/lights/shadow_maps.glsl), looked up with the same filtering and bias as the point lights' maps
+(shaders/include/light_visibility_exact.glsl). Faces wholly behind the vertex's surface are never looked
 up, so they are not drawn.
 """
 
@@ -58,7 +58,7 @@ class ExactShadowMaps:
         and drawn (the same for every ``seed`` and ``frame``)."""
         if len(positions):
             far = np.linalg.norm(positions, axis=1) + lights.gpu_scene.radius
-            # The surface's normal as the views' axis: shaders/shadow_maps.glsl keeps only what is in front.
+            # The surface's normal as the views' axis: shaders/lights/shadow_maps.glsl keeps only what is in front.
             views = cube_views(positions, far, self.map_size, axes=normals)
             lights.set_views(lights.fixed_views, views, self.map_size)
         lights.upload()  # the light records too, which every frame sets

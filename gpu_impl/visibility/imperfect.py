@@ -2,14 +2,14 @@
 bundles are modelled on): each light vertex gets one paraboloid map of its front hemisphere, drawn
 from ``ism_points`` stratified surface points of its own as disks in their triangles' tangent
 planes (as the imperfect bundles' splats are), every vertex's map in one draw
-(shaders/imperfect_shadow_maps.glsl), and looked up with the exact maps' filtering and bias
-(shaders/light_visibility_imperfect.glsl). Their cost grows with the points, not the
+(shaders/lights/imperfect_shadow_maps.glsl), and looked up with the exact maps' filtering and bias
+(shaders/include/light_visibility_imperfect.glsl). Their cost grows with the points, not the
 triangles: hundreds of light vertices per frame on a scene of 10^5 triangles.
 
 The splat radius is ``ism_splat_scale`` times the radius at which P disks would just cover the
 scene's area A once, sqrt(A / (pi P)). Holes (a surface whose splats leave a gap) let light through
 where there is none; larger splats close them and widen occluders. ``ism_pull_push`` fills the
-holes instead (shaders/ism_pull_push.glsl), the ISM paper's way. `evalkit.metrics.light_visibility`
+holes instead (shaders/lights/ism_pull_push.glsl), the ISM paper's way. `evalkit.metrics.light_visibility`
 measures them against exact maps and rays (benchmarks/shadow_maps.py compares pull-push with larger
 splats).
 """
@@ -68,7 +68,7 @@ class ImperfectShadowMaps:
 
     def __init__(self, gl, gpu_scene, settings: ImperfectSettings):
         self.gl, self.gpu_scene = gl, gpu_scene
-        gpu_scene.splat_facts()  # where splats end and grow (shaders/scene.glsl: SplatShape)
+        gpu_scene.splat_facts()  # where splats end and grow (shaders/include/scene.glsl: SplatShape)
         self.map_size, self.points_per_map = settings.ism_size, settings.ism_points
         area = sum(float(m.triangle_areas().sum()) for m in gpu_scene.scene.meshes)
         self.splat_radius = settings.ism_splat_scale * math.sqrt(area / (math.pi * self.points_per_map))
@@ -147,7 +147,7 @@ class ImperfectShadowMaps:
 
 
 class PullPush:
-    """Pull-push hole filling of the frame's imperfect shadow maps (shaders/ism_pull_push.glsl): a
+    """Pull-push hole filling of the frame's imperfect shadow maps (shaders/lights/ism_pull_push.glsl): a
     pyramid per map, levels 1.. of ceil(size / 2^l) texels a side down to one texel, in one buffer
     that grows with the light vertices."""
 

@@ -52,7 +52,7 @@ def sample_texture(
     """The texture at the mesh's uv (N, 2) as Mitsuba's bitmap texture looks it up: uv through
     ``to_uv``, then texel (row, col) centred at ((row + 0.5) / H, (col + 0.5) / W) in (v, u),
     ``bilinear`` or ``nearest``, wrapped by `wrap_texel`. Returns (N, 3) float64. The shaders'
-    `material_albedo` (gpu_impl/shaders/scene.glsl) is the same lookup."""
+    `material_albedo` (gpu_impl/shaders/include/scene.glsl) is the same lookup."""
     h, w = texture.shape[:2]
     t = texture.astype(np.float64)
     uv = texture_uv(uv, to_uv)

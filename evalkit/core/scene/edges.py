@@ -29,7 +29,7 @@ FLAT_DEGREES = 0.5
 # each of its 3 - k flat neighbours.
 MAX_SPLAT_CUTS = 6
 # A splat whose cylinder holds a path's vertex stands for the vertex's own surface where the two
-# normals part by less than 60 degrees (shaders/bundle_step.glsl: own_surface). A wall's splat
+# normals part by less than 60 degrees (shaders/include/bundle_step.glsl: own_surface). A wall's splat
 # beside a ceiling vertex is perpendicular to it: with "more than 90 degrees apart" instead, float
 # round-off of the two normals let it pass at concave corners, and lookups left cornell-box there
 # (docs/results/decisions.toml: own-surface-behind-tangent-plane).
@@ -70,7 +70,7 @@ def _runs(*keys: np.ndarray):
 def solid_triangles(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Per triangle, whether it bounds a solid: its connected surface (triangles joined by shared
     edges) is closed, every edge shared by exactly two triangles. A box or a ball resting on a floor
-    is one; the floor, a quad light and a room open on one side are not (shaders/shadow_maps.glsl:
+    is one; the floor, a quad light and a room open on one side are not (shaders/lights/shadow_maps.glsl:
     what lies behind a solid's surface is inside it). A triangle that welding collapses (at a UV
     sphere's poles) has no area and no say, and is not one."""
     from scipy.sparse import coo_matrix  # deferred: scipy loads in a second; only solids ask
@@ -113,7 +113,7 @@ def triangle_neighbours(positions: np.ndarray, faces: np.ndarray, normals: np.nd
     -1 where there is none (a boundary, an edge of more than two, a triangle welding collapses), and
     whether that triangle runs the edge the same way, so that its normal must be turned to agree,
     (T, 3) bool. Lookups walk from a met triangle across these edges to the triangle the ray meets,
-    or to an outline the ray passes (shaders/bundle_step.glsl: walk_surface)."""
+    or to an outline the ray passes (shaders/include/bundle_step.glsl: walk_surface)."""
     across = np.full((len(faces), 3), -1, np.int64)
     turned = np.zeros((len(faces), 3), bool)
     if not len(faces):
@@ -211,7 +211,7 @@ def splat_cuts(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The lines that cut each triangle's splats: the sharp edges (`sharp_edges`) of the triangle
     and of its flat neighbours (`flat_neighbours`), a surface's outline near the splat. A splat ends
-    at each and grows there (shaders/scene.glsl: sharp_splat_radius); a splat on a triangle that only
+    at each and grows there (shaders/include/scene.glsl: sharp_splat_radius); a splat on a triangle that only
     touches an outline through its neighbour would otherwise stand out past it, and cover the
     crossings there less often than its neighbour's grown splats do.
 
@@ -285,7 +285,7 @@ def cut_distances(first: np.ndarray, lines: np.ndarray, t: np.ndarray, b: np.nda
 
 def plane_barycentrics(p: np.ndarray, p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
     """(M, 2): points p's barycentrics (b1, b2) in the planes of triangles (p0, p1, p2), all (M, 3),
-    as shaders/scene.glsl's plane_barycentrics solves them."""
+    as shaders/include/scene.glsl's plane_barycentrics solves them."""
     e1, e2, q = p1 - p0, p2 - p0, p - p0
     dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
     aa, ab, bb = dot(e1, e1), dot(e1, e2), dot(e2, e2)
@@ -293,7 +293,7 @@ def plane_barycentrics(p: np.ndarray, p0: np.ndarray, p1: np.ndarray, p2: np.nda
     return np.stack([bb * dot(q, e1) - ab * dot(q, e2), aa * dot(q, e2) - ab * dot(q, e1)], axis=1) / det[:, None]
 
 
-# How cut splats grow (shaders/scene.glsl: sharp_splat_radius), recorded in an imperfect set's
+# How cut splats grow (shaders/include/scene.glsl: sharp_splat_radius), recorded in an imperfect set's
 # params: "edge_cover" keeps a crossing at an edge as often covered as one inside a face;
 # "keep_area", the rule of sets built before it, grew a splat until it kept its disk's area.
 SPLAT_GROWTH = "edge_cover"
@@ -301,7 +301,7 @@ SPLAT_GROWTH = "edge_cover"
 
 def sharp_splat_radii(r: float, distances: np.ndarray, growth: str = SPLAT_GROWTH) -> np.ndarray:
     """The radii (M,) of splats of radius ``r`` whose centres lie ``distances`` (M, K) from the lines
-    that cut them (`cut_distances`), as shaders/scene.glsl's sharp_splat_radius grows them: a
+    that cut them (`cut_distances`), as shaders/include/scene.glsl's sharp_splat_radius grows them: a
     crossing at an edge finds splat centres on one side only, so a splat within sqrt(2) r of one
     line takes radius sqrt(2) r (a half disk with the full disk's area) and one within sqrt(2) r of
     two or more takes 2 r (a quarter disk's). ``growth="keep_area"`` is the rule of sets built

@@ -37,7 +37,7 @@ FOV_AXES = ("x", "y")
 @dataclass(frozen=True)
 class Gloss:
     """A glossy BSDF, as Mitsuba's ``roughconductor`` or ``roughplastic`` with the same parameters
-    (evalkit/core/bsdf.py evaluates it, gpu_impl/shaders/bsdf.glsl on the GPU).
+    (evalkit/core/bsdf.py evaluates it, gpu_impl/shaders/include/bsdf.glsl on the GPU).
 
     ``alpha`` is the isotropic roughness of a Beckmann or GGX ``distribution``. A conductor has a
     complex index of refraction ``eta`` + i ``k`` per channel; a plastic the coat's relative index
@@ -220,7 +220,7 @@ class Camera:
 
 def camera_rays(frame: dict, film: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The camera rays of a `Camera.frame` through film positions (N, 2) in [0, 1]^2 ((0, 0) the
-    image's top left): origins and directions (N, 3), as shaders/primary.glsl makes them; the
+    image's top left): origins and directions (N, 3), as shaders/paths/primary.glsl makes them; the
     directions are not normalized (a perspective ray's reaches the film at unit depth)."""
     tx, ty = frame["tan_half"]
     local = np.stack([(1.0 - 2.0 * film[:, 0]) * tx, (1.0 - 2.0 * film[:, 1]) * ty, np.zeros(len(film))], axis=1)
