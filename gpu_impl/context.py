@@ -29,7 +29,8 @@ GL_CLIP_DISTANCE0 = 0x3000
 GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT = 0x8236, 0x8D94, 0x1405
 # The share of the free memory a build or a shadow atlas may take: the rest is for the process and
 # the driver. On llvmpipe the raster pass of atrium-dense (2.4 M triangles, K=256, R=1024) took
-# 1.4 GiB beyond its buffers, and with 80 % the memory cgroup killed it (docs/platform.md).
+# 1.4 GiB beyond its buffers, and with 80 % the memory cgroup killed it
+# (docs/results/decisions.toml: llvmpipe-memory-headroom).
 MEMORY_HEADROOM = 0.5
 GL_RED, GL_RG, GL_FLOAT, GL_DEPTH_COMPONENT, GL_DEPTH_COMPONENT24 = 0x1903, 0x8227, 0x1406, 0x1902, 0x81A6
 GL_TEXTURE_2D_ARRAY, GL_COLOR_ATTACHMENT0, GL_DEPTH_ATTACHMENT = 0x8C1A, 0x8CE0, 0x8D00

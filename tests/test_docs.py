@@ -273,7 +273,6 @@ CONSTANTS = {
 # measurements move into data files (docs/results/data/, written by the benchmarks and studies) and
 # the pages generated from them.
 HAND_TYPED = {
-    "docs/platform.md": 32,
     "docs/reference/rendering.md": 8,
     "docs/reference/studies.md": 1,
     "docs/reference/testing.md": 1,
