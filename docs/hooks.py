@@ -11,10 +11,14 @@ from pathlib import Path
 from mkdocs.structure.files import File
 
 from evalkit.notebooks import notebook_markdown
-from evalkit.reference_docs import cli_markdown, settings_markdown
+from evalkit.reference_docs import cli_markdown, outputs_markdown, settings_markdown
 from evalkit.results_docs import decisions_markdown, read_decisions, results_pages
 
-GENERATED = {"reference/cli.md": cli_markdown, "reference/settings.md": settings_markdown}
+GENERATED = {
+    "reference/cli.md": cli_markdown,
+    "reference/settings.md": settings_markdown,
+    "reference/outputs.md": outputs_markdown,
+}
 TUTORIALS = {  # page: notebook in docs/
     "tutorials/quick_start.md": "quick_start.ipynb",
     "tutorials/bundles.md": "bundles_tutorial.ipynb",

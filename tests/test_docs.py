@@ -38,6 +38,7 @@ PAGES = (
     "reference/cli",
     "reference/settings",
     "reference/api",
+    "reference/outputs",
     "reference/scenes",
     "reference/rendering",
     "reference/metrics",
@@ -74,6 +75,10 @@ def test_the_reference_covers_every_command_unit_and_setting(site):
     }
     missing = [n for n in declared_names | {u.name for u in units} if f"<code>{n}</code>" not in settings]
     assert not missing, missing
+    # The output files' page lists what renders wrote while it was built: each file, and every key.
+    outputs = (site / "reference" / "outputs.html").read_text()
+    for name in ("timings.json", "indirect.exr", "indirect_variance.exr", "frame_means", "median_ms", "scene_hash"):
+        assert f"<code>{name}</code>" in outputs, name
 
 
 @pytest.mark.long
