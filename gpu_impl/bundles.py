@@ -9,8 +9,8 @@ where it is needed. A build is a few passes and three GPU-CPU round-trips, whate
   re-run past the buffer's capacity), or straight into exact-size slot ranges (the compute
   splatter, gpu_impl/methods/imperfect.py); round-trip 1 reads how many there are.
 - ``resolve``: each list sorted (and, for splats, its redundant nodes merged) at the front of its
-  slot range (shaders/bundles/resolve_lists.glsl), in two passes: the short lists, then the long ones the
-  first queued (round-trip 2 reads how many); round-trip 3 reads the statistics.
+  slot range (shaders/bundles/resolve_lists.glsl): the short lists, then the medium and the long
+  ones the first pass queued (round-trip 2 reads how many); round-trip 3 reads the statistics.
 
 The resolved lists (``LIST_OFFSETS``, ``LIST_COUNTS``, ``NODES``) stay on the GPU for the renderer.
 The builders live with their methods (gpu_impl/methods/); `gpu_impl.registry` finds them.
@@ -317,7 +317,7 @@ class BundleTracer:
         return total
 
     def sort_programs(self, **defines) -> tuple:
-        """shaders/bundles/resolve_lists.glsl's two passes of a sort (or merge: ``defines``)."""
+        """shaders/bundles/resolve_lists.glsl's three passes of a sort (or merge: ``defines``)."""
         passes = ({}, {"MEDIUM_LISTS": True}, {"LONG_LISTS": True})
         return tuple(self.gl.program("resolve_lists", **defines, **extra) for extra in passes)
 
