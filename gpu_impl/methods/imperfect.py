@@ -84,11 +84,12 @@ class ImperfectSettings:
 
 
 class SplatTracer(BundleTracer):
-    """What both splatters share: the points, their radius, the merge."""
+    """What both splatters share: the points (and their copy as texels), their radius, the merge."""
 
     node_reference = NODE_SPLAT_POINT
     raw_nodes_are = "splat nodes before merging"
-    point_bytes = SPLAT_POINT.itemsize  # per point, whatever the node count
+    # Per point, whatever the node count: the point and its copy as a texel.
+    point_bytes = 2 * SPLAT_POINT.itemsize
 
     def __init__(self, gl, gpu_scene, settings, **hooks):
         # Its own settings first: the shared constructor checks the fixed memory, points included.
@@ -115,9 +116,14 @@ class SplatTracer(BundleTracer):
         super().__init__(gl, gpu_scene, settings, **hooks)
         self.buffers["SPLAT_CDF"] = self.gl.buffer(cdf.tobytes())
         self.buffers["SPLAT_CDF_GUIDE"] = self.gl.buffer(guide.tobytes())
-        self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.K * self.N))  # triangle 0 for a warm-up draw
+        # The points as texels too, which the passes that read many of them load far faster than
+        # a storage buffer on llvmpipe (shaders/include/bundle.glsl: SPLAT_TEXELS): copied from
+        # POINTS after the points pass, so POINTS holds whole rows of them (triangle 0 for a
+        # warm-up draw).
+        self.point_texels = gl.record_texture(self.K * self.N, 4, "u4", "splat points", ("directions", "points"))
+        self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.point_texels.width * self.point_texels.height))
 
-    points_are = "splat points"
+    points_are = "splat points and their texels"
 
     def describe(self) -> str:
         return f"imperfect bundles (K={self.K}, R={self.R}, N={self.N})"
@@ -143,11 +149,21 @@ class SplatTracer(BundleTracer):
             **SPLAT_TEXEL_UNITS,
         }
 
+    @property
+    def memory_bytes(self) -> int:
+        texels = getattr(self, "point_texels", None)  # made after the shared constructor's checks
+        return super().memory_bytes + (0 if texels is None else SPLAT_POINT.itemsize * texels.width * texels.height)
+
     def bind(self) -> None:
         super().bind()
-        # The points pass, and the compute splatter's count and scatter, read the triangles as
-        # texels (shaders/include/scene.glsl: SPLAT_TEXELS).
+        # Every pass that reads splat points reads them, and their triangles, as texels
+        # (shaders/include/scene.glsl: SPLAT_TEXELS).
         self.gpu_scene.triangle_texels().use(SPLAT_TEXEL_UNITS["triangle_texels"])
+        self.point_texels.use(SPLAT_TEXEL_UNITS["point_texels"])
+
+    def release(self) -> None:
+        super().release()
+        self.point_texels.release()
 
     @property
     def merge_tolerance(self) -> float:
@@ -171,6 +187,7 @@ class SplatTracer(BundleTracer):
             seed, frame = directions.seed & 0xFFFFFFFF, directions.frame & 0xFFFFFFFF
             self._uniforms(shader, triangle_count=self.gpu_scene.triangle_count, seed=seed, frame=frame)
             self.gl.dispatch(shader, self.K * self.N)
+            self.point_texels.write(self.buffers["POINTS"])
         return self.splat_lists(timer)
 
     def splat_lists(self, timer) -> tuple[int, int]:
@@ -252,25 +269,7 @@ class ComputeSplatTracer(SplatTracer):
         self.count_variant = {"COUNT_SPLATS": True, **({"COUNT_COVERED": True} if self.count_covered else {})}
         self._ensure("SPLAT_LINES", SPLAT_LINES.itemsize * self.K * self.N)
         self._ensure("SPLATS_FOUND_AGAIN", 4 * self.K * self.N)
-        # The count and scatter read the points, and their triangles, as texels (shaders/include/bundle.glsl:
-        # SPLAT_TEXELS): the points copied from POINTS after the points pass, so POINTS holds whole
-        # rows of them.
-        self.point_texels = gl.record_texture(self.K * self.N, 4, "u4", "splat points", ("directions", "points"))
-        self.gl.fill(self._ensure("POINTS", SPLAT_POINT.itemsize * self.point_texels.width * self.point_texels.height))
         self._compile()
-
-    @property
-    def memory_bytes(self) -> int:
-        texels = getattr(self, "point_texels", None)  # made after the shared constructor's checks
-        return super().memory_bytes + (0 if texels is None else SPLAT_POINT.itemsize * texels.width * texels.height)
-
-    def bind(self) -> None:
-        super().bind()
-        self.point_texels.use(SPLAT_TEXEL_UNITS["point_texels"])
-
-    def release(self) -> None:
-        super().release()
-        self.point_texels.release()
 
     def compute_programs(self) -> list:
         gl = self.gl
@@ -287,7 +286,6 @@ class ComputeSplatTracer(SplatTracer):
     def splat_lists(self, timer) -> tuple[int, int]:
         gl = self.gl
         with timer.measure("lists"):
-            self.point_texels.write(self.buffers["POINTS"])
             count = gl.program("splat_lists", **self.count_variant)
             self._uniforms(count, nearest_only=self.merge)
             gl.dispatch(count, self.K * self.N)
