@@ -102,7 +102,7 @@ uint splat(uint id) {
     uint t = s.triangle;
     vec2 b = s.b;
     vec3 e1 = s.e1, e2 = s.e2, centre = s.centre;
-    vec3 n = splat_triangle_normal(t);
+    vec3 n = triangle_normal(t);
     int k = int(id / points_per_direction);
     BundleFrame f = frames[k];
     float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz);
@@ -241,7 +241,7 @@ void scatter(uint id) {
     if (lines.x == LINES_FOUND_AGAIN || (lines.y | lines.z) == 0u) return;
     int k = int(id / points_per_direction);
     BundleFrame f = frames[k];
-    vec3 n = splat_triangle_normal(splat_point(id).x);
+    vec3 n = triangle_normal(splat_point(id).x);
     vec3 plane = depth_plane(f, n, uintBitsToFloat(lines.w));
     uint ref = id | (dot(n, f.d.xyz) > 0.0 ? FACING_BIT : 0u);
     ivec2 origin = ivec2(lines.x & 0xFFFFu, lines.x >> 16);

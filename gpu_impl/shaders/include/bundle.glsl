@@ -54,10 +54,6 @@ uniform usampler2D point_texels;
 uvec4 splat_point(uint point) {
     return texelFetch(point_texels, record_texel(point), 0);
 }
-
-vec3 splat_triangle_normal(uint t) {
-    return uintBitsToFloat(triangle_texel(t, 3u).xyz);
-}
 #else
 uvec4 splat_point(uint point) {
     SplatPoint p = points[point];

@@ -18,8 +18,9 @@ struct BundleHit {
 // A point on triangle t itself (a perfect bundle's node, or where a step walked to: bundle_step.glsl).
 BundleHit triangle_hit(vec3 position, uint t) {
     uvec3 v = triangle_vertices(t);
-    vec3 p0 = vertex_position(v.x);
-    vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, position);
+    vec3 p0, p1, p2;
+    triangle_corners(t, p0, p1, p2);
+    vec2 b = plane_barycentrics(p0, p1 - p0, p2 - p0, position);
     return BundleHit(t, position, shading_normal(t, v, b.x, b.y), material_albedo(triangle_material(t), surface_uv(v, b.x, b.y)));
 }
 
@@ -27,10 +28,11 @@ BundleHit bundle_hit(vec3 position, uint ref) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
     BundleHit hit;
     hit.position = position;
-    hit.triangle = points[ref].triangle;
+    hit.triangle = splat_point(ref).x;
     uvec3 v = triangle_vertices(hit.triangle);
-    vec3 p0 = vertex_position(v.x);
-    vec2 b = plane_barycentrics(p0, vertex_position(v.y) - p0, vertex_position(v.z) - p0, position);
+    vec3 p0, p1, p2;
+    triangle_corners(hit.triangle, p0, p1, p2);
+    vec2 b = plane_barycentrics(p0, p1 - p0, p2 - p0, position);
     vec2 centre = point_barycentrics(ref);
     hit.normal = shading_normal(hit.triangle, v, centre.x, centre.y);
     hit.albedo = material_albedo(triangle_material(hit.triangle), surface_uv(v, b.x, b.y));
@@ -50,7 +52,7 @@ BundleHit list_node_hit(vec3 origin, vec3 d, uint index) {
 // The triangle a node's reference lies on (a splat: its point's triangle).
 uint ref_triangle(uint ref) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
-    return points[ref].triangle;
+    return splat_point(ref).x;
 #else
     return ref;
 #endif

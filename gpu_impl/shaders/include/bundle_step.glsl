@@ -135,8 +135,8 @@ SurfaceWalk walk_surface(uint ref, vec3 x, vec3 omega, float s, uint own, vec3 m
     float reach2 = WALK_REACH * WALK_REACH * h * h;
     uint t = ref_triangle(ref);
     for (uint hop = 0u;; hop++) {
-        uvec3 v = triangle_vertices(t);
-        vec3 p0 = vertex_position(v.x), p1 = vertex_position(v.y), p2 = vertex_position(v.z);
+        vec3 p0, p1, p2;
+        triangle_corners(t, p0, p1, p2);
         vec2 b = plane_barycentrics(p0, p1 - p0, p2 - p0, x + s * omega);
         vec3 w = vec3(1.0 - b.x - b.y, b.x, b.y);
         uint corner = w.x <= w.y && w.x <= w.z ? 0u : (w.y <= w.z ? 1u : 2u);
@@ -155,7 +155,9 @@ SurfaceWalk walk_surface(uint ref, vec3 x, vec3 omega, float s, uint own, vec3 m
         vec3 n = triangle_normal(u);
         bool turned = (across & TRIANGLE_TURNED) != 0u;
         if (u == own || ((dot(n, omega) < 0.0) != turned) != (dot(triangle_normal(t), omega) < 0.0)) return outside;
-        s = dot(n, vertex_position(triangle_vertices(u).x) - x) / dot(n, omega);
+        vec3 q0, q1, q2;
+        triangle_corners(u, q0, q1, q2);
+        s = dot(n, q0 - x) / dot(n, omega);
         if (!(s > 0.0) || isinf(s)) return outside;
         t = u;
     }

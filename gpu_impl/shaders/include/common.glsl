@@ -12,11 +12,14 @@
 #define GLOSSY 0
 #endif
 
-// Programs that look splat points up, with their shapes, read the points and their triangles' cut
-// lines as texels (scene.glsl and bundle.glsl: SPLAT_TEXELS), as the splat builders do; every splat
-// tracer keeps them beside the points (gpu_impl/methods/imperfect.py: SplatTracer.point_texels).
-// llvmpipe loads a storage buffer word by word: atrium's three bounce passes with imperfect bundles
-// (K=64, R=128, 96x64, 4 paths a pixel) took 317 ms against 401 ms, the images bitwise the same.
+// Programs that look splat points up, with their shapes, read the points and their triangles
+// (corners, normals, cut lines) as texels (scene.glsl and bundle.glsl: SPLAT_TEXELS), as the splat
+// builders do; every splat tracer keeps them beside the points (gpu_impl/methods/imperfect.py:
+// SplatTracer.point_texels). llvmpipe loads a storage buffer word by word: atrium's three bounce
+// passes with imperfect bundles (K=64, R=128, 96x64, 4 paths a pixel) took 401 ms with storage
+// buffers, 317 ms with the points and cut lines as texels, and 298 -> 210 ms in a later run once the
+// corners and normals were texels too; the images are bitwise the same (atrium, parts, and
+// cornell-box with bidirectional paths).
 #if defined BUNDLE_LOOKUP && defined SPLAT_SHAPES && !defined SPLAT_TEXELS
 #if NODE_REFERENCE == NODE_SPLAT_POINT
 #define SPLAT_TEXELS

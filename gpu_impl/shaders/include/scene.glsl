@@ -31,8 +31,26 @@ struct Vertex {
 layout(std430, binding = BINDING_MATERIALS) readonly buffer Materials { Material materials[]; };
 layout(std430, binding = BINDING_TRIANGLES) readonly buffer Triangles { Triangle triangles[]; };
 
+#if defined SPLAT_TEXELS
+// The passes that read splat points read their triangles' corners and normals as texels too
+// (below, SPLAT_SHAPES: what the texels hold), the same words as the storage buffers hold.
+uniform usampler2D triangle_texels;
+
+ivec2 record_texel(uint i) {
+    return ivec2(i % uint(TEXEL_ROW), i / uint(TEXEL_ROW));
+}
+
+uvec4 triangle_texel(uint t, uint i) {
+    return texelFetch(triangle_texels, record_texel(uint(TEXELS_PER_TRIANGLE) * t + i), 0);
+}
+#endif
+
 vec3 triangle_normal(uint t) {
+#if defined SPLAT_TEXELS
+    return uintBitsToFloat(triangle_texel(t, 3u).xyz);
+#else
     return vec3(triangles[t].normal_x, triangles[t].normal_y, triangles[t].normal_z);
+#endif
 }
 
 uint triangle_material(uint t) {
@@ -68,6 +86,20 @@ layout(std430, binding = BINDING_TEXELS) readonly buffer Texels { float texels[]
 
 uvec3 triangle_vertices(uint t) { return uvec3(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u]); }
 vec3 vertex_position(uint i) { return vec3(vertices[i].x, vertices[i].y, vertices[i].z); }
+
+// Triangle t's corners.
+void triangle_corners(uint t, out vec3 p0, out vec3 p1, out vec3 p2) {
+#if defined SPLAT_TEXELS
+    p0 = uintBitsToFloat(triangle_texel(t, 0u).xyz);
+    p1 = uintBitsToFloat(triangle_texel(t, 1u).xyz);
+    p2 = uintBitsToFloat(triangle_texel(t, 2u).xyz);
+#else
+    uvec3 v = triangle_vertices(t);
+    p0 = vertex_position(v.x);
+    p1 = vertex_position(v.y);
+    p2 = vertex_position(v.z);
+#endif
+}
 vec3 vertex_normal(uint i) { return vec3(vertices[i].nx, vertices[i].ny, vertices[i].nz); }
 vec2 vertex_uv(uint i) { return vec2(vertices[i].u, vertices[i].v); }
 
@@ -121,15 +153,6 @@ layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uin
 // texels: its corners, each with its vertex index, then its normal with the texel of its first
 // cut line (past the last triangle, one more record: where the last one's lines end); the cut
 // lines follow, a texel each.
-uniform usampler2D triangle_texels;
-
-ivec2 record_texel(uint i) {
-    return ivec2(i % uint(TEXEL_ROW), i / uint(TEXEL_ROW));
-}
-
-uvec4 triangle_texel(uint t, uint i) {
-    return texelFetch(triangle_texels, record_texel(uint(TEXELS_PER_TRIANGLE) * t + i), 0);
-}
 
 uint cut_lines_start(uint t) {
     return triangle_texel(t, 3u).w;
