@@ -200,7 +200,7 @@ class GpuScene:
         return self._cluster_bounds
 
     def triangle_texels(self):
-        """The triangles as the splat builders read them (shaders/include/scene.glsl: SPLAT_TEXELS), a
+        """The triangles as splat passes read them (shaders/include/scene.glsl: SPLAT_TEXELS), a
         texture of `TEXELS_PER_TRIANGLE` texels a triangle: its three corners as the vertex
         records hold them, each with its vertex index, then its normal as the triangle records hold
         it with the texel of its first cut line; a record past the last with where its lines end;

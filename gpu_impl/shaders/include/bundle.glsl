@@ -47,8 +47,8 @@ layout(std430, binding = BINDING_POINTS) writeonly buffer Points { SplatPoint po
 layout(std430, binding = BINDING_POINTS) readonly buffer Points { SplatPoint points[]; };
 
 #if defined SPLAT_TEXELS
-// The splat builders read the points as texels (scene.glsl: SPLAT_TEXELS), copied from the
-// storage buffer the points pass wrote.
+// The splat builders and lookups read the points as texels (scene.glsl: SPLAT_TEXELS), copied
+// from the storage buffer the points pass wrote.
 uniform usampler2D point_texels;
 
 uvec4 splat_point(uint point) {

@@ -146,8 +146,9 @@ layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uin
 
 #if defined SPLAT_TEXELS
 // llvmpipe loads a storage buffer lane by lane, each word on its own, and a texel at once, in a
-// fraction of the time (benchmarks/gl_loads.py); the splat builders load little else, so they
-// read their triangles (corners, normals, cut lines) and points (bundle.glsl) as texels
+// fraction of the time (benchmarks/gl_loads.py); the splat builders load little else, so they,
+// and the passes that look splat points up (common.glsl), read the points' triangles (corners,
+// normals, cut lines) and the points (bundle.glsl) as texels
 // (gpu_impl/layout.py: TEXEL_ROW; gpu_impl/scene_buffers.py: GpuScene.triangle_texels): the same
 // words as the storage buffers hold, so the same arithmetic. Per triangle TEXELS_PER_TRIANGLE
 // texels: its corners, each with its vertex index, then its normal with the texel of its first
