@@ -129,27 +129,20 @@ def _cell(text: str) -> str:
 
 # The renders the output page is generated from: their files are written and read back, so the page
 # lists what a render writes, and every key needs its line below (a key without one fails the build).
-OUTPUT_RENDERS = {
-    "perfect bundles, eye paths": RenderSettings(
-        method="perfect", bounces=2, directions=4, resolution=16, width=8, height=8, frames=2, spp=1
-    ),
-    "imperfect bundles, bidirectional paths with imperfect shadow maps": RenderSettings(
-        method="imperfect",
-        strategy="bidirectional",
-        light_visibility="imperfect",
-        bounces=2,
-        directions=4,
-        resolution=16,
-        width=8,
-        height=8,
-        frames=2,
-        spp=1,
-        points=256,
-        light_paths=4,
-        ism_points=256,
-        ism_size=16,
-    ),
-}
+# One render takes every kind's first registered unit, one its last, at a tiny size.
+OUTPUT_RENDER = RenderSettings(bounces=2, directions=4, resolution=16, width=8, height=8, frames=2, spp=1)
+
+
+def output_renders() -> dict[str, RenderSettings]:
+    """The renders of the output page, by a label naming their units."""
+    renders = {}
+    for end in (0, -1):
+        units = {kind: list(registry)[end].name for kind, registry in KINDS.items()}
+        label = ", ".join(f"{KINDS[kind].kind} {name}" for kind, name in units.items())
+        renders[label] = dataclasses.replace(OUTPUT_RENDER, **units)
+    return renders
+
+
 # The passes `timings.json` times (`median_ms`, `frames_ms`; a study's `ms_<pass>` columns), and the
 # bundle build's own, which tracers time as `bundles.<pass>` (gpu_impl/bundles.py, methods/).
 PASSES = {
@@ -228,14 +221,15 @@ RENDER_KEYS = {
 
 def outputs_markdown() -> str:
     """The files a render writes and what each key in them means, generated from renders made while
-    the page is built (`OUTPUT_RENDERS`), so it lists what the code writes."""
+    the page is built (`output_renders`), so it lists what the code writes."""
     settings_keys = {f.name for f in declared(RenderSettings)} | {
         f.name for registry in KINDS.values() for unit in registry for f in declared(unit.settings)
     }
     seen: dict[str, dict[str, set]] = {section: {} for section in (*RENDER_KEYS, "passes")}
     files: dict[str, set] = {}
+    renders = output_renders()
     with tempfile.TemporaryDirectory() as tmp:
-        for label, settings in OUTPUT_RENDERS.items():
+        for label, settings in renders.items():
             out = Path(tmp) / str(len(files))
             written = write_render(render("cornell-box", settings), out)
             files[label] = {p.name for p in written}
@@ -259,7 +253,7 @@ def outputs_markdown() -> str:
     ]
     if missing:
         raise ValueError(f"evalkit/reference_docs.py: RENDER_KEYS has no line for {', '.join(sorted(missing))}")
-    labels = list(OUTPUT_RENDERS)
+    labels = list(renders)
     lines = [
         "# Output files",
         "",
