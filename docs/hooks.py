@@ -14,11 +14,7 @@ from evalkit.notebooks import notebook_markdown
 from evalkit.reference_docs import cli_markdown, outputs_markdown, settings_markdown
 from evalkit.results_docs import decisions_markdown, read_decisions, results_pages
 
-GENERATED = {
-    "reference/cli.md": cli_markdown,
-    "reference/settings.md": settings_markdown,
-    "reference/outputs.md": outputs_markdown,
-}
+GENERATED = {"reference/cli.md": cli_markdown, "reference/settings.md": settings_markdown}
 TUTORIALS = {  # page: notebook in docs/
     "tutorials/quick_start.md": "quick_start.ipynb",
     "tutorials/bundles.md": "bundles_tutorial.ipynb",
@@ -31,9 +27,11 @@ def on_files(files, config):
     for path, make in GENERATED.items():
         files.append(File.generated(config, path, content=make()))
     docs = Path(config["docs_dir"])
+    data = docs / "results" / "data"
+    files.append(File.generated(config, "reference/outputs.md", content=outputs_markdown(data)))
     for page, notebook in TUTORIALS.items():
         files.append(File.generated(config, page, content=notebook_markdown(docs / notebook, docs.parent)))
-    for path, content in results_pages(docs / "results" / "data", docs).items():
+    for path, content in results_pages(data, docs).items():
         files.append(File.generated(config, path, content=content))
     decisions = docs / "results" / "decisions.toml"
     page = decisions_markdown(read_decisions(decisions), decisions.relative_to(docs.parent).as_posix())

@@ -15,9 +15,11 @@ from evalkit.core.exr import read_exr
 from evalkit.core.scene.builtin import BUILTIN_SCENES
 from evalkit.core.settings import IMAGES, RenderSettings, declared
 from evalkit.metrics.images import METRICS
+from evalkit.records import read_record
 from gpu_impl.api import render
 from gpu_impl.registry import KINDS
 from gpu_impl.renderer import write_render
+from references.mitsuba import COMMITTED_STORE
 
 
 def commands(
@@ -219,12 +221,11 @@ RENDER_KEYS = {
 }
 
 
-def outputs_markdown() -> str:
+def outputs_markdown(results_data: Path) -> str:
     """The files a render writes and what each key in them means, generated from renders made while
-    the page is built (`output_renders`), so it lists what the code writes."""
-    settings_keys = {f.name for f in declared(RenderSettings)} | {
-        f.name for registry in KINDS.values() for unit in registry for f in declared(unit.settings)
-    }
+    the page is built (`output_renders`), so it lists what the code writes; and the results columns
+    of the studies recorded in ``results_data``."""
+    helps = _declared_settings()
     seen: dict[str, dict[str, set]] = {section: {} for section in (*RENDER_KEYS, "passes")}
     files: dict[str, set] = {}
     renders = output_renders()
@@ -249,7 +250,7 @@ def outputs_markdown() -> str:
         for section, keys in seen.items()
         for key in keys
         if (pass_meaning(key) is None if section == "passes" else key not in RENDER_KEYS[section])
-        and not (section == "params" and key in settings_keys)
+        and not (section == "params" and key in helps)
     ]
     if missing:
         raise ValueError(f"evalkit/reference_docs.py: RENDER_KEYS has no line for {', '.join(sorted(missing))}")
@@ -284,11 +285,11 @@ def outputs_markdown() -> str:
             if section == "passes":
                 meaning = pass_meaning(key)
             else:
-                meaning = RENDER_KEYS[section].get(key) or f"[setting](settings.md): {_setting_help(key)}"
+                meaning = RENDER_KEYS[section].get(key) or f"[setting](settings.md): {helps[key]}"
             by = "every render" if seen[section][key] == set(labels) else "; ".join(sorted(seen[section][key]))
             lines.append(f"| `{key}` | {_cell(meaning)} | {by} |")
         lines.append("")
-    lines += _manifest_markdown() + _study_columns_markdown(settings_keys)
+    lines += _manifest_markdown() + _study_columns_markdown(results_data, helps)
     return "\n".join(lines)
 
 
@@ -303,11 +304,10 @@ def _file_kind(name: str) -> str:
     return "timings" if name == "timings.json" else "variance" if name.endswith("_variance.exr") else "image"
 
 
-def _setting_help(name: str) -> str:
-    fields = [f for f in declared(RenderSettings) if f.name == name] + [
-        f for registry in KINDS.values() for unit in registry for f in declared(unit.settings) if f.name == name
-    ]
-    return fields[0].metadata["help"]
+def _declared_settings() -> dict[str, str]:
+    """Every declared setting's help, by name: `RenderSettings`' own, then every registered unit's."""
+    fields = [*declared(RenderSettings), *(f for r in KINDS.values() for unit in r for f in declared(unit.settings))]
+    return {f.name: f.metadata["help"] for f in reversed(fields)}
 
 
 # A stored reference's manifest.json (references.mitsuba), key by key.
@@ -331,11 +331,10 @@ MANIFEST_KEYS = {
     "render_s": "the render's wall time, in s",
     "files": "the images, by name",
 }
-REFERENCE_STORE = Path(__file__).resolve().parent.parent / "references" / "store"
 
 
 def _manifest_markdown() -> list[str]:
-    manifests = sorted(REFERENCE_STORE.glob("*/*/manifest.json"))
+    manifests = sorted(COMMITTED_STORE.glob("*/*/manifest.json"))
     keys = sorted({key for path in manifests for key in json.loads(path.read_text())})
     missing = [key for key in keys if key not in MANIFEST_KEYS]
     if missing:
@@ -398,12 +397,12 @@ STUDY_COLUMNS = {
 }
 
 
-def _study_column(column: str, settings_keys: set) -> str | None:
+def _study_column(column: str, settings: dict[str, str]) -> str | None:
     """What a results column means, by name; None where nothing says."""
     if column in STUDY_COLUMNS:
         return STUDY_COLUMNS[column]
-    if column in settings_keys:
-        return f"the run's [setting](settings.md): {_setting_help(column)}"
+    if column in settings:
+        return f"the run's [setting](settings.md): {settings[column]}"
     if column.startswith("version_"):
         return f"the version of {column[len('version_') :]}"
     if column.startswith("ms_"):
@@ -425,14 +424,13 @@ def _study_column(column: str, settings_keys: set) -> str | None:
     return None
 
 
-def _study_columns_markdown(settings_keys: set) -> list[str]:
-    data = Path(__file__).resolve().parent.parent / "docs" / "results" / "data"
+def _study_columns_markdown(results_data: Path, settings: dict[str, str]) -> list[str]:
     columns = set()
-    for path in sorted(data.glob("*.json")):
-        record = json.loads(path.read_text())
+    for path in sorted(results_data.glob("*.json")):
+        record = read_record(path)
         if "study" in record:
             columns.update(key for row in record["rows"] for key in row)
-    missing = sorted(c for c in columns if _study_column(c, settings_keys) is None)
+    missing = sorted(c for c in columns if _study_column(c, settings) is None)
     if missing:
         raise ValueError(f"evalkit/reference_docs.py: no meaning for the results columns {', '.join(missing)}")
     return [
@@ -444,6 +442,6 @@ def _study_columns_markdown(settings_keys: set) -> list[str]:
         "",
         "| column | meaning |",
         "|---|---|",
-        *(f"| `{c}` | {_cell(_study_column(c, settings_keys))} |" for c in sorted(columns)),
+        *(f"| `{c}` | {_cell(_study_column(c, settings))} |" for c in sorted(columns)),
         "",
     ]

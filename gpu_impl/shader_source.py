@@ -25,6 +25,7 @@ listed (tests/conftest.py), so the list cannot drift from what runs.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import re
 from pathlib import Path
@@ -207,8 +208,10 @@ def expand_includes(text: str, within: tuple[str, ...] = ()) -> str:
     return INCLUDE.sub(include, text)
 
 
+@functools.cache
 def program_files() -> dict[str, Path]:
-    """Every program file, by name (its stem), from the folders beside include/."""
+    """Every program file, by name (its stem), from the folders beside include/ (found once: the
+    files do not move while the process runs)."""
     files: dict[str, Path] = {}
     for path in sorted(SHADER_DIR.glob("*/*.glsl")):
         if path.parent != INCLUDE_DIR:
