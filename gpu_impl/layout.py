@@ -167,7 +167,8 @@ PATH_BACK = np.uint32(0x80000000)  # Path.triangle: the path is on the triangle'
 NO_TRIANGLE = np.uint32(0xFFFFFFFF)
 # The most directions a frame may have: the frames (bundle.glsl: BundleFrame, 48 bytes) are one
 # uniform block, and llvmpipe and NVIDIA's driver allow 64 KiB of one (GL_MAX_UNIFORM_BLOCK_SIZE).
-MAX_DIRECTIONS = 65536 // 48
+UNIFORM_BLOCK_BYTES = 65536
+MAX_DIRECTIONS = UNIFORM_BLOCK_BYTES // 48
 
 # Records read as texels by the passes that read splat points by the million (bundle.glsl:
 # SPLAT_TEXELS): textures TEXEL_ROW texels wide, a splat point a texel (SPLAT_POINT's four words),
