@@ -170,13 +170,13 @@ NO_TRIANGLE = np.uint32(0xFFFFFFFF)
 UNIFORM_BLOCK_BYTES = 65536
 MAX_DIRECTIONS = UNIFORM_BLOCK_BYTES // 48
 
-# Records read as texels by the passes that read splat points by the million (bundle.glsl:
-# SPLAT_TEXELS): textures TEXEL_ROW texels wide, a splat point a texel (SPLAT_POINT's four words),
-# a triangle TEXELS_PER_TRIANGLE (its corners, each with its vertex index, then its normal:
-# scene_buffers.py: GpuScene.triangle_texels), bound at these texture units.
+# Records read as texels by the splat builders and the lookups, which read them by the million
+# (common.glsl: TRIANGLE_TEXELS, SPLAT_TEXELS): textures TEXEL_ROW texels wide, a splat point a texel
+# (SPLAT_POINT's four words), a triangle TEXELS_PER_TRIANGLE (its corners, each with its vertex
+# index, then its normal: scene_buffers.py: GpuScene.triangle_texels), bound at these texture units.
 TEXEL_ROW = 4096
 TEXELS_PER_TRIANGLE = 4
-SPLAT_TEXEL_UNITS = {"point_texels": 9, "triangle_texels": 10}
+TEXEL_UNITS = {"point_texels": 9, "triangle_texels": 10}
 
 # The most texture arrays the shadow atlas' pages take (gpu_impl/lights.py: AtlasTextures): a
 # driver caps one texture's bytes below its size limits (llvmpipe at about 1.3 GiB:

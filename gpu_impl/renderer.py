@@ -38,7 +38,7 @@ from evalkit.core.scene import Scene
 from evalkit.core.settings import IMAGES, RenderSettings
 from gpu_impl.bundles import CAPACITY_SLACK, NodeBudgetExceeded
 from gpu_impl.context import GLContext, format_bytes, set_uniforms
-from gpu_impl.layout import BINDINGS, LOCAL_SIZE, PATH, PATH_SUMS
+from gpu_impl.layout import BINDINGS, LOCAL_SIZE, PATH, PATH_SUMS, TEXEL_UNITS
 from gpu_impl.lights import ShadowLights
 from gpu_impl.registry import resolve
 from gpu_impl.scene_buffers import GpuScene
@@ -209,6 +209,7 @@ class Renderer:
             "camera_to_world": tuple(self.camera["to_world"].T.ravel()),
             "tan_half_fov": tuple(self.camera["tan_half"]),
             "orthographic": self.camera["orthographic"],
+            "triangle_texels": TEXEL_UNITS["triangle_texels"],
             **self.strategy.uniforms(),
         }
         for program in self.programs.values():
@@ -391,6 +392,8 @@ class Renderer:
     def bind(self) -> None:
         """Every buffer and texture the frame's compute passes read, at their bindings."""
         self.tracer.bind()
+        # The lookups read the triangles as texels (shaders/include/common.glsl: TRIANGLE_TEXELS).
+        self.gpu_scene.triangle_texels().use(TEXEL_UNITS["triangle_texels"])
         for name, buffer in self.buffers.items():
             buffer.bind_to_storage_buffer(BINDINGS[name])
         self.lights.bind()

@@ -35,7 +35,7 @@ from evalkit.core.errors import LimitError
 from evalkit.core.scene.edges import FLAT_DEGREES, SPLAT_CREASE_DEGREES, SPLAT_GROWTH
 from evalkit.core.settings import DEPTH_TOLERANCE, setting
 from gpu_impl.bundles import BundleTracer, LinkedListTracer
-from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT, SPLAT_TEXEL_UNITS
+from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT, TEXEL_UNITS
 from gpu_impl.scene_buffers import SURFACE_LEAST_POINTS, surface_area_cdf
 from gpu_impl.units import BundleMethod, TuneTerms
 
@@ -146,7 +146,7 @@ class SplatTracer(BundleTracer):
             **super().uniforms(),
             "points_per_direction": self.N,
             "splat_radius": self.splat_radius,
-            **SPLAT_TEXEL_UNITS,
+            **TEXEL_UNITS,
         }
 
     @property
@@ -158,8 +158,8 @@ class SplatTracer(BundleTracer):
         super().bind()
         # Every pass that reads splat points reads them, and their triangles, as texels
         # (shaders/include/scene.glsl: SPLAT_TEXELS).
-        self.gpu_scene.triangle_texels().use(SPLAT_TEXEL_UNITS["triangle_texels"])
-        self.point_texels.use(SPLAT_TEXEL_UNITS["point_texels"])
+        self.gpu_scene.triangle_texels().use(TEXEL_UNITS["triangle_texels"])
+        self.point_texels.use(TEXEL_UNITS["point_texels"])
 
     def release(self) -> None:
         super().release()

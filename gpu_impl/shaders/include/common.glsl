@@ -12,18 +12,23 @@
 #define GLOSSY 0
 #endif
 
-// Programs that look splat points up, with their shapes, read the points and their triangles
-// (corners, normals, cut lines) as texels (scene.glsl and bundle.glsl: SPLAT_TEXELS), as the splat
-// builders do; every splat tracer keeps them beside the points (gpu_impl/methods/imperfect.py:
-// SplatTracer.point_texels). llvmpipe loads a storage buffer word by word: atrium's three bounce
-// passes with imperfect bundles (K=64, R=128, 96x64, 4 paths a pixel) took 401 ms with storage
-// buffers, 317 ms with the points and cut lines as texels, and 298 -> 210 ms in a later run once the
+// Programs that look nodes up, with their triangles' shapes, read the triangles (corners, normals,
+// cut lines) as texels (scene.glsl: TRIANGLE_TEXELS; the renderer binds them), and those that look
+// splat points up read the points as texels too (bundle.glsl: SPLAT_TEXELS; every splat tracer
+// keeps them beside the points, gpu_impl/methods/imperfect.py: SplatTracer.point_texels), as the
+// splat builders do. llvmpipe loads a storage buffer word by word: atrium's three bounce passes
+// with imperfect bundles (K=64, R=128, 96x64, 4 paths a pixel) took 401 ms with storage buffers,
+// 317 ms with the points and cut lines as texels, and 298 -> 210 ms in a later run once the
 // corners and normals were texels too; the images are bitwise the same (atrium, parts, and
 // cornell-box with bidirectional paths).
-#if defined BUNDLE_LOOKUP && defined SPLAT_SHAPES && !defined SPLAT_TEXELS
-#if NODE_REFERENCE == NODE_SPLAT_POINT
+#if defined BUNDLE_LOOKUP && defined SPLAT_SHAPES
+#define TRIANGLE_TEXELS
+#if NODE_REFERENCE == NODE_SPLAT_POINT && !defined SPLAT_TEXELS
 #define SPLAT_TEXELS
 #endif
+#endif
+#if defined SPLAT_TEXELS && !defined TRIANGLE_TEXELS
+#define TRIANGLE_TEXELS
 #endif
 
 #define PI 3.141592653589793

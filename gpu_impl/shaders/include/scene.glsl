@@ -31,9 +31,9 @@ struct Vertex {
 layout(std430, binding = BINDING_MATERIALS) readonly buffer Materials { Material materials[]; };
 layout(std430, binding = BINDING_TRIANGLES) readonly buffer Triangles { Triangle triangles[]; };
 
-#if defined SPLAT_TEXELS
-// The passes that read splat points read their triangles' corners and normals as texels too
-// (below, SPLAT_SHAPES: what the texels hold), the same words as the storage buffers hold.
+#if defined TRIANGLE_TEXELS
+// The splat builders and the lookups (common.glsl) read the triangles' corners and normals as
+// texels (below, SPLAT_SHAPES: what the texels hold), the same words as the storage buffers hold.
 uniform usampler2D triangle_texels;
 
 ivec2 record_texel(uint i) {
@@ -46,7 +46,7 @@ uvec4 triangle_texel(uint t, uint i) {
 #endif
 
 vec3 triangle_normal(uint t) {
-#if defined SPLAT_TEXELS
+#if defined TRIANGLE_TEXELS
     return uintBitsToFloat(triangle_texel(t, 3u).xyz);
 #else
     return vec3(triangles[t].normal_x, triangles[t].normal_y, triangles[t].normal_z);
@@ -89,7 +89,7 @@ vec3 vertex_position(uint i) { return vec3(vertices[i].x, vertices[i].y, vertice
 
 // Triangle t's corners.
 void triangle_corners(uint t, out vec3 p0, out vec3 p1, out vec3 p2) {
-#if defined SPLAT_TEXELS
+#if defined TRIANGLE_TEXELS
     p0 = uintBitsToFloat(triangle_texel(t, 0u).xyz);
     p1 = uintBitsToFloat(triangle_texel(t, 1u).xyz);
     p2 = uintBitsToFloat(triangle_texel(t, 2u).xyz);
@@ -144,11 +144,11 @@ bool inside_triangle(vec2 b) {
 // side (evalkit/core/scene/edges.py: splat_cuts).
 layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uint splat_shapes[]; };
 
-#if defined SPLAT_TEXELS
+#if defined TRIANGLE_TEXELS
 // llvmpipe loads a storage buffer lane by lane, each word on its own, and a texel at once, in a
 // fraction of the time (benchmarks/gl_loads.py); the splat builders load little else, so they,
-// and the passes that look splat points up (common.glsl), read the points' triangles (corners,
-// normals, cut lines) and the points (bundle.glsl) as texels
+// and the passes that look nodes up (common.glsl), read the triangles (corners, normals, cut
+// lines), and the splat points (bundle.glsl: SPLAT_TEXELS), as texels
 // (gpu_impl/layout.py: TEXEL_ROW; gpu_impl/scene_buffers.py: GpuScene.triangle_texels): the same
 // words as the storage buffers hold, so the same arithmetic. Per triangle TEXELS_PER_TRIANGLE
 // texels: its corners, each with its vertex index, then its normal with the texel of its first
