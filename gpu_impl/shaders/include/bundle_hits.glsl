@@ -65,8 +65,8 @@ bool smaller_than_pixel(uint ref, float h) {
 #if NODE_REFERENCE == NODE_SPLAT_POINT
     return 2.0 * splat_radius < h;
 #else
-    uvec3 v = triangle_vertices(ref);
-    vec3 a = vertex_position(v.x), b = vertex_position(v.y), c = vertex_position(v.z);
+    vec3 a, b, c;
+    triangle_corners(ref, a, b, c);
     return max(max(dot(b - a, b - a), dot(c - b, c - b)), dot(a - c, a - c)) < h * h;
 #endif
 }

@@ -84,7 +84,13 @@ layout(std430, binding = BINDING_VERTICES) readonly buffer Vertices { Vertex ver
 layout(std430, binding = BINDING_INDICES) readonly buffer Indices { uint indices[]; };
 layout(std430, binding = BINDING_TEXELS) readonly buffer Texels { float texels[]; };  // linear rgb
 
-uvec3 triangle_vertices(uint t) { return uvec3(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u]); }
+uvec3 triangle_vertices(uint t) {
+#if defined TRIANGLE_TEXELS
+    return uvec3(triangle_texel(t, 0u).w, triangle_texel(t, 1u).w, triangle_texel(t, 2u).w);
+#else
+    return uvec3(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u]);
+#endif
+}
 vec3 vertex_position(uint i) { return vec3(vertices[i].x, vertices[i].y, vertices[i].z); }
 
 // Triangle t's corners.
