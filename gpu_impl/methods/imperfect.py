@@ -157,7 +157,7 @@ class SplatTracer(BundleTracer):
     def bind(self) -> None:
         super().bind()
         # Every pass that reads splat points reads them, and their triangles, as texels
-        # (shaders/include/scene.glsl: SPLAT_TEXELS).
+        # (shaders/include/common.glsl: TRIANGLE_TEXELS, SPLAT_TEXELS).
         self.gpu_scene.triangle_texels().use(TEXEL_UNITS["triangle_texels"])
         self.point_texels.use(TEXEL_UNITS["point_texels"])
 
