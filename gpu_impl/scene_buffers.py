@@ -200,11 +200,11 @@ class GpuScene:
         return self._cluster_bounds
 
     def triangle_texels(self):
-        """The triangles as splat passes read them (shaders/include/scene.glsl: SPLAT_TEXELS), a
-        texture of `TEXELS_PER_TRIANGLE` texels a triangle: its three corners as the vertex
-        records hold them, each with its vertex index, then its normal as the triangle records hold
-        it with the texel of its first cut line; a record past the last with where its lines end;
-        then the cut lines (`splat_facts`), a texel each.
+        """The triangles as the splat passes and the lookups read them (shaders/include/common.glsl:
+        TRIANGLE_TEXELS), a texture of `TEXELS_PER_TRIANGLE` texels a triangle: its three corners
+        as the vertex records hold them, each with its vertex index, then its normal as the triangle
+        records hold it with the texel of its first cut line; a record past the last with where its
+        lines end; then the cut lines (`splat_facts`), a texel each.
         RGBA32UI, so every float's bits come back as they are. Made the first time they ask; poses
         rewrite the corners and normals (the cut lines, in barycentrics, stay)."""
         if self._triangle_texels is None:

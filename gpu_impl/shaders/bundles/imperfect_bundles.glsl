@@ -42,7 +42,7 @@ void main() {
     float angle = 2.0943951023931953 * float(corner);
     v_disk = 2.0 * vec2(cos(angle), sin(angle));
     vec3 p = center + s.radius * (v_disk.x * tangent + v_disk.y * bitangent);
-    v_barycentrics = plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, p);
+    v_barycentrics = plane_barycentrics(s.p0, s.e1, s.e2, p);
     SplatShape shape = splat_shape(s.triangle, s.cut_lines);
     v_cut = shape.cut ? 1u : 0u;
     v_lines_a = shape.lines_a;

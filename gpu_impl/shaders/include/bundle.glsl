@@ -47,7 +47,7 @@ layout(std430, binding = BINDING_POINTS) writeonly buffer Points { SplatPoint po
 layout(std430, binding = BINDING_POINTS) readonly buffer Points { SplatPoint points[]; };
 
 #if defined SPLAT_TEXELS
-// The splat builders and lookups read the points as texels (scene.glsl: SPLAT_TEXELS), copied
+// The splat builders and lookups read the points as texels (common.glsl: SPLAT_TEXELS), copied
 // from the storage buffer the points pass wrote.
 uniform usampler2D point_texels;
 
@@ -65,13 +65,14 @@ vec2 point_barycentrics(uint point) {
     return unpackUnorm2x16(splat_point(point).y);
 }
 
-// A splat point on its source triangle (scene.glsl): the triangle, its vertex indices and edges
-// e1, e2 from its first corner, the point's barycentrics b and the point p0 + b.x e1 + b.y e2, the
+// A splat point on its source triangle (scene.glsl): the triangle, its vertex indices, its first
+// corner p0 and edges e1, e2 from it, the point's barycentrics b and the point p0 + b.x e1 + b.y e2, the
 // splat's centre, its radius and the cut lines within it. Every pass that places a splat takes it from here, so they
 // agree bitwise.
 struct SplatSource {
     uint triangle;
     uvec3 vertices;
+    vec3 p0;
     vec3 e1;
     vec3 e2;
     vec2 b;
@@ -84,18 +85,12 @@ SplatSource splat_source(uint point) {
     SplatSource s;
     uvec4 record = splat_point(point);
     s.triangle = record.x;
-#if defined SPLAT_TEXELS
-    uvec4 c0 = triangle_texel(s.triangle, 0u), c1 = triangle_texel(s.triangle, 1u), c2 = triangle_texel(s.triangle, 2u);
-    s.vertices = uvec3(c0.w, c1.w, c2.w);
-    vec3 p0 = uintBitsToFloat(c0.xyz), p1 = uintBitsToFloat(c1.xyz), p2 = uintBitsToFloat(c2.xyz);
-#else
-    s.vertices = triangle_vertices(s.triangle);
-    vec3 p0 = vertex_position(s.vertices.x), p1 = vertex_position(s.vertices.y), p2 = vertex_position(s.vertices.z);
-#endif
-    s.e1 = p1 - p0;
-    s.e2 = p2 - p0;
+    vec3 p1, p2;
+    s.vertices = triangle_corners(s.triangle, s.p0, p1, p2);
+    s.e1 = p1 - s.p0;
+    s.e2 = p2 - s.p0;
     s.b = unpackUnorm2x16(record.y);
-    s.centre = p0 + s.b.x * s.e1 + s.b.y * s.e2;
+    s.centre = s.p0 + s.b.x * s.e1 + s.b.y * s.e2;
     s.radius = uintBitsToFloat(record.z);
     s.cut_lines = record.w;
     return s;

@@ -17,9 +17,8 @@ struct BundleHit {
 
 // A point on triangle t itself (a perfect bundle's node, or where a step walked to: bundle_step.glsl).
 BundleHit triangle_hit(vec3 position, uint t) {
-    uvec3 v = triangle_vertices(t);
     vec3 p0, p1, p2;
-    triangle_corners(t, p0, p1, p2);
+    uvec3 v = triangle_corners(t, p0, p1, p2);
     vec2 b = plane_barycentrics(p0, p1 - p0, p2 - p0, position);
     return BundleHit(t, position, shading_normal(t, v, b.x, b.y), material_albedo(triangle_material(t), surface_uv(v, b.x, b.y)));
 }
@@ -29,9 +28,8 @@ BundleHit bundle_hit(vec3 position, uint ref) {
     BundleHit hit;
     hit.position = position;
     hit.triangle = splat_point(ref).x;
-    uvec3 v = triangle_vertices(hit.triangle);
     vec3 p0, p1, p2;
-    triangle_corners(hit.triangle, p0, p1, p2);
+    uvec3 v = triangle_corners(hit.triangle, p0, p1, p2);
     vec2 b = plane_barycentrics(p0, p1 - p0, p2 - p0, position);
     vec2 centre = point_barycentrics(ref);
     hit.normal = shading_normal(hit.triangle, v, centre.x, centre.y);

@@ -85,7 +85,7 @@ bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
     float along = dot(q, n), reach = 2.0 * (s.radius + h);
     bool same_surface = triangle == NO_TRIANGLE || triangle_surface(t) == triangle_surface(triangle);
     bool in_cylinder = dot(n, ng) > OWN_SPLAT_COS && abs(along) <= s.radius && dot(q, q) - along * along <= s.radius * s.radius;
-    if (in_cylinder && (same_surface || !inside_triangle(plane_barycentrics(vertex_position(s.vertices.x), s.e1, s.e2, y)))) return true;
+    if (in_cylinder && (same_surface || !inside_triangle(plane_barycentrics(s.p0, s.e1, s.e2, y)))) return true;
     return triangle != NO_TRIANGLE && same_surface && dot(q, ng) >= 0.0 && dot(q, q) <= reach * reach;
 #else
     return false;

@@ -93,17 +93,20 @@ uvec3 triangle_vertices(uint t) {
 }
 vec3 vertex_position(uint i) { return vec3(vertices[i].x, vertices[i].y, vertices[i].z); }
 
-// Triangle t's corners.
-void triangle_corners(uint t, out vec3 p0, out vec3 p1, out vec3 p2) {
+// Triangle t's corners; returns its vertices' indices, which the same reads hold.
+uvec3 triangle_corners(uint t, out vec3 p0, out vec3 p1, out vec3 p2) {
 #if defined TRIANGLE_TEXELS
-    p0 = uintBitsToFloat(triangle_texel(t, 0u).xyz);
-    p1 = uintBitsToFloat(triangle_texel(t, 1u).xyz);
-    p2 = uintBitsToFloat(triangle_texel(t, 2u).xyz);
+    uvec4 c0 = triangle_texel(t, 0u), c1 = triangle_texel(t, 1u), c2 = triangle_texel(t, 2u);
+    p0 = uintBitsToFloat(c0.xyz);
+    p1 = uintBitsToFloat(c1.xyz);
+    p2 = uintBitsToFloat(c2.xyz);
+    return uvec3(c0.w, c1.w, c2.w);
 #else
     uvec3 v = triangle_vertices(t);
     p0 = vertex_position(v.x);
     p1 = vertex_position(v.y);
     p2 = vertex_position(v.z);
+    return v;
 #endif
 }
 vec3 vertex_normal(uint i) { return vec3(vertices[i].nx, vertices[i].ny, vertices[i].nz); }

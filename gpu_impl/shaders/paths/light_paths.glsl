@@ -100,8 +100,9 @@ Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
     uint seen = seen_triangle(place, texel);
     if (seen == 0u || atlas_surfaces(place, texel).x * view.axis.w >= 1.0) return s;  // nothing there
     uint t = seen - 1u;
-    uvec3 v = triangle_vertices(t);
-    vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;
+    vec3 p0, p1, p2;
+    uvec3 v = triangle_corners(t, p0, p1, p2);
+    vec3 e1 = p1 - p0, e2 = p2 - p0;
     vec3 so = origin - p0, pv = cross(omega, e2), qv = cross(so, e1);
     float det = dot(e1, pv);
     if (det == 0.0) return s;
