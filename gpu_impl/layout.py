@@ -314,7 +314,7 @@ LINKED_NODE = {
 }
 LINKED_NODE_BYTES = sum(dtype.itemsize for dtype, _ in LINKED_NODE.values())
 # The compute splatter's record of the lines a splat covers (bundle_build.glsl: splat_lines).
-SPLAT_LINES = np.dtype(("<u4", 4))
+SPLAT_LINES = np.dtype([("lines", "<u4", 4), ("depth_plane", "<f4", 4)])
 
 # Record name -> (dtype, the binding of its array): what tests/test_gl_context.py checks.
 RECORDS = {

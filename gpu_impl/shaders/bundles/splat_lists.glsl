@@ -31,6 +31,11 @@
 // beyond the disk's radius before it grew at those lines (scene.glsl: inside_splat); the lines
 // are linear in the line's offset in pixels, and its barycentrics are the centre's plus that
 // offset mapped back through the triangle's edges as the bundle sees them.
+//
+// Along a row of the grid a linear test holds on a half-line of columns, so the cut lines and the
+// nearer neighbours (below) end each row's span once per row (`clip_row`), not at every line,
+// which takes a quarter off the count pass on atrium. Only what is not linear stays a test per
+// line: a grown splat's lines beyond its disk, and a smaller neighbour's reach.
 
 #extension GL_ARB_gpu_shader_int64 : require
 #define NODE_REFERENCE NODE_SPLAT_POINT
@@ -51,12 +56,13 @@ layout(local_size_x = LOCAL_SIZE) in;
 uniform uint invocations;  // K N points; with FIND_AGAIN, the splats found again
 uniform bool nearest_only;
 
-// A splat's lines as the count pass found them: x the box's first column | its first row << 16
-// (LINES_FOUND_AGAIN: lines beyond the box, the scatter does not write them; no box starts there,
-// as K R^2 < 2^32 keeps both below 65535), y and z a bit per line of the box (row-major, 8
-// columns a row: z the rows past the fourth), w the bits of dot(n, centre), the splat plane's
-// offset (splat_lines[], declared in bundle_build.glsl). Which way the splat faces, the scatter
-// works out again as the count pass did.
+// A splat's lines as the count pass found them (splat_lines[], declared in bundle_build.glsl):
+// `lines` x the box's first column | its first row << 16 (LINES_FOUND_AGAIN: lines beyond the box,
+// the scatter does not write them; no box starts there, as K R^2 < 2^32 keeps both below 65535),
+// y and z a bit per line of the box (row-major, 8 columns a row: z the rows past the fourth), w
+// the nodes' reference (the point and FACING_BIT); and the depth plane of the splat's nodes, so
+// that the scatter reads one record and neither the point, its triangle nor the bundle's frame
+// (a sixth of the scatter's time on atrium).
 #define LINES_BOX 8
 #define LINES_FOUND_AGAIN 0xFFFFFFFFu
 
@@ -76,10 +82,23 @@ uniform bool nearest_only;
 // Nearer and reaching, it covers the line: within its disk where this splat's line is within this
 // one's, on the triangle where it is beyond. The two splats work it out with different rounding,
 // so a splat defers only by a clear MARGIN of the ellipse's size: near a tie both keep the line
-// (a redundant node, which the merge removes), never neither.
+// (a redundant node, which the merge removes), never neither. A neighbour no smaller than this
+// splat takes the lines on one side of a line across the row, and ends the row's span there; a
+// smaller one is tested at every line.
 #define NEIGHBOURS 4
 #define NEIGHBOUR_SLOTS 8  // 2 NEIGHBOURS
 #define MARGIN 1e-3
+
+// Row dy's columns [span.x, span.y] clipped to where dot(vec3(x - cx, dy, 1), line) >= 0: a
+// half-line, or the whole row or none where the line does not change along it.
+ivec2 clip_row(ivec2 span, vec3 line, float cx, float dy) {
+    precise float rest = line.y * dy + line.z;
+    precise float t = clamp(cx - rest / line.x, -1e6, 1e6);
+    span.x = line.x > 0.0 ? max(span.x, int(ceil(t))) : span.x;
+    span.y = line.x < 0.0 ? min(span.y, int(floor(t))) : span.y;
+    span.y = line.x == 0.0 && rest < 0.0 ? -1 : span.y;
+    return span;
+}
 
 #if defined SCATTER_SPLATS
 // A node into the slot below its list's cursor. More nodes than counted would take the list
@@ -108,15 +127,13 @@ uint splat(uint id) {
     float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz);
     if (abs(nd) < MIN_COS) {
 #if defined COUNT_SPLATS
-        splat_lines[id] = uvec4(0u);  // no lines
+        splat_lines[id].lines = uvec4(0u);  // no lines
 #endif
         return 0u;
     }
     float w = dot(n, centre);
     uint ref = id | (nd > 0.0 ? FACING_BIT : 0u);
-#if defined SCATTER_SPLATS
     vec3 plane = depth_plane(f, n, w);
-#endif
 
     // The ellipse in the pixel grid: centre c, and A dx^2 + 2 B dx dy + C dy^2 <= E.
     precise vec2 c = bundle_grid_position(f, centre);
@@ -130,13 +147,13 @@ uint splat(uint id) {
     vec2 gradient[NEIGHBOUR_SLOTS];
     float threshold[NEIGHBOUR_SLOTS];
     float reach[NEIGHBOUR_SLOTS];  // a smaller neighbour's: dot(q, gradient) >= q' M q + reach
-    bool neighbours = false, smaller = false;
+    bool smaller = false;
     uint first_point = uint(k) * points_per_direction, end_point = first_point + points_per_direction;
     // The triangle's edges in pixels: a neighbour's offset is linear in its barycentrics' offset.
     mat2 edges = pixels * mat2(dot(e1, f.u.xyz), dot(e1, f.v.xyz), dot(e2, f.u.xyz), dot(e2, f.v.xyz));
     // The splat's shape (scene.glsl: SplatShape), its lines as functions of a line's offset q in
     // pixels: vec3(q, 1) * cuts gives each one's distance plus its slack (scene.glsl: inside_cuts).
-    bool cut = s.cut_lines != 0u;
+    bool cut = s.cut_lines != 0u, grown = s.radius > splat_radius;
     mat2 to_barycentrics = mat2(0.0);
     mat3 cuts_a = mat3(0.0), cuts_b = mat3(0.0);
     if (cut) {
@@ -159,7 +176,6 @@ uint splat(uint id) {
         gradient[slot] = 2.0 * vec2(A * e.x + B * e.y, B * e.x + C * e.y);
         threshold[slot] = here ? eMe + MARGIN * E : 3.4e38;
         reach[slot] = rj < rp ? eMe - (1.0 - MARGIN) * rj * rj * nd * nd : -3.4e38;
-        neighbours = neighbours || here;
         smaller = smaller || (here && rj < rp);
     }
     // Where the lines can be: the ellipse's box and, for a splat grown at sharp edges, what
@@ -190,22 +206,34 @@ uint splat(uint id) {
         precise float root = sqrt(disc);
         int x0 = max(max(0, column_lo), int(ceil(c.x + (-B * dy - root) / A)));
         int x1 = min(min(resolution - 1, column_hi), int(floor(c.x + (-B * dy + root) / A)));
-        for (int x = x0; x <= x1; x++) {
-            if (cut) {
-                precise vec2 q = vec2(float(x) - c.x, dy);
-                vec3 v = vec3(q, 1.0);
-                if (!all(greaterThanEqual(v * cuts_a, vec3(0.0))) || !all(greaterThanEqual(v * cuts_b, vec3(0.0))))
-                    continue;
-                // Beyond the disk, the line must cross the triangle.
-                bool beyond_disk = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y > E_disk;
-                precise vec2 on = b + to_barycentrics * q;
-                if (beyond_disk && !inside_triangle(on)) continue;
-            }
+        // The splat's columns: the ellipse's, inside every cut line.
+        ivec2 inside = ivec2(x0, x1);
+        for (int i = 0; cut && i < 3; i++) {
+            inside = clip_row(inside, cuts_a[i], c.x, dy);
+            inside = clip_row(inside, cuts_b[i], c.x, dy);
+        }
+        // Those no nearer neighbour takes (one no smaller than this splat: reach -3.4e38).
+        ivec2 kept_span = inside;
+        for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
+            vec3 nearer = vec3(-gradient[slot], threshold[slot]);  // dot(q, gradient) <= threshold
+            kept_span = reach[slot] == -3.4e38 ? clip_row(kept_span, nearer, c.x, dy) : kept_span;
+        }
+#if defined COUNT_COVERED
+        ivec2 walked = inside;  // the studies' sum counts the lines neighbours take too
+#else
+        ivec2 walked = kept_span;
+#endif
+        for (int x = walked.x; x <= walked.y; x++) {
+            precise vec2 q = vec2(float(x) - c.x, dy);
+            // Beyond the disk before it grew, the line must cross the triangle.
+            if (grown && A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y > E_disk
+                && !inside_triangle(b + to_barycentrics * q))
+                continue;
             covered++;
-            if (neighbours) {
-                vec2 q = vec2(float(x) - c.x, dy);
-                float qMq = smaller ? A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y : 0.0;
-                bool nearer = false;  // a splat of this triangle nearer the line, reaching it
+            if (x < kept_span.x || x > kept_span.y) continue;
+            if (smaller) {
+                float qMq = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y;
+                bool nearer = false;  // a smaller splat of this triangle nearer the line, reaching it
                 for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
                     float g = dot(q, gradient[slot]);
                     nearer = nearer || (g > threshold[slot] && g >= qMq + reach[slot]);
@@ -225,9 +253,9 @@ uint splat(uint id) {
     }
 #if defined COUNT_SPLATS
     if (kept) {
-        splat_lines[id] = uvec4(uint(x_min) | uint(y0) << 16, mask, floatBitsToUint(w));
+        splat_lines[id] = SplatLines(uvec4(uint(x_min) | uint(y0) << 16, mask, ref), vec4(plane, 0.0));
     } else {
-        splat_lines[id] = uvec4(LINES_FOUND_AGAIN, 0u, 0u, 0u);
+        splat_lines[id].lines = uvec4(LINES_FOUND_AGAIN, 0u, 0u, 0u);
         found_again[atomicAdd(counters[COUNTER_FOUND_AGAIN], 1u)] = id;
     }
 #endif
@@ -237,13 +265,11 @@ uint splat(uint id) {
 #if defined SCATTER_SPLATS
 // Node keys for the lines the count pass kept for splat `id`.
 void scatter(uint id) {
-    uvec4 lines = splat_lines[id];
+    uvec4 lines = splat_lines[id].lines;
     if (lines.x == LINES_FOUND_AGAIN || (lines.y | lines.z) == 0u) return;
     int k = int(id / points_per_direction);
-    BundleFrame f = frames[k];
-    vec3 n = triangle_normal(splat_point(id).x);
-    vec3 plane = depth_plane(f, n, uintBitsToFloat(lines.w));
-    uint ref = id | (dot(n, f.d.xyz) > 0.0 ? FACING_BIT : 0u);
+    vec3 plane = splat_lines[id].depth_plane.xyz;
+    uint ref = lines.w;
     ivec2 origin = ivec2(lines.x & 0xFFFFu, lines.x >> 16);
     for (uint half_box = 0u; half_box < 2u; half_box++) {
         for (uint mask = lines[1 + half_box]; mask != 0u; mask &= mask - 1u) {

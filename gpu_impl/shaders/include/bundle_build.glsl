@@ -62,8 +62,12 @@ layout(std430, binding = BINDING_LIST_COUNTS) buffer ListCounts { uint list_coun
 
 #if defined SPLAT_LINE_RECORDS
 // The lines each splat covers, from the compute splatter's count pass to its scatter pass
-// (splat_lists.glsl says what the four words hold).
-layout(std430, binding = BINDING_SPLAT_LINES) buffer SplatLines { uvec4 splat_lines[]; };
+// (splat_lists.glsl says what `lines` holds), and the depth plane of its nodes there.
+struct SplatLines {
+    uvec4 lines;
+    vec4 depth_plane;  // xyz (bundle.glsl: depth_plane)
+};
+layout(std430, binding = BINDING_SPLAT_LINES) buffer SplatLineRecords { SplatLines splat_lines[]; };
 // The splats whose lines the count pass could not keep, COUNTER_FOUND_AGAIN of them: the scatter
 // finds their lines again in a pass over just these.
 layout(std430, binding = BINDING_SPLATS_FOUND_AGAIN) buffer SplatsFoundAgain { uint found_again[]; };
