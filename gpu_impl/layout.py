@@ -314,7 +314,10 @@ LINKED_NODE = {
 }
 LINKED_NODE_BYTES = sum(dtype.itemsize for dtype, _ in LINKED_NODE.values())
 # The compute splatter's record of the lines a splat covers (bundle_build.glsl: splat_lines).
-SPLAT_LINES = np.dtype([("lines", "<u4", 4), ("depth_plane", "<f4", 4)])
+SPLAT_LINES = np.dtype([("box", "<u4"), ("mask", "<u4", 2), ("depth_plane", "<f4", 3)])
+# The largest R the compute splatter's record holds: the box's first row in 15 bits, beside the
+# splat's FACING_BIT.
+SPLAT_LINES_MAX_RESOLUTION = 2**15
 
 # Record name -> (dtype, the binding of its array): what tests/test_gl_context.py checks.
 RECORDS = {

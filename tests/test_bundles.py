@@ -682,11 +682,15 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl, 
         (["--points", "0"], "argument --points: 0 must be at least 1"),
         (["--splat-scale", "-1"], "argument --splat-scale: -1.0 must be positive and finite"),
         (
-            # 16,777,216 points of 16 + 16 + 32 + 4 bytes (SPLAT_POINT, its texel, SPLAT_LINES, a place
+            # 16,777,216 points of 16 + 16 + 24 + 4 bytes (SPLAT_POINT, its texel, SPLAT_LINES, a place
             # among the splats found again), two 4-byte words per list
             ["--points", "65536", "--node-budget", "10MiB"],
-            "need 1.09 GiB for 16,777,216 splat points, their texels and lines and the list offsets, "
+            "need 992.06 MiB for 16,777,216 splat points, their texels and lines and the list offsets, "
             "over the node budget of 10.00 MiB",
+        ),
+        (
+            ["--directions", "1", "--resolution", "40000"],
+            "R=40000 exceeds the 32768 the compute splatter's line records hold; use splatter='raster'",
         ),
     ],
 )

@@ -35,7 +35,15 @@ from evalkit.core.errors import LimitError
 from evalkit.core.scene.edges import FLAT_DEGREES, SPLAT_CREASE_DEGREES, SPLAT_GROWTH
 from evalkit.core.settings import DEPTH_TOLERANCE, setting
 from gpu_impl.bundles import BundleTracer, LinkedListTracer
-from gpu_impl.layout import COUNTERS, NODE_SPLAT_POINT, SAMPLERS, SPLAT_LINES, SPLAT_POINT, TEXEL_UNITS
+from gpu_impl.layout import (
+    COUNTERS,
+    NODE_SPLAT_POINT,
+    SAMPLERS,
+    SPLAT_LINES,
+    SPLAT_LINES_MAX_RESOLUTION,
+    SPLAT_POINT,
+    TEXEL_UNITS,
+)
 from gpu_impl.scene_buffers import SURFACE_LEAST_POINTS, surface_area_cdf
 from gpu_impl.units import BundleMethod, TuneTerms
 
@@ -264,6 +272,12 @@ class ComputeSplatTracer(SplatTracer):
     points_are = "splat points, their texels and lines"
 
     def __init__(self, gl, gpu_scene, settings, **hooks):
+        if settings.resolution > SPLAT_LINES_MAX_RESOLUTION:
+            raise LimitError(
+                f"R={settings.resolution} exceeds the {SPLAT_LINES_MAX_RESOLUTION} the compute splatter's line records "
+                "hold; use splatter='raster'",
+                ("resolution",),
+            )
         super().__init__(gl, gpu_scene, settings, **hooks)
         # The count pass's variant: counting the lines splats cover, too, or not.
         self.count_variant = {"COUNT_SPLATS": True, **({"COUNT_COVERED": True} if self.count_covered else {})}

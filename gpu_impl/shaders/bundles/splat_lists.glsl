@@ -57,12 +57,12 @@ uniform uint invocations;  // K N points; with FIND_AGAIN, the splats found agai
 uniform bool nearest_only;
 
 // A splat's lines as the count pass found them (splat_lines[], declared in bundle_build.glsl):
-// `lines` x the box's first column | its first row << 16 (LINES_FOUND_AGAIN: lines beyond the box,
-// the scatter does not write them; no box starts there, as K R^2 < 2^32 keeps both below 65535),
-// y and z a bit per line of the box (row-major, 8 columns a row: z the rows past the fourth), w
-// the nodes' reference (the point and FACING_BIT); and the depth plane of the splat's nodes, so
-// that the scatter reads one record and neither the point, its triangle nor the bundle's frame
-// (a sixth of the scatter's time on atrium).
+// `box` the box's first column | its first row << 16 | FACING_BIT where the splat faces the
+// bundle's direction (LINES_FOUND_AGAIN: lines beyond the box, the scatter does not write them;
+// no box starts there, as R <= 2^15, gpu_impl/layout.py: SPLAT_LINES_MAX_RESOLUTION), the masks
+// a bit per line of the box (row-major, 8 columns a row: mask_high the rows past the fourth), and
+// the depth plane of the splat's nodes, so that the scatter reads one record and neither the
+// point, its triangle nor the bundle's frame (a sixth of the scatter's time on atrium).
 #define LINES_BOX 8
 #define LINES_FOUND_AGAIN 0xFFFFFFFFu
 
@@ -127,7 +127,7 @@ uint splat(uint id) {
     float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz);
     if (abs(nd) < MIN_COS) {
 #if defined COUNT_SPLATS
-        splat_lines[id].lines = uvec4(0u);  // no lines
+        splat_lines[id].mask_low = splat_lines[id].mask_high = 0u;  // no lines
 #endif
         return 0u;
     }
@@ -253,9 +253,10 @@ uint splat(uint id) {
     }
 #if defined COUNT_SPLATS
     if (kept) {
-        splat_lines[id] = SplatLines(uvec4(uint(x_min) | uint(y0) << 16, mask, ref), vec4(plane, 0.0));
+        uint box = uint(x_min) | uint(y0) << 16 | (ref & FACING_BIT);
+        splat_lines[id] = SplatLines(box, mask.x, mask.y, plane.x, plane.y, plane.z);
     } else {
-        splat_lines[id].lines = uvec4(LINES_FOUND_AGAIN, 0u, 0u, 0u);
+        splat_lines[id].box = LINES_FOUND_AGAIN;
         found_again[atomicAdd(counters[COUNTER_FOUND_AGAIN], 1u)] = id;
     }
 #endif
@@ -265,14 +266,14 @@ uint splat(uint id) {
 #if defined SCATTER_SPLATS
 // Node keys for the lines the count pass kept for splat `id`.
 void scatter(uint id) {
-    uvec4 lines = splat_lines[id].lines;
-    if (lines.x == LINES_FOUND_AGAIN || (lines.y | lines.z) == 0u) return;
+    SplatLines lines = splat_lines[id];
+    if (lines.box == LINES_FOUND_AGAIN) return;
     int k = int(id / points_per_direction);
-    vec3 plane = splat_lines[id].depth_plane.xyz;
-    uint ref = lines.w;
-    ivec2 origin = ivec2(lines.x & 0xFFFFu, lines.x >> 16);
+    vec3 plane = vec3(lines.depth, lines.depth_x, lines.depth_y);
+    uint ref = id | (lines.box & FACING_BIT);
+    ivec2 origin = ivec2(lines.box & 0xFFFFu, (lines.box & ~FACING_BIT) >> 16);
     for (uint half_box = 0u; half_box < 2u; half_box++) {
-        for (uint mask = lines[1 + half_box]; mask != 0u; mask &= mask - 1u) {
+        for (uint mask = half_box == 0u ? lines.mask_low : lines.mask_high; mask != 0u; mask &= mask - 1u) {
             uint bit = uint(findLSB(mask));
             ivec2 pixel = origin + ivec2(bit % LINES_BOX, half_box * 4u + bit / LINES_BOX);
             write_node(pixel_list(k, pixel), node_key(dot(plane, vec3(1.0, vec2(pixel))), ref));

@@ -62,10 +62,11 @@ layout(std430, binding = BINDING_LIST_COUNTS) buffer ListCounts { uint list_coun
 
 #if defined SPLAT_LINE_RECORDS
 // The lines each splat covers, from the compute splatter's count pass to its scatter pass
-// (splat_lists.glsl says what `lines` holds), and the depth plane of its nodes there.
+// (splat_lists.glsl says what each word holds).
 struct SplatLines {
-    uvec4 lines;
-    vec4 depth_plane;  // xyz (bundle.glsl: depth_plane)
+    uint box;
+    uint mask_low, mask_high;
+    float depth, depth_x, depth_y;  // the depth plane (bundle.glsl: depth_plane)
 };
 layout(std430, binding = BINDING_SPLAT_LINES) buffer SplatLineRecords { SplatLines splat_lines[]; };
 // The splats whose lines the count pass could not keep, COUNTER_FOUND_AGAIN of them: the scatter
