@@ -33,9 +33,9 @@
 // offset mapped back through the triangle's edges as the bundle sees them.
 //
 // Along a row of the grid a linear test holds on a half-line of columns, so the cut lines and the
-// nearer neighbours (below) end each row's span once per row (`clip_row`), not at every line,
-// which takes a quarter off the count pass on atrium. Only what is not linear stays a test per
-// line: a grown splat's lines beyond its disk, and a smaller neighbour's reach.
+// nearer neighbours (below) end each row's span once per row (`clip_row`), not at every line
+// (docs/results/decisions.toml: splat-rows). Only what is not linear stays a test per line: a
+// grown splat's lines beyond its disk, and a smaller neighbour's reach.
 
 #extension GL_ARB_gpu_shader_int64 : require
 #define NODE_REFERENCE NODE_SPLAT_POINT
@@ -62,7 +62,7 @@ uniform bool nearest_only;
 // no box starts there, as R <= 2^15, gpu_impl/layout.py: SPLAT_LINES_MAX_RESOLUTION), the masks
 // a bit per line of the box (row-major, 8 columns a row: mask_high the rows past the fourth), and
 // the depth plane of the splat's nodes, so that the scatter reads one record and neither the
-// point, its triangle nor the bundle's frame (a sixth of the scatter's time on atrium).
+// point, its triangle nor the bundle's frame (docs/results/decisions.toml: splat-rows).
 #define LINES_BOX 8
 #define LINES_FOUND_AGAIN 0xFFFFFFFFu
 
