@@ -14,8 +14,9 @@ sharp_splat_radius, inside_splat).
 - ``lists``, compute splatter (the default): every splat counts the lines it covers, a prefix sum
   makes exact-size slot ranges, round-trip 1 reads their total, and every splat writes its nodes
   (shaders/bundles/splat_lists.glsl): no linked list, no re-run. The count pass leaves each splat's lines
-  behind (`SPLAT_LINES`, an 8 x 8 box) so the scatter does not search for them again; the few
-  splats larger than that box are queued, and a pass over just those finds their lines again.
+  behind (`SPLAT_LINES`, an 8 x 8 box, with their depth plane) so the scatter neither searches for
+  them again nor reads the point; the few splats larger than that box are queued, and a pass over
+  just those finds their lines again.
 - ``lists``, raster splatter: the poster's splats drawn by the rasterizer as triangles with a
   circular cut-out into linked lists (shaders/bundles/imperfect_bundles.glsl).
 - ``resolve``: each list sorted and its redundant nodes (one surface crossing covered by several
