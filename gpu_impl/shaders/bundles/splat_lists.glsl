@@ -127,7 +127,7 @@ uint splat(uint id) {
     float nu = dot(n, f.u.xyz), nv = dot(n, f.v.xyz), nd = dot(n, f.d.xyz);
     if (abs(nd) < MIN_COS) {
 #if defined COUNT_SPLATS
-        splat_lines[id].mask_low = splat_lines[id].mask_high = 0u;  // no lines
+        splat_lines[id] = SplatLines(0u, 0u, 0u, 0.0, 0.0, 0.0);  // no lines
 #endif
         return 0u;
     }
