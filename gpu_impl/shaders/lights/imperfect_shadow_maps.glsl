@@ -54,8 +54,9 @@ void main() {
     float u = fract((float(j) + unit_float(r.x)) / float(points_per_map) + shift);
     uint triangle;
     vec2 b = stratified_point(u, vec2(unit_float(r.y), unit_float(r.z)), triangle);
-    uvec3 v = triangle_vertices(triangle);
-    vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;
+    vec3 p0, p1, p2;
+    triangle_corners(triangle, p0, p1, p2);
+    vec3 e1 = p1 - p0, e2 = p2 - p0;
     vec3 p = p0 + b.x * e1 + b.y * e2;
     vec3 d = p - view.origin.xyz;
     float dist = length(d);

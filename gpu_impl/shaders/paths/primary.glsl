@@ -47,8 +47,9 @@ void main() {
 #endif
     } else {
         uint t = visible - 1u;
-        uvec3 v = triangle_vertices(t);
-        vec3 p0 = vertex_position(v.x), e1 = vertex_position(v.y) - p0, e2 = vertex_position(v.z) - p0;
+        vec3 p0, p1, p2;
+        uvec3 v = triangle_corners(t, p0, p1, p2);
+        vec3 e1 = p1 - p0, e2 = p2 - p0;
         // Moller-Trumbore: the camera ray meets the triangle's plane at depth, barycentrics (b1, b2).
         vec3 so = eye - p0, pv = cross(dir, e2), qv = cross(so, e1);
         float inv = 1.0 / dot(e1, pv);
