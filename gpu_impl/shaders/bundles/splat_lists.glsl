@@ -181,7 +181,7 @@ uint splat(uint id) {
     // Where the lines can be: the ellipse's box and, for a splat grown at sharp edges, what
     // covers both the disk before it grew and the triangle, whose lines alone the growth adds.
     vec2 lo = vec2(-1e9), hi = vec2(1e9);
-    if (s.radius > splat_radius) {
+    if (grown) {
         vec2 v0 = edges * -b, v1 = edges * (vec2(1.0, 0.0) - b), v2 = edges * (vec2(0.0, 1.0) - b);
         lo = c + min(vec2(-disk_pixels), min(min(v0, v1), v2));
         hi = c + max(vec2(disk_pixels), max(max(v0, v1), v2));
@@ -225,14 +225,12 @@ uint splat(uint id) {
 #endif
         for (int x = walked.x; x <= walked.y; x++) {
             precise vec2 q = vec2(float(x) - c.x, dy);
+            float qMq = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y;
             // Beyond the disk before it grew, the line must cross the triangle.
-            if (grown && A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y > E_disk
-                && !inside_triangle(b + to_barycentrics * q))
-                continue;
+            if (grown && qMq > E_disk && !inside_triangle(b + to_barycentrics * q)) continue;
             covered++;
             if (x < kept_span.x || x > kept_span.y) continue;
             if (smaller) {
-                float qMq = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y;
                 bool nearer = false;  // a smaller splat of this triangle nearer the line, reaching it
                 for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
                     float g = dot(q, gradient[slot]);
