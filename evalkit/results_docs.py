@@ -284,12 +284,17 @@ def poster_table_markdown(data: dict, source: str) -> str:
         "",
         f"{first.capitalize()} over {second} bundle build: {data[f'{first}_over_{second}_bundles']:.2f}x (the poster: "
         f"{poster[f'{first} bundles'] / poster[f'{second} bundles']:.2f}x); the 3-bounce frame: "
-        f"{frame3[0] / frame3[1]:.2f}x.",
+        f"{frame3[0] / frame3[1]:.2f}x; with the {second} build free, at most "
+        f"{data['perfect_over_imperfect_frame_free_build']['3']:.2f}x (its other passes alone).",
         "",
         "The poster's figures (Radeon HD 6990, full preset): "
         + ", ".join(f"{k} {v:g} ms" for k, v in poster.items())
         + ".",
+        "",
+        "## Targets",
+        "",
     ]
+    lines += _table(["target", "met"], [[t, _met(ok)] for t, ok in data["targets_met"].items()])
     return "\n".join(lines) + "\n"
 
 

@@ -93,9 +93,12 @@ bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
 }
 
 // How far a step walks across a met node's triangle's edges (walk_surface): across edges that pass
-// within WALK_REACH bundle pixels of where the line met the node, at most MAX_WALK_HOPS triangles. The ray's point is within a pixel and a half of the line, so the walk
-// reaches it across triangles of any size; a count of 4 triangles stopped it short on triangles
-// smaller than a pixel. (On the parts scene at R = 256, one hop left the second lookups from exact
+// within WALK_REACH bundle pixels of where the line met the node, at most MAX_WALK_HOPS
+// triangles. The ray's point is within a pixel and a half of the line, so the walk reaches it
+// across triangles of any size; a count of 4 triangles stopped it short on triangles smaller than
+// a pixel: on atrium at R = 128 it left 5.0 % of next hits wrong, against 1.3 %. The distance
+// costs a bounce a third more time there, three quarters more with splats, whose walks start at
+// the splat's centre (docs/results/decisions.toml: walk-by-distance). (On the parts scene at R = 256, one hop left the second lookups from exact
 // hits letting through 0.989 of the sky light that rays do, four 0.999: docs/results/decisions.toml,
 // walk-the-met-surface.) evalkit/metrics/bundles.py mirrors both.
 const float WALK_REACH = 2.0;
