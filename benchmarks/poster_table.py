@@ -35,6 +35,12 @@ CONFIGS = [(method, bounces) for method in (PERFECT, IMPERFECT) for bounces in (
 TARGET_FRAME_SPEEDUP = {3: 5.0}
 
 
+def poster_frame_ratio(bounces: int) -> float:
+    """The poster's perfect over imperfect frame time at 1 or 3 bounces."""
+    others = POSTER_MS[f"others, {bounces} bounce{'s' * (bounces > 1)}"]
+    return (POSTER_MS["perfect bundles"] + others) / (POSTER_MS["imperfect bundles"] + others)
+
+
 def measure(gl: GLContext, scene, settings: RenderSettings) -> dict:
     # The preset's settings of the other method (the points of imperfect bundles) are left out.
     result = render(scene, resolve(settings, inapplicable="drop").settings, gl=gl)
@@ -114,12 +120,10 @@ def print_table(report: dict) -> None:
         f"(poster: {POSTER_MS['perfect bundles'] / POSTER_MS['imperfect bundles']:.2f}x)"
     )
     for b, ratio in report["perfect_over_imperfect_frame"].items():
-        poster = (POSTER_MS["perfect bundles"] + POSTER_MS[f"others, {b} bounce{'s' * (b > 1)}"]) / (
-            POSTER_MS["imperfect bundles"] + POSTER_MS[f"others, {b} bounce{'s' * (b > 1)}"]
-        )
         print(
-            f"perfect / imperfect frame, {b} bounce{'s' * (b > 1)}: {ratio:.2f}x (poster: {poster:.2f}x); with the "
-            f"imperfect build free, at most {report['perfect_over_imperfect_frame_free_build'][b]:.2f}x"
+            f"perfect / imperfect frame, {b} bounce{'s' * (int(b) > 1)}: {ratio:.2f}x (poster: "
+            f"{poster_frame_ratio(int(b)):.2f}x); with the imperfect build free, at most "
+            f"{report['perfect_over_imperfect_frame_free_build'][b]:.2f}x"
         )
     print("poster (Radeon HD 6990, full preset): " + ", ".join(f"{k} {v:.0f} ms" for k, v in POSTER_MS.items()))
     for target, met in report["targets_met"].items():

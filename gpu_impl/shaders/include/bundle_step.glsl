@@ -98,9 +98,10 @@ bool own_surface(uint ref, vec3 x, vec3 ng, float h, uint triangle, vec3 y) {
 // across triangles of any size; a count of 4 triangles stopped it short on triangles smaller than
 // a pixel: on atrium at R = 128 it left 5.0 % of next hits wrong, against 1.3 %. The distance
 // costs a bounce a third more time there, three quarters more with splats, whose walks start at
-// the splat's centre (docs/results/decisions.toml: walk-by-distance). (On the parts scene at R = 256, one hop left the second lookups from exact
-// hits letting through 0.989 of the sky light that rays do, four 0.999: docs/results/decisions.toml,
-// walk-the-met-surface.) evalkit/metrics/bundles.py mirrors both.
+// the splat's centre (docs/results/decisions.toml: walk-by-distance). (On the parts scene at
+// R = 256, one hop left the second lookups from exact hits letting through 0.989 of the sky light
+// that rays do, four 0.999: docs/results/decisions.toml, walk-the-met-surface.)
+// evalkit/metrics/bundles.py mirrors both.
 const float WALK_REACH = 2.0;
 const uint MAX_WALK_HOPS = 64u;
 const uint WALK_MET = 0u, WALK_OUTSIDE = 1u, WALK_OPEN = 2u;
