@@ -278,14 +278,14 @@ def poster_table_markdown(data: dict, source: str) -> str:
     lines += _table(["pass (ms)", *configs], rows)
     # The configurations are "METHOD B=BOUNCES", the reference method first.
     first, second = dict.fromkeys(c.split()[0] for c in configs)
-    frame3 = [data["results"][f"{m} B=3"]["median_ms"]["frame"] for m in (first, second)]
+    ratio = f"{first}_over_{second}"
     poster = data["poster_ms"]
     lines += [
         "",
-        f"{first.capitalize()} over {second} bundle build: {data[f'{first}_over_{second}_bundles']:.2f}x (the poster: "
+        f"{first.capitalize()} over {second} bundle build: {data[f'{ratio}_bundles']:.2f}x (the poster: "
         f"{poster[f'{first} bundles'] / poster[f'{second} bundles']:.2f}x); the 3-bounce frame: "
-        f"{frame3[0] / frame3[1]:.2f}x; with the {second} build free, at most "
-        f"{data['perfect_over_imperfect_frame_free_build']['3']:.2f}x (its other passes alone).",
+        f"{data[f'{ratio}_frame']['3']:.2f}x; with the {second} build free, at most "
+        f"{data[f'{ratio}_frame_free_build']['3']:.2f}x (its other passes alone).",
         "",
         "The poster's figures (Radeon HD 6990, full preset): "
         + ", ".join(f"{k} {v:g} ms" for k, v in poster.items())
