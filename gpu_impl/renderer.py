@@ -203,6 +203,7 @@ class Renderer:
             "image_size": (self.width, self.height),
             "supersampling": s,
             "paths_per_sample": settings.spp,
+            "coherent_paths": settings.coherent_paths,
             "gbuffer": GBUFFER_UNIT,
             "gbuffer_size": self.gbuffer_size,
             "camera_origin": tuple(self.camera["origin"]),

@@ -118,6 +118,24 @@ def test_no_light_is_lost_behind_concave_edges(gl, resolution):
     assert indirect["lo"] >= 0.98 and indirect["hi"] <= 1.02, describe_interval(indirect)
 
 
+def test_coherent_paths_keep_each_pixels_estimate_and_spread_the_image_mean(gl):
+    # Paths of 32 neighbouring samples sharing each bounce's bundle: each pixel's estimate is as
+    # unbiased and as noisy as with a choice per path, while the frames' image means spread more
+    # (the choice is shared: neighbours' errors are correlated). docs/method.md: coherent paths.
+    furnace = load_scene("furnace")
+    exact = furnace_radiance(3) - furnace_radiance(2)
+    own, shared = (
+        render(gl, furnace, directions=16, resolution=32, frames=256, width=16, height=16, coherent_paths=t)
+        for t in (1, 32)
+    )
+    ratio = interval(shared.frame_means["indirect"] / exact)
+    assert ratio["lo"] <= 1.0 <= ratio["hi"], describe_interval(ratio)
+    pixel_variance = shared.variances["indirect"].mean() / own.variances["indirect"].mean()
+    assert pixel_variance == pytest.approx(1.0, abs=0.1)
+    spread = shared.frame_means["indirect"].std(axis=0).mean() / own.frame_means["indirect"].std(axis=0).mean()
+    assert spread > 1.5
+
+
 # -- cornell-box against the committed Mitsuba references (128x128, 16384 spp) --------------------
 
 

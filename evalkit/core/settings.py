@@ -117,6 +117,12 @@ class RenderSettings:
     height: int | None = setting(None, "image height (default: the scene camera's)", minimum=1)
     supersampling: int = setting(1, "S x S G-buffer samples per pixel", minimum=1)
     spp: int = setting(1, "eye paths per G-buffer sample per frame", minimum=1, symbol="spp")
+    coherent_paths: int = setting(
+        1,
+        "neighbouring G-buffer samples whose eye paths take the same random bundle each bounce: faster bounces, "
+        "a noisier image mean (1: each its own)",
+        minimum=1,
+    )
     frames: int = setting(1, "frames to accumulate, each with new directions", minimum=1, symbol="F")
     time_budget: float = setting(
         0.0,

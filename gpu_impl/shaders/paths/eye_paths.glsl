@@ -40,6 +40,8 @@ uniform int bounces;            // B (lights.glsl declares it for bidirectional 
 uniform int direction_count;    // K
 uniform uint seed;
 uniform uint frame;
+uniform uint paths_per_sample;  // spp
+uniform uint coherent_paths;    // neighbouring G-buffer samples whose paths share each bounce's choice
 #if GLOSSY
 uniform int bsdf_candidates;    // M: the bundles a glossy vertex weighs by its BSDF (0: a uniform choice)
 #endif
@@ -75,7 +77,18 @@ void main() {
     // hemisphere's: -3 % of the indirect light of an open stage under a constant sky at K = 16
     // (tests/test_renderer.py). The frame's other directions are independent of the last one
     // (evalkit/core/bundleset.py: DirectionSet), so the next direction is too.
-    uint r = pcg4d(uvec4(id, uint(bounce), seed, frame)).x;
+    //
+    // With coherent_paths > 1, the paths of that many neighbouring G-buffer samples along a row
+    // (the same path index of each) take the same random choice at every bounce, as in coherent
+    // path tracing (Sadeghi, Chen and Jensen 2009): their vertices lie side by side, so one bundle
+    // carries them along neighbouring lines to neighbouring nodes and triangles, and a SIMD batch
+    // (8 lanes on llvmpipe, a warp on a GPU) reads what its first lane brought into the cache and
+    // walks alike. Each path's choice stays uniform and independent of its other bounces, so each
+    // pixel's estimate and its variance are unchanged; neighbouring pixels' errors within a frame
+    // are correlated, so the image mean spreads more from frame to frame. That is why it is not
+    // the default (docs/results/decisions.toml: coherent-paths).
+    uint chooser = id / paths_per_sample / coherent_paths * paths_per_sample + id % paths_per_sample;
+    uint r = pcg4d(uvec4(chooser, uint(bounce), seed, frame)).x;
     bool any_bundle = path.bundle == PATH_FROM_CAMERA || direction_count == 1;
     int choices = any_bundle ? direction_count : direction_count - 1;
     int k = min(int(unit_float(r) * float(choices)), choices - 1);
@@ -101,7 +114,7 @@ void main() {
             vec3 fj = bsdf_cos(vertex_material, path.albedo, n, wi, dot(d, n) >= 0.0 ? d : -d);
             float target = (fj.r + fj.g + fj.b) / 3.0;
             total += target;
-            uint u = pcg4d(uvec4(id, uint(bounce), seed, frame + uint(j + 1) * 0x9E3779B9u)).y;
+            uint u = pcg4d(uvec4(chooser, uint(bounce), seed, frame + uint(j + 1) * 0x9E3779B9u)).y;
             if (target > 0.0 && unit_float(u) * total < target) {
                 k = b;
                 kept = target;
