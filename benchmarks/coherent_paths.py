@@ -69,6 +69,11 @@ def run(*, scene_name: str, width: int, height: int, bounces: int, frames: int, 
         }
         for method in METHODS
     }
+    first_method, second_method = METHODS
+    frame_ratio = {
+        str(tile): results[f"{first_method} T={tile}"]["frame_ms"] / results[f"{second_method} T={tile}"]["frame_ms"]
+        for tile in tiles
+    }
     return {
         "benchmark": "coherent_paths",
         "scene": scene_name,
@@ -86,6 +91,7 @@ def run(*, scene_name: str, width: int, height: int, bounces: int, frames: int, 
         "seed": seed,
         "results": results,
         "ratios": ratios,
+        f"{first_method}_over_{second_method}_frame": frame_ratio,
     }
 
 
@@ -105,6 +111,9 @@ def print_table(report: dict) -> None:
         )
     for method, ratios in report["ratios"].items():
         print(f"{method}: " + ", ".join(f"{k} {v:.2f}" for k, v in ratios.items()))
+    first, second = METHODS
+    for tile, ratio in report[f"{first}_over_{second}_frame"].items():
+        print(f"{first} / {second} frame at coherent_paths {tile}: {ratio:.2f}x")
 
 
 def main() -> None:

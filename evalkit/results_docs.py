@@ -298,6 +298,37 @@ def poster_table_markdown(data: dict, source: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def coherent_paths_markdown(data: dict, source: str) -> str:
+    """benchmarks/coherent_paths.py: eye paths choosing their bundles alone or in groups, side by side."""
+    lines = _heading(
+        "Coherent paths",
+        f"Eye paths on `{data['scene']}` at {data['width']} x {data['height']}, B = {data['bounces']}, with the "
+        f"poster's bundles (K = {data['directions']}, R = {data['resolution']}, N = {data['points']}), over "
+        f"{data['frames']} frames, when each path chooses its bundle alone (T = 1) and when the paths of T "
+        "neighbouring samples share the choice ([coherent paths](../method.md#coherent-paths)). *pixel variance* "
+        "is one frame's, averaged over the indirect image; *frame spread* is the standard deviation of the frames' "
+        "indirect image means.",
+        data,
+        source,
+    )
+    rows = [
+        [name, _ms(r["bounces_ms"]), _ms(r["frame_ms"]), f"{r['indirect_mean']:.5f}", f"{r['pixel_variance']:.3e}",
+         f"{r['frame_mean_sd']:.3e}"]
+        for name, r in data["results"].items()
+    ]  # fmt: skip
+    header = ["configuration", "bounce passes ms", "frame ms", "indirect mean", "pixel variance", "frame spread"]
+    lines += _table(header, rows) + [""]
+    names = [k.replace("_over_", " / ").replace("_", " ") for k in next(iter(data["ratios"].values()))]
+    lines += _table(["method", *names],
+                    [[m, *(f"{v:.2f}" for v in r.values())] for m, r in data["ratios"].items()])  # fmt: skip
+    # The frame ratio as the benchmark names it: FIRST_over_SECOND_frame, the reference method first.
+    frame = next(k for k in data if "_over_" in k and k.endswith("_frame"))
+    first, second = frame.removesuffix("_frame").split("_over_")
+    lines += ["", f"{first.capitalize()} over {second} frame time:", ""]
+    lines += _table(["coherent_paths", "ratio"], [[t, f"{v:.2f}x"] for t, v in data[frame].items()])
+    return "\n".join(lines) + "\n"
+
+
 def resolution_probe_markdown(data: dict, source: str) -> str:
     """benchmarks/resolution_probe.py: the resolution probe's time by stage, per scene."""
     lines = _heading(
@@ -469,6 +500,7 @@ def decisions_markdown(data: dict, source: str) -> str:
 PAGES: dict[str, Callable[[dict, str], str]] = {
     "bundles": bundles_markdown,
     "poster_table": poster_table_markdown,
+    "coherent_paths": coherent_paths_markdown,
     "resolution_probe": resolution_probe_markdown,
     "shadow_maps": shadow_maps_markdown,
     "shadow_map_culling": shadow_map_culling_markdown,
