@@ -30,6 +30,7 @@ from gpu_impl.context import GLContext, format_bytes
 from gpu_impl.layout import SAMPLERS
 from gpu_impl.methods import imperfect, perfect
 from gpu_impl.scene_buffers import GpuScene
+from gpu_impl.timing import PassTimer
 
 PERFECT, IMPERFECT = perfect.METHOD.name, imperfect.METHOD.name
 DEFAULTS = imperfect.ImperfectSettings()
@@ -113,7 +114,7 @@ def run(
     seed: int,
 ) -> dict:
     with GLContext() as gl:
-        device = gl.info
+        device, timing = gl.info, PassTimer(gl).method
         results = {
             name: measure_scene(
                 gl,
@@ -142,7 +143,7 @@ def run(
         "benchmark": "bundles",
         "device": device["renderer"],
         "gl_version": device["version"],
-        "timing": "host time around glFinish (llvmpipe)" if "llvmpipe" in device["renderer"] else "GL timer queries",
+        "timing": timing,
         "directions": directions,
         "resolution": resolution,
         "points": points,

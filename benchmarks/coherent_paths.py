@@ -28,6 +28,7 @@ from gpu_impl.api import render
 from gpu_impl.context import GLContext
 from gpu_impl.methods import imperfect, perfect
 from gpu_impl.registry import resolve
+from gpu_impl.timing import PassTimer
 
 METHODS = (perfect.METHOD.name, imperfect.METHOD.name)
 
@@ -49,7 +50,7 @@ def run(*, scene_name: str, width: int, height: int, bounces: int, frames: int, 
     scene = load_scene(scene_name)
     base = {**PRESETS["paper"], "width": width, "height": height, "supersampling": 1, "frames": frames, "seed": seed}
     with GLContext() as gl:
-        device = gl.info
+        device, timing = gl.info, PassTimer(gl).method
         results = {
             f"{method} T={tile}": measure(
                 gl, scene, RenderSettings(**base, method=method, bounces=bounces, coherent_paths=tile)
@@ -58,14 +59,15 @@ def run(*, scene_name: str, width: int, height: int, bounces: int, frames: int, 
             for tile in tiles
         }
     first, last = tiles[0], tiles[-1]
+
+    def ratio(method: str, value: str, top: int, bottom: int) -> float:
+        return results[f"{method} T={top}"][value] / results[f"{method} T={bottom}"][value]
+
     ratios = {
         method: {
-            f"bounces_T{first}_over_T{last}": results[f"{method} T={first}"]["bounces_ms"]
-            / results[f"{method} T={last}"]["bounces_ms"],
-            f"pixel_variance_T{last}_over_T{first}": results[f"{method} T={last}"]["pixel_variance"]
-            / results[f"{method} T={first}"]["pixel_variance"],
-            f"frame_mean_sd_T{last}_over_T{first}": results[f"{method} T={last}"]["frame_mean_sd"]
-            / results[f"{method} T={first}"]["frame_mean_sd"],
+            f"bounces_T{first}_over_T{last}": ratio(method, "bounces_ms", first, last),
+            f"pixel_variance_T{last}_over_T{first}": ratio(method, "pixel_variance", last, first),
+            f"frame_mean_sd_T{last}_over_T{first}": ratio(method, "frame_mean_sd", last, first),
         }
         for method in METHODS
     }
@@ -79,7 +81,7 @@ def run(*, scene_name: str, width: int, height: int, bounces: int, frames: int, 
         "scene": scene_name,
         "device": device["renderer"],
         "gl_version": device["version"],
-        "timing": "host time around glFinish (llvmpipe)" if "llvmpipe" in device["renderer"] else "GL timer queries",
+        "timing": timing,
         "width": width,
         "height": height,
         "bounces": bounces,

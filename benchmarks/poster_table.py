@@ -24,6 +24,7 @@ from gpu_impl.api import render
 from gpu_impl.context import GLContext
 from gpu_impl.methods import imperfect, perfect
 from gpu_impl.registry import resolve
+from gpu_impl.timing import PassTimer
 
 # The poster (Radeon HD 6990, 1920x1024, 2x2 supersampling): perfect bundles 161 ms, imperfect
 # 27 ms, the other passes 30 ms (1 bounce) and 52 ms (3 bounces).
@@ -59,7 +60,7 @@ def run(
 ) -> dict:
     scene = load_scene(scene_name)
     with GLContext() as gl:
-        device = gl.info
+        device, timing = gl.info, PassTimer(gl).method
         full = (not gl.is_llvmpipe) if full is None else full
         small = {} if full else dict(width=width, height=height, supersampling=supersampling)
         base = {**PRESETS["paper"], "frames": frames, "seed": seed, **small}
@@ -76,7 +77,7 @@ def run(
         "scene": scene_name,
         "device": device["renderer"],
         "gl_version": device["version"],
-        "timing": "host time around glFinish (llvmpipe)" if "llvmpipe" in device["renderer"] else "GL timer queries",
+        "timing": timing,
         "full_preset": full,
         "width": base["width"],
         "height": base["height"],

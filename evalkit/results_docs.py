@@ -321,11 +321,11 @@ def coherent_paths_markdown(data: dict, source: str) -> str:
     names = [k.replace("_over_", " / ").replace("_", " ") for k in next(iter(data["ratios"].values()))]
     lines += _table(["method", *names],
                     [[m, *(f"{v:.2f}" for v in r.values())] for m, r in data["ratios"].items()])  # fmt: skip
-    # The frame ratio as the benchmark names it: FIRST_over_SECOND_frame, the reference method first.
-    frame = next(k for k in data if "_over_" in k and k.endswith("_frame"))
-    first, second = frame.removesuffix("_frame").split("_over_")
+    # The configurations are "METHOD T=TILES", the reference method first, as on the poster's table.
+    first, second = dict.fromkeys(c.split()[0] for c in data["results"])
     lines += ["", f"{first.capitalize()} over {second} frame time:", ""]
-    lines += _table(["coherent_paths", "ratio"], [[t, f"{v:.2f}x"] for t, v in data[frame].items()])
+    frame = data[f"{first}_over_{second}_frame"]
+    lines += _table(["coherent_paths", "ratio"], [[t, f"{v:.2f}x"] for t, v in frame.items()])
     return "\n".join(lines) + "\n"
 
 
