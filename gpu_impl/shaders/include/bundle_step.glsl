@@ -41,7 +41,7 @@
 uniform float self_hit_bias;  // in bundle pixels, see below
 
 #if NODE_REFERENCE == NODE_SPLAT_POINT
-// Whether point y on a splat's plane, outside its triangle (at barycentrics b of it), lies within
+// Whether point y on a splat's plane (at barycentrics b of its triangle) lies within
 // the splat's disk and shape (scene.glsl: inside_splat, which SPLAT_SHAPES brings), up to round-off.
 bool within_splat(uint ref, vec2 b, vec3 y) {
     SplatSource s = splat_source(ref);
@@ -137,18 +137,24 @@ struct SurfaceWalk {
 SurfaceWalk walk_surface(uint ref, vec3 x, vec3 omega, float s, uint own, vec3 met, float h) {
     const SurfaceWalk outside = SurfaceWalk(WALK_OUTSIDE, NO_TRIANGLE, 0.0);
     float reach2 = WALK_REACH * WALK_REACH * h * h;
+    // A hop's triangle's corners and normal are the ones the hop before it read.
     uint t = ref_triangle(ref);
+    vec3 p0, p1, p2;
+    triangle_corners(t, p0, p1, p2);
+    vec3 normal = triangle_normal(t);
+#if NODE_REFERENCE == NODE_SPLAT_POINT
+    // Within the splat's disk and shape, the ray meets the node itself. Tested once, here: inside
+    // the loop, at its first hop only, it made the imperfect bounce passes a quarter slower on
+    // llvmpipe (docs/results/decisions.toml: walk-by-distance).
+    vec3 y = x + s * omega;
+    if (within_splat(ref, plane_barycentrics(p0, p1 - p0, p2 - p0, y), y)) return SurfaceWalk(WALK_MET, NO_TRIANGLE, s);
+#endif
     for (uint hop = 0u;; hop++) {
-        vec3 p0, p1, p2;
-        triangle_corners(t, p0, p1, p2);
         vec2 b = plane_barycentrics(p0, p1 - p0, p2 - p0, x + s * omega);
         vec3 w = vec3(1.0 - b.x - b.y, b.x, b.y);
         uint corner = w.x <= w.y && w.x <= w.z ? 0u : (w.y <= w.z ? 1u : 2u);
         // Inside, up to round-off (scene.glsl: inside_triangle); at the first, the node itself.
         if (w[corner] >= -1e-4) return SurfaceWalk(WALK_MET, hop == 0u ? NO_TRIANGLE : t, s);
-#if NODE_REFERENCE == NODE_SPLAT_POINT
-        if (hop == 0u && within_splat(ref, b, x + s * omega)) return SurfaceWalk(WALK_MET, NO_TRIANGLE, s);
-#endif
         // The edge to cross, opposite that corner, must pass within reach of the line's node.
         vec3 a = corner == 0u ? p1 : (corner == 1u ? p2 : p0), e = (corner == 0u ? p2 : (corner == 1u ? p0 : p1)) - a;
         vec3 off = a + clamp(dot(met - a, e) / max(dot(e, e), 1e-30), 0.0, 1.0) * e - met;
@@ -158,12 +164,12 @@ SurfaceWalk walk_surface(uint ref, vec3 x, vec3 omega, float s, uint own, vec3 m
         uint u = across & ~TRIANGLE_TURNED;
         vec3 n = triangle_normal(u);
         bool turned = (across & TRIANGLE_TURNED) != 0u;
-        if (u == own || ((dot(n, omega) < 0.0) != turned) != (dot(triangle_normal(t), omega) < 0.0)) return outside;
-        vec3 q0, q1, q2;
-        triangle_corners(u, q0, q1, q2);
-        s = dot(n, q0 - x) / dot(n, omega);
+        if (u == own || ((dot(n, omega) < 0.0) != turned) != (dot(normal, omega) < 0.0)) return outside;
+        triangle_corners(u, p0, p1, p2);
+        s = dot(n, p0 - x) / dot(n, omega);
         if (!(s > 0.0) || isinf(s)) return outside;
         t = u;
+        normal = n;
     }
 }
 
