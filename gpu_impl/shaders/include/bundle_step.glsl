@@ -42,16 +42,15 @@ uniform float self_hit_bias;  // in bundle pixels, see below
 
 #if NODE_REFERENCE == NODE_SPLAT_POINT
 // Whether point y on a splat's plane (at barycentrics b of its triangle) lies within
-// the splat's disk and shape (scene.glsl: inside_splat, which SPLAT_SHAPES brings), up to round-off.
+// the splat's disk and shape (scene.glsl: inside_splat_lines, which SPLAT_SHAPES brings), up to round-off.
 bool within_splat(uint ref, vec2 b, vec3 y) {
     SplatSource s = splat_source(ref);
     vec3 to_centre = y - s.centre;
     float d2 = dot(to_centre, to_centre);
     if (d2 > s.radius * s.radius * (1.0 + 1e-4)) return false;
     if (s.cut_lines == 0u) return true;
-    SplatShape shape = splat_shape(s.triangle, s.cut_lines);
     bool beyond_disk = d2 > splat_radius * splat_radius * (1.0 + 1e-4);
-    return inside_splat(shape, b, beyond_disk);
+    return inside_splat_lines(s.triangle, s.cut_lines, b, beyond_disk);
 }
 #endif
 

@@ -225,6 +225,11 @@ struct SplatShape {
 };
 
 
+// A cut line's slack for round-off: 1e-4 of its change per unit of barycentrics.
+float cut_slack(vec3 line) {
+    return 1e-4 * max(abs(line.x), abs(line.y));
+}
+
 // The shape of a splat of triangle t cut by the triangle's cut lines `lines` (bit i for its line
 // i). A splat no line cuts reads nothing.
 SplatShape splat_shape(uint t, uint lines) {
@@ -234,7 +239,7 @@ SplatShape splat_shape(uint t, uint lines) {
     uint first = cut_lines_start(t);
     for (int i = 0; i < 6; i++) {
         vec3 l = (lines & (1u << uint(i))) != 0u ? cut_line_at(first, uint(i)) : none;
-        float slack = 1e-4 * max(abs(l.x), abs(l.y));
+        float slack = cut_slack(l);
         if (i < 3) {
             shape.lines_a[i] = l;
             shape.slack_a[i] = slack;
@@ -285,6 +290,20 @@ bool inside_cuts(SplatShape shape, vec2 b) {
 // offset surface.
 bool inside_splat(SplatShape shape, vec2 b, bool beyond_disk) {
     return inside_cuts(shape, b) && (!beyond_disk || inside_triangle(b));
+}
+
+// inside_splat for a splat of triangle t cut by `lines` (bit i for its line i), reading only
+// those lines, one at a time, for a test of one splat: its SplatShape reads all six. A lookup's
+// walk tests one splat a node (bundle_step.glsl: within_splat), and its bounces are faster so
+// (docs/results/decisions.toml: walk-by-distance).
+bool inside_splat_lines(uint t, uint lines, vec2 b, bool beyond_disk) {
+    uint first = cut_lines_start(t);
+    vec3 v = vec3(b, 1.0);
+    for (; lines != 0u; lines &= lines - 1u) {
+        vec3 l = cut_line_at(first, uint(findLSB(lines)));
+        if (!(dot(v, l) >= -cut_slack(l))) return false;
+    }
+    return !beyond_disk || inside_triangle(b);
 }
 #endif
 
