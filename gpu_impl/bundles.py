@@ -36,6 +36,7 @@ from gpu_impl.layout import (
     FACING_BIT,
     LINKED_NODE,
     LINKED_NODE_BYTES,
+    LIST_GROUP,
     LOCAL_SIZE,
     MAX_DIRECTIONS,
     NODE,
@@ -123,6 +124,7 @@ class BundleTracer:
         self._ensure("COUNTERS", 4 * len(COUNTERS))
         self._ensure("LIST_OFFSETS", lists)
         self._ensure("LIST_COUNTS", lists)
+        self._ensure("LIST_GROUPS", 4 * self.group_count)
         self.directions: DirectionSet | None = None
         self.stats: dict = {}
 
@@ -170,12 +172,17 @@ class BundleTracer:
     @property
     def fixed_bytes(self) -> int:
         """What the tracer holds whatever the node count: frames and the per-list arrays."""
-        return FRAMES_BYTES + 4 * (self.list_count + 1) * 2
+        return FRAMES_BYTES + 4 * (self.list_count + 1) * 2 + 4 * self.group_count
+
+    @property
+    def group_count(self) -> int:
+        """The groups of `LIST_GROUP` consecutive lists the resolve queues (sort_lists)."""
+        return math.ceil(self.list_count / LIST_GROUP)
 
     @property
     def fixed_items(self) -> str:
         """What `fixed_bytes` holds, in words."""
-        return f"the frames and the {self.list_count:,} lists' counts and offsets"
+        return f"the frames and the {self.list_count:,} lists' counts, offsets and groups"
 
     # -- memory --------------------------------------------------------------------------
 
@@ -317,19 +324,22 @@ class BundleTracer:
         return total
 
     def sort_programs(self, **defines) -> tuple:
-        """shaders/bundles/resolve_lists.glsl's three passes of a sort (or merge: ``defines``)."""
-        passes = ({}, {"MEDIUM_LISTS": True}, {"LONG_LISTS": True})
+        """shaders/bundles/resolve_lists.glsl's four passes of a sort (or merge: ``defines``)."""
+        passes = ({"QUEUE_GROUPS": True}, {}, {"MEDIUM_LISTS": True}, {"LONG_LISTS": True})
         return tuple(self.gl.program("resolve_lists", **defines, **extra) for extra in passes)
 
     def sort_lists(self, uniforms: dict | None = None, **defines) -> None:
-        """Each list sorted (or merged, ``defines``) into its slot range: a pass over every list
-        sorts the short ones and queues the rest, the medium and the long apart, then a pass over
-        each queue (round-trip 2 reads how many)."""
+        """Each list sorted (or merged, ``defines``) into its slot range: a pass queues the groups
+        of lists that hold a node (round-trip 2 reads how many), a pass over their lists sorts the
+        short ones and queues the rest, the medium and the long apart, then a pass over each queue
+        (round-trip 3)."""
         gl = self.gl
-        short, medium, long = programs = self.sort_programs(**defines)
+        groups, short, medium, long = programs = self.sort_programs(**defines)
         for program in programs:
-            set_uniforms(program, uniforms or {})
-        gl.dispatch(short, self.list_count)
+            set_uniforms(program, {**(uniforms or {}), "list_count": self.list_count})
+        gl.dispatch(groups, self.group_count)
+        queued = int(gl.read(self.buffers["COUNTERS"], np.uint32, 1, first=COUNTERS["LIST_GROUPS"])[0])
+        gl.dispatch(short, queued * LIST_GROUP)
         assert COUNTERS["MEDIUM_LISTS"] == COUNTERS["LONG_LISTS"] + 1  # one read
         longs, mediums = (int(n) for n in gl.read(self.buffers["COUNTERS"], np.uint32, 2, first=COUNTERS["LONG_LISTS"]))
         if mediums:

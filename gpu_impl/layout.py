@@ -27,6 +27,11 @@ SCAN_PER_THREAD = np.uint32(16)
 SHORT_LIST = 8
 MEDIUM_LIST = 16
 SORT_NETWORK = 32
+# The resolve's first pass runs over the groups of LIST_GROUP consecutive lists that hold a node,
+# queued by a pass before it (shaders/bundles/resolve_lists.glsl: QUEUE_GROUPS): llvmpipe runs a
+# SIMD batch of 8 lanes through every branch of a program's code, so a batch of empty lists cost
+# what a batch of full ones did, and over half of atrium's lists are empty.
+LIST_GROUP = 8
 
 # Storage-buffer binding points (FRAMES: a uniform-block binding point).
 BINDINGS = {
@@ -61,6 +66,8 @@ BINDINGS = {
     "SPLATS_FOUND_AGAIN": 33,
     # the lists longer than SHORT_LIST, queued by the resolve's first pass for the others
     "LONG_LISTS": 17,
+    # the groups of LIST_GROUP lists that hold a node, queued for the resolve's first pass
+    "LIST_GROUPS": 40,
     # prefix sums, and node attributes for the host (read-back only)
     "SCAN_DATA": 20,
     "SCAN_SUMS": 21,
@@ -141,8 +148,8 @@ SAMPLERS = {"random": 0, "stratified": 1}
 # capacity), perfect bundles' coincident duplicates (all kept; imperfect bundles' redundant nodes
 # are the written less the kept), the longest list, count/scatter mismatches (always 0), the lines
 # splats cover (the nodes there would be without merging), the nodes the merge kept, the long
-# and the medium lists the resolve's first pass queued for the others, and the splats whose lines the compute
-# splatter's scatter finds again.
+# and the medium lists the resolve's first pass queued for the others, the splats whose lines the compute
+# splatter's scatter finds again, and the groups of lists that hold a node, queued for the resolve.
 COUNTERS = {
     "NODES": 0,
     "REDUNDANT": 1,
@@ -153,6 +160,7 @@ COUNTERS = {
     "LONG_LISTS": 6,
     "MEDIUM_LISTS": 7,
     "FOUND_AGAIN": 8,
+    "LIST_GROUPS": 9,
 }
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
@@ -228,6 +236,7 @@ SHADER_CONSTANTS = {
     "SHORT_LIST": SHORT_LIST,
     "MEDIUM_LIST": MEDIUM_LIST,
     "SORT_NETWORK": SORT_NETWORK,
+    "LIST_GROUP": LIST_GROUP,
     "MAX_DIRECTIONS": MAX_DIRECTIONS,
     "TEXEL_ROW": TEXEL_ROW,
     "TEXELS_PER_TRIANGLE": TEXELS_PER_TRIANGLE,

@@ -85,7 +85,7 @@ VARIANTS = {
         *(
             {**sort, **long}
             for sort in ({"SORT_LISTS": True}, {"MERGE_LISTS": True}, {"MERGE_LISTS": True, "FROM_LINKED_LISTS": True})
-            for long in ({}, {"MEDIUM_LISTS": True}, {"LONG_LISTS": True})
+            for long in ({"QUEUE_GROUPS": True}, {}, {"MEDIUM_LISTS": True}, {"LONG_LISTS": True})
         ),
     ],
     "prefix_sum": [{"SCAN_BLOCKS": True}, {"ADD_BLOCK_OFFSETS": True}],

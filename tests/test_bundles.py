@@ -26,7 +26,15 @@ from evalkit.core.scene.edges import (
 from evalkit.core.scene.tessellate import box, unit_sphere
 from gpu_impl.bundles import NodeBudgetExceeded
 from gpu_impl.context import GLContext
-from gpu_impl.layout import MAX_DIRECTIONS, TEXELS_PER_TRIANGLE, TRIANGLE, TRIANGLE_FACT_WORDS, VERTEX
+from gpu_impl.layout import (
+    COUNTERS,
+    LIST_GROUP,
+    MAX_DIRECTIONS,
+    TEXELS_PER_TRIANGLE,
+    TRIANGLE,
+    TRIANGLE_FACT_WORDS,
+    VERTEX,
+)
 from gpu_impl.methods.imperfect import splat_centres
 from gpu_impl.renderer import enclosing_sphere
 from gpu_impl.scene_buffers import (
@@ -412,8 +420,8 @@ def test_node_budget_is_a_clear_error_with_the_memory_needed(gl):
         r"linked lists, over the node budget of 192.00 KiB",
     ):
         build(gl, nested_boxes(), K=8, R=32, node_budget=192 * 1024)
-    # The frames' uniform block (64 KiB less 16 bytes), then 8,192 lists' offset, count and head.
-    with pytest.raises(NodeBudgetExceeded, match=r"need 159.99 KiB for the frames and the 8,192 lists' counts and"):
+    # The frames' uniform block (64 KiB less 16 bytes), 8,192 lists' offset, count and head, 1,024 groups.
+    with pytest.raises(NodeBudgetExceeded, match=r"need 163.99 KiB for the frames and the 8,192 lists' counts"):
         build(gl, nested_boxes(), K=8, R=32, node_budget=64 * 1024)  # checked before they are allocated
     with pytest.raises(
         NodeBudgetExceeded, match=r"imperfect bundles \(K=8, R=32, N=20000\) need .* for 160,000 splat points"
@@ -469,6 +477,30 @@ def test_same_seed_same_lists_and_atlas_batching_changes_nothing(gl):
         for name in ("offsets", *BundleSet.NODE_FIELDS):
             assert np.array_equal(getattr(a, name), getattr(b, name)), (method, name)
         assert not np.array_equal(a.offsets, c.offsets)
+
+
+@pytest.mark.parametrize(("method", "splatter"), [("perfect", None), ("imperfect", "compute"), ("imperfect", "raster")])
+def test_the_resolve_sorts_only_the_groups_of_lists_that_hold_a_node(gl, method, splatter):
+    # The resolve queues each group of LIST_GROUP consecutive lists that holds a node and sorts only
+    # those; every list of the other groups must read as empty (the compute splatter's cursors,
+    # left at the lists' starts, are set to 0), and the lists are the same as the sort of all.
+    splats = {"points": 1024, "splatter": splatter} if splatter else {}
+    with GpuScene(gl, nested_boxes()) as gpu_scene:
+        tracer = make_tracer(gl, gpu_scene, method, directions=6, resolution=32, **splats)
+        tracer.build(DirectionSet.make(6, seed=5))
+        L, buffers = tracer.list_count, tracer.buffers
+        offsets = np.frombuffer(buffers["LIST_OFFSETS"].read(4 * (L + 1)), np.uint32).astype(np.int64)
+        counts = np.frombuffer(buffers["LIST_COUNTS"].read(4 * L), np.uint32)
+        counters = np.frombuffer(buffers["COUNTERS"].read(), np.uint32)
+        queued = counters[COUNTERS["LIST_GROUPS"]]
+        groups = np.frombuffer(buffers["LIST_GROUPS"].read(4 * int(queued)), np.uint32)
+        tracer.release()
+    lengths = np.diff(offsets)
+    filled = np.nonzero(np.add.reduceat(lengths, np.arange(0, L, LIST_GROUP)) > 0)[0]
+    assert 0 < len(filled) < 0.9 * math.ceil(L / LIST_GROUP)  # a third of the groups hold no node here
+    assert np.array_equal(np.sort(groups), filled)
+    assert not counts[lengths == 0].any() and counters[COUNTERS["MISMATCH"]] == 0
+    assert (counts[lengths > 0] > 0).all()
 
 
 def test_cli_builds_and_saves_bundles(tmp_path):
@@ -685,7 +717,7 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl, 
             # 16,777,216 points of 16 + 16 + 24 + 4 bytes (SPLAT_POINT, its texel, SPLAT_LINES, a place
             # among the splats found again), two 4-byte words per list
             ["--points", "65536", "--node-budget", "10MiB"],
-            "need 992.06 MiB for 16,777,216 splat points, their texels and lines and the list offsets, "
+            "need 994.06 MiB for 16,777,216 splat points, their texels and lines and the lists' offsets and groups, "
             "over the node budget of 10.00 MiB",
         ),
         (

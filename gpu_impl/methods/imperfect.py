@@ -143,7 +143,7 @@ class SplatTracer(BundleTracer):
 
     @property
     def fixed_items(self) -> str:
-        return f"{self.K * self.N:,} {self.points_are} and the list offsets"
+        return f"{self.K * self.N:,} {self.points_are} and the lists' offsets and groups"
 
     @property
     def irradiance_items(self) -> int:

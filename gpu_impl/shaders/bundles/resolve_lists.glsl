@@ -13,13 +13,16 @@
 //                  copy of every node, a fifth of the build (benchmarks/bundles.py), for memory
 //                  the unmerged lists needed anyway.
 //
-// A sort or merge is up to three passes (bundles.py: BundleTracer.sort_lists). The first runs over
-// every list and sorts those of up to SHORT_LIST nodes, most of them, in a short program; it
+// A sort or merge is up to four passes (bundles.py: BundleTracer.sort_lists). The first
+// (QUEUE_GROUPS) queues the groups of LIST_GROUP consecutive lists that hold a node in
+// list_groups[]: over half of atrium's lists are empty, and llvmpipe runs the code of a branch
+// that no lane of a SIMD batch takes, so a batch of empty lists cost what a batch of full ones did
+// (docs/results/decisions.toml: resolve-list-groups). The second runs over every list of those
+// groups and sorts those of up to SHORT_LIST nodes, most of them, in a short program; it
 // queues the longer ones in long_lists[], those of up to MEDIUM_LIST nodes from its front and the
 // rest from its back, and a pass over each queue (MEDIUM_LISTS, LONG_LISTS) sorts them with a
 // network of its size. One program with every list length's code cost its length for every list
-// on a CPU rasterizer, even though it skips the blocks no invocation of a group enters (most
-// likely the 32 keys' array no longer fits in registers): at K = 256, R = 256 on cornell-box
+// on a CPU rasterizer: at K = 256, R = 256 on cornell-box
 // (lists of up to 6 nodes) the sort took 4.8 s a build, 1.7 s with the short program alone
 // (docs/results/decisions.toml: two-resolve-programs). The same held for the lists of 9 to 16
 // nodes, four in five of those longer than 8 on atrium, sorted by the 32 keys' program.
@@ -48,7 +51,11 @@
 
 layout(local_size_x = LOCAL_SIZE) in;
 
-uniform uint invocations;  // K R^2 lists
+uniform uint invocations;  // K R^2 lists; the queued groups' lists; the queued lists
+uniform uint list_count;   // K R^2
+
+// The groups of LIST_GROUP lists that hold a node, COUNTER_LIST_GROUPS of them (QUEUE_GROUPS).
+layout(std430, binding = BINDING_LIST_GROUPS) buffer ListGroups { uint list_groups[]; };
 
 #if defined COUNT_LISTS
 
@@ -59,6 +66,27 @@ void main() {
     for (uint n = heads[list]; n != NO_NODE; n = node_next[n]) length++;
     list_counts[list] = length;
     if (list == 0u) list_counts[invocations] = 0u;  // the scan turns it into the node count
+}
+
+#elif defined QUEUE_GROUPS
+
+// Group `group`'s lists queued if one holds a node; else each left with no node: the compute
+// splatter's cursor, at the list's start after the scatter, set to 0 (the merge's count) and, off
+// it, counted a mismatch as the merge counts it.
+void main() {
+    uint group = linear_id();
+    if (group >= invocations) return;
+    uint first = group * uint(LIST_GROUP), end = min(first + uint(LIST_GROUP), list_count);
+    if (list_offsets[end] > list_offsets[first]) {
+        list_groups[atomicAdd(counters[COUNTER_LIST_GROUPS], 1u)] = group;
+        return;
+    }
+#if defined MERGE_LISTS && !defined FROM_LINKED_LISTS
+    for (uint list = first; list < end; list++) {
+        if (list_counts[list] != list_offsets[list]) atomicAdd(counters[COUNTER_MISMATCH], 1u);
+        list_counts[list] = 0u;
+    }
+#endif
 }
 
 #elif defined SORT_LISTS || defined MERGE_LISTS
@@ -167,8 +195,9 @@ void main() {
     if (linear_id() >= invocations) return;
     uint list = long_lists[linear_id()];
 #else
-    uint list = linear_id();
-    if (list >= invocations) return;
+    if (linear_id() >= invocations) return;
+    uint list = list_groups[linear_id() / uint(LIST_GROUP)] * uint(LIST_GROUP) + linear_id() % uint(LIST_GROUP);
+    if (list >= list_count) return;
 #endif
     uint first = list_offsets[list], length = list_offsets[list + 1u] - first;
 #if defined MERGE_LISTS && !defined FROM_LINKED_LISTS && !defined QUEUED_LISTS
