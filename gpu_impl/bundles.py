@@ -2,15 +2,16 @@
 
 A node is 8 bytes on the GPU: its depth along the bundle direction and a reference, a triangle or
 a splat point (``NODE_REFERENCE``, shaders/include/bundle.glsl); shaders/include/bundle_hits.glsl computes the rest
-where it is needed. A build is a few passes and three GPU-CPU round-trips, whatever K is:
+where it is needed. A build is a few passes and four GPU-CPU round-trips, whatever K is:
 
 - ``lists``: the method's builder (`BundleTracer.build_lists`) puts every node of every line
   somewhere: appended to per-pixel linked lists by the rasterizer (`LinkedListTracer`, with a
   re-run past the buffer's capacity), or straight into exact-size slot ranges (the compute
   splatter, gpu_impl/methods/imperfect.py); round-trip 1 reads how many there are.
 - ``resolve``: each list sorted (and, for splats, its redundant nodes merged) at the front of its
-  slot range (shaders/bundles/resolve_lists.glsl): the short lists, then the medium and the long
-  ones the first pass queued (round-trip 2 reads how many); round-trip 3 reads the statistics.
+  slot range (shaders/bundles/resolve_lists.glsl): the groups of lists that hold a node queued
+  (round-trip 2 reads how many), their short lists, then the medium and the long ones that pass
+  queued (round-trip 3); round-trip 4 reads the statistics.
 
 The resolved lists (``LIST_OFFSETS``, ``LIST_COUNTS``, ``NODES``) stay on the GPU for the renderer.
 The builders live with their methods (gpu_impl/methods/); `gpu_impl.registry` finds them.
