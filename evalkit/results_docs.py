@@ -446,6 +446,26 @@ def gl_loads_markdown(data: dict, source: str) -> str:
     return "\n".join(lines + _table(["source", "ms", "ns a load", "/ uniform block", "/ texture"], rows)) + "\n"
 
 
+def gl_branches_markdown(data: dict, source: str) -> str:
+    """benchmarks/gl_branches.py: what the code of a branch costs in a compute shader when no lane takes it."""
+    lines = _heading(
+        "Branches no lane takes",
+        f"What the code of a branch costs in a compute shader when no lane takes it: {data['invocations']:,} "
+        f"invocations, each running a block of {data['block_sines']} dependent sines unconditionally, behind an "
+        "`if` on a uniform that every lane or no lane takes, and in a loop that runs once or not at all; median of "
+        f'{data["repeats"]} dispatches after a warm-up. "/ block" is a case\'s time less the shader without the '
+        "block, over the block's. A GPU skips a branch that no lane of a warp takes; what the toolkit does where "
+        "a driver does not: [platform notes](../platform.md).",
+        data,
+        source,
+    )
+    of_block = data["of_block"]
+    rows = [
+        [case, _ms(ms), f"{of_block[case]:.2f}" if case in of_block else "-"] for case, ms in data["median_ms"].items()
+    ]
+    return "\n".join(lines + _table(["case", "ms", "/ block"], rows)) + "\n"
+
+
 def read_decisions(path: str | Path) -> dict:
     """docs/results/decisions.toml: the design decisions and the measurements behind each, checked:
     every decision has an id (unique), a known topic, a title, what the code does and its evidence,
@@ -505,6 +525,7 @@ PAGES: dict[str, Callable[[dict, str], str]] = {
     "shadow_maps": shadow_maps_markdown,
     "shadow_map_culling": shadow_map_culling_markdown,
     "gl_loads": gl_loads_markdown,
+    "gl_branches": gl_branches_markdown,
 }
 
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -232,3 +234,19 @@ def test_allocate_returns_nothing_and_releases_what_the_driver_could_not_hold(gl
     small = gl.allocate(lambda: [gl.texture_array((8, 8), 2, 2, "f4")])
     assert small is not None and small[0].size == (8, 8, 2)
     small[0].release()
+
+
+def test_the_branch_benchmark_reports_every_case_against_its_block(tmp_path):
+    # benchmarks/gl_branches.py (docs/platform.md cites it): a small run prints its table and, last,
+    # one JSON object with every case's time and its share of the block's, and records it.
+    record = tmp_path / "gl_branches.json"
+    benchmark = Path(__file__).parents[1] / "benchmarks" / "gl_branches.py"
+    script = [str(benchmark), "--invocations", "4096", "--repeats", "1", "--record", str(record)]
+    r = subprocess.run([sys.executable, *script], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout.strip().splitlines()[-1])
+    cases = ["no block", "block", "if, taken by every lane", "if, taken by none", "loop, one iteration"]
+    assert list(report["median_ms"]) == [*cases, "loop, no iteration"]
+    assert report["of_block"]["block"] == 1.0 and set(report["of_block"]) == set(report["median_ms"]) - {"no block"}
+    assert all(np.isfinite(list(report["of_block"].values())))
+    assert json.loads(record.read_text())["record"]["command"].endswith("--record " + str(record))
