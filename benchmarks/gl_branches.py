@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
-import time
+from functools import partial
 from pathlib import Path
 
 from evalkit.records import write_record
 from gpu_impl.context import GLContext
+from gpu_impl.timing import median_ms
 
 SHAPES = ("NONE", "BLOCK", "IF", "LOOP")
 # (case, shader shape, gate): gate 0 lets every lane into the branch (the loop runs once), 1 none.
@@ -57,14 +57,7 @@ def main() -> None:
         if "gate" in program:
             program["gate"] = gate
         results.bind_to_storage_buffer(0)
-        times = []
-        for _ in range(args.repeats + 1):  # the first compiles (llvmpipe JIT-compiles at the first dispatch)
-            ctx.finish()
-            start = time.perf_counter()
-            program.run(args.invocations // 256)
-            ctx.finish()
-            times.append(time.perf_counter() - start)
-        rows[case] = statistics.median(times[1:]) * 1e3
+        rows[case] = median_ms(gl, partial(program.run, args.invocations // 256), args.repeats)
     base, block = rows["no block"], rows["block"] - rows["no block"]
     of_block = {case: (ms - base) / block for case, ms in rows.items() if case != "no block"}
     print(f"branches on {gl.info['renderer']}: {args.invocations:,} invocations, a block of 256 sines, "

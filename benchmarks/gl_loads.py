@@ -18,14 +18,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
-import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from evalkit.records import write_record
 from gpu_impl.context import GLContext
+from gpu_impl.timing import median_ms
 
 SOURCES = ("STORAGE_VEC4", "STORAGE_FLOAT", "UNIFORM_VEC4", "TEXTURE_VEC4", "NONE")
 UNIFORM_BLOCK_RECORDS = 4096  # 64 KiB of vec4
@@ -61,14 +61,7 @@ def main() -> None:
             records.bind_to_uniform_block(0)
         texture.use(0)
         sums.bind_to_storage_buffer(1)
-        times = []
-        for _ in range(args.repeats + 1):  # the first compiles (llvmpipe JIT-compiles at the first dispatch)
-            ctx.finish()
-            start = time.perf_counter()
-            program.run(groups)
-            ctx.finish()
-            times.append(time.perf_counter() - start)
-        rows[name] = statistics.median(times[1:]) * 1e3
+        rows[name] = median_ms(gl, partial(program.run, groups), args.repeats)
         program.release()
     loads = args.invocations * args.loads
     per_load = {name: (ms - rows["NONE"]) * 1e6 / loads for name, ms in rows.items() if name != "NONE"}

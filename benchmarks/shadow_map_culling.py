@@ -23,11 +23,12 @@ import numpy as np
 
 from evalkit.core.scene import load_scene
 from evalkit.core.settings import RenderSettings
-from evalkit.metrics.light_visibility import frame_light_vertices, median_ms, vertex_shadow_maps
+from evalkit.metrics.light_visibility import frame_light_vertices, vertex_shadow_maps
 from evalkit.records import write_record
 from gpu_impl import lights as gpu_lights
 from gpu_impl.context import GLContext
 from gpu_impl.registry import METHODS, resolve
+from gpu_impl.timing import median_ms
 from gpu_impl.visibility import exact
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import statistics
 import time
 from contextlib import contextmanager
 
@@ -47,3 +48,16 @@ class PassTimer:
     @property
     def method(self) -> str:
         return "host time around glFinish (llvmpipe)" if self.host_timing else "GL timer queries"
+
+
+def median_ms(gl, work, repeats: int) -> float:
+    """The median host time of ``work`` (ms, around glFinish) over ``repeats`` runs after a warm-up
+    (the first run also compiles: llvmpipe JIT-compiles a program at its first dispatch)."""
+    times = []
+    for _ in range(repeats + 1):
+        gl.finish()
+        start = time.perf_counter()
+        work()
+        gl.finish()
+        times.append(1e3 * (time.perf_counter() - start))
+    return statistics.median(times[1:])

@@ -8,8 +8,6 @@ runs it on atrium; tests/test_bidirectional.py on a small scene.
 
 from __future__ import annotations
 
-import statistics
-import time
 from contextlib import contextmanager
 
 import numpy as np
@@ -24,6 +22,7 @@ from gpu_impl.lights import LightVertices, ShadowLights
 from gpu_impl.registry import resolve
 from gpu_impl.renderer import Renderer
 from gpu_impl.scene_buffers import GpuScene
+from gpu_impl.timing import median_ms
 from references.embree import ExactTracer
 
 # A connection is visible where its filtered visibility is at least this.
@@ -101,18 +100,6 @@ def vertex_shadow_maps(gl: GLContext, scene: Scene, settings: RenderSettings, co
     finally:
         lights.release()  # and the maps
         gpu_scene.release()
-
-
-def median_ms(gl: GLContext, work, repeats: int) -> float:
-    """The median host time of ``work`` (ms, around glFinish) over ``repeats`` runs after a warm-up."""
-    times = []
-    for _ in range(repeats + 1):
-        gl.finish()
-        start = time.perf_counter()
-        work()
-        gl.finish()
-        times.append(1e3 * (time.perf_counter() - start))
-    return statistics.median(times[1:])
 
 
 def differing_share(exact: np.ndarray, other: np.ndarray) -> float:
