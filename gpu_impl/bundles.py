@@ -2,7 +2,8 @@
 
 A node is 8 bytes on the GPU: its depth along the bundle direction and a reference, a triangle or
 a splat point (``NODE_REFERENCE``, shaders/include/bundle.glsl); shaders/include/bundle_hits.glsl computes the rest
-where it is needed. A build is a few passes and four GPU-CPU round-trips, whatever K is:
+where it is needed. A build is a few passes and four GPU-CPU round-trips (the compute splatter
+five), whatever K is:
 
 - ``lists``: the method's builder (`BundleTracer.build_lists`) puts every node of every line
   somewhere: appended to per-pixel linked lists by the rasterizer (`LinkedListTracer`, with a
@@ -33,6 +34,7 @@ from gpu_impl.context import MEMORY_HEADROOM, GLContext, format_bytes, set_unifo
 from gpu_impl.layout import (
     BINDINGS,
     BUNDLE_FRAME,
+    COUNTER_WORDS,
     COUNTERS,
     FACING_BIT,
     LINKED_NODE,
@@ -46,6 +48,7 @@ from gpu_impl.layout import (
     SHORT_LIST,
     SORT_NETWORK,
     SPLAT_BIT,
+    STRIPE_WORDS,
 )
 from gpu_impl.scene_buffers import GpuScene
 from gpu_impl.timing import PassTimer
@@ -122,7 +125,7 @@ class BundleTracer:
         self._check_budget(self.fixed_bytes, self.fixed_items)  # before anything is allocated
         lists = 4 * (self.list_count + 1)
         self._ensure("FRAMES", FRAMES_BYTES)
-        self._ensure("COUNTERS", 4 * len(COUNTERS))
+        self._ensure("COUNTERS", 4 * COUNTER_WORDS)
         self._ensure("LIST_OFFSETS", lists)
         self._ensure("LIST_COUNTS", lists)
         self._ensure("LIST_GROUPS", 4 * self.group_count)
@@ -291,7 +294,7 @@ class BundleTracer:
         reruns, raw = self.build_lists(directions, timer)
         with timer.measure("resolve"):
             self.resolve_lists()
-        counters = self.gl.read(self.buffers["COUNTERS"], np.uint32, len(COUNTERS))
+        counters = self.read_counters()
         self.directions = directions
         stats = self.build_stats(counters, raw)
         self.stats = {
@@ -307,6 +310,13 @@ class BundleTracer:
             "wall_ms": (time.perf_counter() - start) * 1e3,
         }
         return self.stats
+
+    def read_counters(self) -> np.ndarray:
+        """The build counters (layout.py: COUNTERS), KEPT summed over its stripes."""
+        words = self.gl.read(self.buffers["COUNTERS"], np.uint32, COUNTER_WORDS).astype(np.int64)
+        counters = words[: len(COUNTERS)].copy()
+        counters[COUNTERS["KEPT"]] += words[STRIPE_WORDS:].sum()
+        return counters
 
     def _scan_lists(self) -> int:
         """The lists' slot ranges: LIST_OFFSETS, the exclusive prefix sum of the per-list counts

@@ -64,6 +64,8 @@ BINDINGS = {
     # the lines each splat covers, from the compute splatter's count pass to its scatter pass
     "SPLAT_LINES": 16,
     "SPLATS_FOUND_AGAIN": 33,
+    # the splats, those no line cuts first (splat_points.glsl: queue_splat), for the count pass
+    "SPLAT_QUEUE": 41,
     # the lists longer than SHORT_LIST, queued by the resolve's first pass for the others
     "LONG_LISTS": 17,
     # the groups of LIST_GROUP lists that hold a node, queued for the resolve's first pass
@@ -161,7 +163,17 @@ COUNTERS = {
     "MEDIUM_LISTS": 7,
     "FOUND_AGAIN": 8,
     "LIST_GROUPS": 9,
+    "PLAIN_SPLATS": 10,
+    "CUT_SPLATS": 11,
 }
+# KEPT, which the merge adds to for every list, is COUNTER_STRIPES counters a cache line
+# (STRIPE_WORDS) apart after the others: workgroup g adds to stripe g % COUNTER_STRIPES, and the
+# host sums them (bundles.py: read_counters). On llvmpipe the CPU threads took turns at the one
+# address's cache line (docs/results/decisions.toml: plain-splats).
+COUNTER_STRIPES = 64
+STRIPE_WORDS = 16
+COUNTER_WORDS = STRIPE_WORDS * (1 + COUNTER_STRIPES)
+assert len(COUNTERS) <= STRIPE_WORDS
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
 # The image units of the two R32UI images in which the shadow maps' raster pass keeps each texel's
@@ -237,6 +249,8 @@ SHADER_CONSTANTS = {
     "MEDIUM_LIST": MEDIUM_LIST,
     "SORT_NETWORK": SORT_NETWORK,
     "LIST_GROUP": LIST_GROUP,
+    "COUNTER_STRIPES": COUNTER_STRIPES,
+    "STRIPE_WORDS": STRIPE_WORDS,
     "MAX_DIRECTIONS": MAX_DIRECTIONS,
     "TEXEL_ROW": TEXEL_ROW,
     "TEXELS_PER_TRIANGLE": TEXELS_PER_TRIANGLE,

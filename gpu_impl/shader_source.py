@@ -73,10 +73,13 @@ def atlas_possible(d: dict) -> bool:
 VARIANTS = {
     "perfect_bundles": [{}, {"NULL_FRAGMENT": True}],
     "imperfect_bundles": [{}, {"NULL_FRAGMENT": True}],
-    "splat_points": {"SAMPLER": tuple(SAMPLERS.values())},
+    "splat_points": [{"SAMPLER": s, **queue} for s in SAMPLERS.values() for queue in ({}, {"QUEUE_SPLATS": True})],
     "splat_lists": [
-        {"COUNT_SPLATS": True},
-        {"COUNT_SPLATS": True, "COUNT_COVERED": True},
+        {"COUNT_SPLATS": True, **count, **run}
+        for count in ({}, {"COUNT_COVERED": True})
+        for run in ({}, {"PLAIN_SPLATS": True})
+    ]
+    + [
         {"SCATTER_SPLATS": True},
         {"SCATTER_SPLATS": True, "FIND_AGAIN": True},
     ],

@@ -479,6 +479,26 @@ def test_same_seed_same_lists_and_atlas_batching_changes_nothing(gl):
         assert not np.array_equal(a.offsets, c.offsets)
 
 
+def test_the_count_pass_runs_the_uncut_splats_apart_from_the_cut_ones_and_every_splat_once(gl):
+    # The points pass queues every splat once, those no line cuts from the front, the cut ones from
+    # the back (shaders/bundles/splat_points.glsl: queue_splat), each run counted by a program of
+    # its own; the merge's kept count, added to in stripes, is the lists' lengths summed.
+    with GpuScene(gl, nested_boxes()) as gpu_scene:
+        tracer = make_tracer(gl, gpu_scene, "imperfect", directions=6, resolution=32, points=1024)
+        stats = tracer.build(DirectionSet.make(6, seed=5))
+        splats = 6 * 1024
+        queue = np.frombuffer(tracer.buffers["SPLAT_QUEUE"].read(4 * splats), np.uint32)
+        counters = np.frombuffer(tracer.buffers["COUNTERS"].read(), np.uint32)
+        cut = tracer.read_points()["cut_lines"] != 0
+        lengths = np.frombuffer(tracer.buffers["LIST_COUNTS"].read(4 * tracer.list_count), np.uint32)
+        tracer.release()
+    plain = int(counters[COUNTERS["PLAIN_SPLATS"]])
+    assert np.array_equal(np.sort(queue), np.arange(splats))
+    assert plain == (~cut).sum() and counters[COUNTERS["CUT_SPLATS"]] == cut.sum() and 0 < plain < splats
+    assert not cut[queue[:plain]].any() and cut[queue[plain:]].all()
+    assert stats["nodes"] == lengths.sum() > 0
+
+
 @pytest.mark.parametrize(("method", "splatter"), [("perfect", None), ("imperfect", "compute"), ("imperfect", "raster")])
 def test_the_resolve_sorts_only_the_groups_of_lists_that_hold_a_node(gl, method, splatter):
     # The resolve queues each group of LIST_GROUP consecutive lists that holds a node and sorts only
@@ -714,10 +734,10 @@ def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl, 
         (["--points", "0"], "argument --points: 0 must be at least 1"),
         (["--splat-scale", "-1"], "argument --splat-scale: -1.0 must be positive and finite"),
         (
-            # 16,777,216 points of 16 + 16 + 24 + 4 bytes (SPLAT_POINT, its texel, SPLAT_LINES, a place
-            # among the splats found again), two 4-byte words per list
+            # 16,777,216 points of 16 + 16 + 24 + 4 + 4 bytes (SPLAT_POINT, its texel, SPLAT_LINES, a place
+            # in the count pass's queue and among the splats found again), two 4-byte words per list
             ["--points", "65536", "--node-budget", "10MiB"],
-            "need 994.06 MiB for 16,777,216 splat points, their texels and lines and the lists' offsets and groups, "
+            "need 1.03 GiB for 16,777,216 splat points, their texels and lines and the lists' offsets and groups, "
             "over the node budget of 10.00 MiB",
         ),
         (

@@ -11,8 +11,10 @@ sharp_splat_radius, inside_splat).
   curve or independent (``sampler``), each with its splat's radius. They are drawn by area, but
   every smooth surface has at least `SURFACE_LEAST_POINTS` points' share
   (gpu_impl/scene_buffers.py: surface_area_cdf), and A is the area so weighted.
-- ``lists``, compute splatter (the default): every splat counts the lines it covers, a prefix sum
-  makes exact-size slot ranges, round-trip 1 reads their total, and every splat writes its nodes
+- ``lists``, compute splatter (the default): every splat counts the lines it covers (the points pass
+  queues the splats that no line cuts apart from the cut ones, and a round-trip reads how many: each
+  run has a count program of its own), a prefix sum makes exact-size slot ranges, round-trip 1
+  reads their total, and every splat writes its nodes
   (shaders/bundles/splat_lists.glsl): no linked list, no re-run. The count pass leaves each splat's lines
   behind (`SPLAT_LINES`, an 8 x 8 box, with their depth plane) so the scatter neither searches for
   them again nor reads the point; the few splats larger than that box are queued, and a pass over
@@ -185,8 +187,11 @@ class SplatTracer(BundleTracer):
         cornell-box (K=32, N=16384, s=1.5), 4.6 % holes against 3.6 %."""
         return DEPTH_TOLERANCE * self.gpu_scene.radius if self.merge else -1.0
 
+    # The points pass's own defines (the compute splatter queues the splats for its count pass).
+    points_defines: ClassVar[dict] = {}
+
     def points_program(self):
-        return self.gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler])
+        return self.gl.program("splat_points", SAMPLER=SAMPLERS[self.sampler], **self.points_defines)
 
     def build_lists(self, directions, timer) -> tuple[int, int]:
         self.gl.fill(self.buffers["LIST_COUNTS"])
@@ -268,9 +273,11 @@ def splat_centres(points: np.ndarray, arrays) -> np.ndarray:
 class ComputeSplatTracer(SplatTracer):
     """The compute splatter: count, exact allocation, scatter."""
 
-    # A point, its copy as a texel, its lines, and its place among the splats found again.
-    point_bytes = 2 * SPLAT_POINT.itemsize + SPLAT_LINES.itemsize + 4
+    # A point, its copy as a texel, its lines, its place in the count pass's queue and among the
+    # splats found again.
+    point_bytes = 2 * SPLAT_POINT.itemsize + SPLAT_LINES.itemsize + 2 * 4
     points_are = "splat points, their texels and lines"
+    points_defines: ClassVar[dict] = {"QUEUE_SPLATS": True}
 
     def __init__(self, gl, gpu_scene, settings, **hooks):
         if settings.resolution > SPLAT_LINES_MAX_RESOLUTION:
@@ -284,12 +291,14 @@ class ComputeSplatTracer(SplatTracer):
         self.count_variant = {"COUNT_SPLATS": True, **({"COUNT_COVERED": True} if self.count_covered else {})}
         self._ensure("SPLAT_LINES", SPLAT_LINES.itemsize * self.K * self.N)
         self._ensure("SPLATS_FOUND_AGAIN", 4 * self.K * self.N)
+        self._ensure("SPLAT_QUEUE", 4 * self.K * self.N)
         self._compile()
 
     def compute_programs(self) -> list:
         gl = self.gl
         return [
             self.points_program(),
+            gl.program("splat_lists", **self.count_variant, PLAIN_SPLATS=True),
             gl.program("splat_lists", **self.count_variant),
             gl.program("splat_lists", SCATTER_SPLATS=True),
             gl.program("splat_lists", SCATTER_SPLATS=True, FIND_AGAIN=True),
@@ -301,9 +310,19 @@ class ComputeSplatTracer(SplatTracer):
     def splat_lists(self, timer) -> tuple[int, int]:
         gl = self.gl
         with timer.measure("lists"):
-            count = gl.program("splat_lists", **self.count_variant)
-            self._uniforms(count, nearest_only=self.merge)
-            gl.dispatch(count, self.K * self.N)
+            # The splats that no line cuts, then the cut ones, as the points pass queued them, each
+            # run by a program of its own (shaders/bundles/splat_lists.glsl: PLAIN_SPLATS).
+            runs = gl.read(self.buffers["COUNTERS"], np.uint32, 2, first=COUNTERS["PLAIN_SPLATS"])
+            plain, cut = int(runs[0]), int(runs[1])
+            if plain + cut != self.K * self.N:
+                raise RuntimeError(
+                    f"the points pass queued {plain} + {cut} splats of {self.K * self.N}: a driver whose subgroup "
+                    "ballots (GL_ARB_shader_ballot) miscount; use splatter='raster'"
+                )
+            for first, splats, run in ((0, plain, {"PLAIN_SPLATS": True}), (plain, cut, {})):
+                count = gl.program("splat_lists", **self.count_variant, **run)
+                self._uniforms(count, nearest_only=self.merge, queue_first=first)
+                gl.dispatch(count, splats)
             raw = self._scan_lists()
             # The splats whose lines were beyond their record's box, which the count pass queued:
             # read while the GPU is idle after the scan's own read, not after the scatter.

@@ -35,7 +35,7 @@
 // line (FACING_BIT) within merge_tolerance of the run's first node is one surface crossing and
 // keeps one node, the run's middle one (its median depth).
 // Surfaces facing opposite ways (a thin slab's two sides) are never merged. COUNTER_KEPT counts
-// the nodes kept; perfect bundles count coincident duplicates, which are all kept, in
+// the nodes kept (in stripes); perfect bundles count coincident duplicates, which are all kept, in
 // COUNTER_REDUNDANT.
 
 #extension GL_ARB_gpu_shader_int64 : require
@@ -268,10 +268,12 @@ void main() {
 #endif
     }
 #endif
-    // Few atomics: a CPU rasterizer runs one per invocation, and all of them on one address.
+    // Few atomics: a CPU rasterizer runs one per invocation. The kept count is striped by
+    // workgroup (gpu_impl/layout.py: COUNTER_STRIPES), so CPU threads do not take turns at one
+    // address.
 #if defined MERGE_LISTS
     list_counts[list] = kept;
-    if (kept > 0u) atomicAdd(counters[COUNTER_KEPT], kept);
+    if (kept > 0u) atomicAdd(counters[uint(STRIPE_WORDS) * (1u + gl_WorkGroupID.x % uint(COUNTER_STRIPES))], kept);
 #else
     if (redundant > 0u) atomicAdd(counters[COUNTER_REDUNDANT], redundant);
 #endif

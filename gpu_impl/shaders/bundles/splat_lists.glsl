@@ -36,6 +36,14 @@
 // nearer neighbours (below) end each row's span once per row (`clip_row`), not at every line
 // (docs/results/decisions.toml: splat-rows). Only what is not linear stays a test per line: a
 // grown splat's lines beyond its disk, and a smaller neighbour's reach.
+//
+// The count pass is two programs, each over a run of the splats as the points pass queued them
+// (splat_points.glsl: queue_splat): PLAIN_SPLATS over those that no line cuts, compiled without
+// the cut lines, the growth and the smaller neighbours, then the full program over the cut ones.
+// llvmpipe runs a SIMD batch through every instruction whether or not a lane needs it, and
+// through each loop as often as its largest splat needs: on atrium 42 % of the splats are cut
+// (and grown up to twice the radius), and 63 % of the batches of 8 held one
+// (docs/results/decisions.toml: plain-splats).
 
 #extension GL_ARB_gpu_shader_int64 : require
 #define NODE_REFERENCE NODE_SPLAT_POINT
@@ -43,6 +51,7 @@
 #define SLOT_LISTS
 #define NODE_KEYS
 #define SPLAT_LINE_RECORDS
+#define SPLAT_QUEUE
 #define SPLAT_TEXELS
 #include "common.glsl"
 #include "scene.glsl"
@@ -55,6 +64,7 @@ layout(local_size_x = LOCAL_SIZE) in;
 
 uniform uint invocations;  // K N points; with FIND_AGAIN, the splats found again
 uniform bool nearest_only;
+uniform uint queue_first;  // COUNT_SPLATS: the count pass's first splat in splat_queue[]
 
 // A splat's lines as the count pass found them (splat_lines[], declared in bundle_build.glsl):
 // `box` the box's first column | its first row << 16 | FACING_BIT where the splat faces the
@@ -153,7 +163,11 @@ uint splat(uint id) {
     mat2 edges = pixels * mat2(dot(e1, f.u.xyz), dot(e1, f.v.xyz), dot(e2, f.u.xyz), dot(e2, f.v.xyz));
     // The splat's shape (scene.glsl: SplatShape), its lines as functions of a line's offset q in
     // pixels: vec3(q, 1) * cuts gives each one's distance plus its slack (scene.glsl: inside_cuts).
+#if defined PLAIN_SPLATS
+    const bool cut = false, grown = false;
+#else
     bool cut = s.cut_lines != 0u, grown = s.radius > splat_radius;
+#endif
     mat2 to_barycentrics = mat2(0.0);
     mat3 cuts_a = mat3(0.0), cuts_b = mat3(0.0);
     if (cut) {
@@ -175,8 +189,12 @@ uint splat(uint id) {
         float eMe = A * e.x * e.x + 2.0 * B * e.x * e.y + C * e.y * e.y;
         gradient[slot] = 2.0 * vec2(A * e.x + B * e.y, B * e.x + C * e.y);
         threshold[slot] = here ? eMe + MARGIN * E : 3.4e38;
+#if defined PLAIN_SPLATS
+        reach[slot] = -3.4e38;  // no splat is smaller than an uncut one
+#else
         reach[slot] = rj < rp ? eMe - (1.0 - MARGIN) * rj * rj * nd * nd : -3.4e38;
         smaller = smaller || (here && rj < rp);
+#endif
     }
     // Where the lines can be: the ellipse's box and, for a splat grown at sharp edges, what
     // covers both the disk before it grew and the triangle, whose lines alone the growth adds.
@@ -292,7 +310,7 @@ void main() {
     // rasterizer more than the sum is worth in a plain build). One atomic per workgroup.
     if (gl_LocalInvocationIndex == 0u) covered_by_group = 0u;
     barrier();
-    uint covered = id < invocations ? splat(id) : 0u;
+    uint covered = id < invocations ? splat(splat_queue[queue_first + id]) : 0u;
     atomicAdd(covered_by_group, covered);
     barrier();
     if (gl_LocalInvocationIndex == 0u) atomicAdd(counters[COUNTER_COVERED], covered_by_group);
@@ -301,7 +319,7 @@ void main() {
 #elif defined SCATTER_SPLATS
     if (id < invocations) scatter(id);
 #else
-    if (id < invocations) splat(id);
+    if (id < invocations) splat(splat_queue[queue_first + id]);
 #endif
 }
 

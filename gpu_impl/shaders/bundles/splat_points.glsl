@@ -12,6 +12,11 @@
 // - SAMPLER_STRATIFIED: stratified over the area, a shift per direction (area_sampling.glsl:
 //   stratified_point). Fewer holes for the same splat size, so fewer nodes.
 
+#if defined QUEUE_SPLATS
+#extension GL_ARB_gpu_shader_int64 : require
+#extension GL_ARB_shader_ballot : require
+#define SPLAT_QUEUE
+#endif
 #define NODE_REFERENCE NODE_SPLAT_POINT
 #define SPLAT_SHAPES
 #define SPLAT_POINTS_WRITE
@@ -21,6 +26,9 @@
 #include "scene.glsl"
 #include "bundle.glsl"
 #include "area_sampling.glsl"
+#if defined QUEUE_SPLATS
+#include "bundle_build.glsl"
+#endif
 
 #if defined COMPUTE_SHADER
 
@@ -31,9 +39,47 @@ uniform uint triangle_count;
 uniform uint seed;
 uniform uint frame;
 
-void main() {
-    uint id = linear_id();
-    if (id >= invocations) return;
+#if defined QUEUE_SPLATS
+// Splat `id` (none where `point` is false) into splat_queue[] (bundle_build.glsl), from the front
+// if no line cuts it, else from the back, for the compute splatter's count pass, which runs a
+// program of its own over each run (splat_lists.glsl: PLAIN_SPLATS). A SIMD batch's (subgroup's)
+// lanes take the slots of their rank among its lanes of their run, the batches theirs within the
+// workgroup's, and the workgroup its own with one atomic per run. An atomic on one address for
+// every batch cost llvmpipe more than the count pass saved (two CPU threads taking turns at it).
+// Called where every invocation of the workgroup is (it holds barriers).
+shared uint group_plain, group_cut;  // the workgroup's splats of each run, then its first slot
+
+void queue_splat(uint id, bool point, bool cut) {
+    uvec2 plain_lanes = unpackUint2x32(ballotARB(point && !cut)), cut_lanes = unpackUint2x32(ballotARB(point && cut));
+    bool leader = readFirstInvocationARB(gl_SubGroupInvocationARB) == gl_SubGroupInvocationARB;
+    if (gl_LocalInvocationIndex == 0u) {
+        group_plain = 0u;
+        group_cut = 0u;
+    }
+    barrier();
+    uint plain_base = 0u, cut_base = 0u;
+    if (leader) {
+        plain_base = atomicAdd(group_plain, bitCount(plain_lanes.x) + bitCount(plain_lanes.y));
+        cut_base = atomicAdd(group_cut, bitCount(cut_lanes.x) + bitCount(cut_lanes.y));
+    }
+    plain_base = readFirstInvocationARB(plain_base);
+    cut_base = readFirstInvocationARB(cut_base);
+    barrier();
+    if (gl_LocalInvocationIndex == 0u) {
+        group_plain = atomicAdd(counters[COUNTER_PLAIN_SPLATS], group_plain);
+        group_cut = atomicAdd(counters[COUNTER_CUT_SPLATS], group_cut);
+    }
+    barrier();
+    plain_base += group_plain;
+    cut_base += group_cut;
+    uvec2 below = unpackUint2x32(gl_SubGroupLtMaskARB), lanes = cut ? cut_lanes : plain_lanes;
+    uint rank = bitCount(lanes.x & below.x) + bitCount(lanes.y & below.y);
+    if (point) splat_queue[cut ? invocations - 1u - (cut_base + rank) : plain_base + rank] = id;
+}
+#endif
+
+// Point `id`'s triangle, barycentrics, radius and cut lines into points[]; returns its cut lines.
+uint make_point(uint id) {
     uint k = id / points_per_direction, i = id % points_per_direction;
     uvec4 r = pcg4d(uvec4(i, k, seed, frame));
 #if SAMPLER == SAMPLER_STRATIFIED
@@ -53,7 +99,19 @@ void main() {
     vec2 b_stored = unpackUnorm2x16(stored);
     SplatShape shape = splat_shape(triangle, triangle_cut_lines(triangle));
     float point_radius = sharp_splat_radius(splat_radius, shape, b_stored);
-    points[id] = SplatPoint(triangle, stored, point_radius, shape.cut ? lines_within(shape, b_stored, point_radius) : 0u);
+    uint lines = shape.cut ? lines_within(shape, b_stored, point_radius) : 0u;
+    points[id] = SplatPoint(triangle, stored, point_radius, lines);
+    return lines;
+}
+
+void main() {
+    uint id = linear_id();
+    bool point = id < invocations;
+    uint cut_lines = 0u;
+    if (point) cut_lines = make_point(id);
+#if defined QUEUE_SPLATS
+    queue_splat(id, point, cut_lines != 0u);
+#endif
 }
 
 #endif

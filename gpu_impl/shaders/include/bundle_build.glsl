@@ -73,3 +73,10 @@ layout(std430, binding = BINDING_SPLAT_LINES) buffer SplatLineRecords { SplatLin
 // finds their lines again in a pass over just these.
 layout(std430, binding = BINDING_SPLATS_FOUND_AGAIN) buffer SplatsFoundAgain { uint found_again[]; };
 #endif
+
+#if defined SPLAT_QUEUE
+// Every splat once, in two runs (splat_points.glsl: queue_splat): from the front, the
+// COUNTER_PLAIN_SPLATS that no line cuts; from the back, the COUNTER_CUT_SPLATS cut ones. The count
+// pass runs a program of its own over each (splat_lists.glsl: PLAIN_SPLATS).
+layout(std430, binding = BINDING_SPLAT_QUEUE) buffer SplatQueue { uint splat_queue[]; };
+#endif
