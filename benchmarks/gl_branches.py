@@ -1,9 +1,10 @@
 """What a branch that no lane takes costs in a compute shader, side by side in one run: a block of
 straight-line arithmetic run unconditionally, behind an `if` that every lane or no lane takes, and
-in a loop that runs once or not at all, against the same shader without the block. A GPU skips a
-branch that no lane of a warp takes; llvmpipe, which runs 8 lanes of a SIMD batch under a mask,
-runs its code all the same, which is why the toolkit takes rarely needed work out of loops and
-passes (docs/platform.md).
+in a loop that runs once, three times or not at all, tested at its top (for) or at its end
+(do-while), against the same shader without the block. A GPU skips a branch that no lane of a warp
+takes; llvmpipe, which runs 8 lanes of a SIMD batch under a mask, runs its code all the same, and a
+loop tested at its top once more after its last lane leaves, which is why the toolkit takes rarely
+needed work out of loops and passes and tests its tightest loops at their end (docs/platform.md).
 
     python benchmarks/gl_branches.py [--invocations 1048576] [--repeats 5] [--record JSON]
 
@@ -25,15 +26,20 @@ from evalkit.records import write_record
 from gpu_impl.context import GLContext
 from gpu_impl.timing import median_ms
 
-SHAPES = ("NONE", "BLOCK", "IF", "LOOP")
-# (case, shader shape, gate): gate 0 lets every lane into the branch (the loop runs once), 1 none.
+SHAPES = ("NONE", "BLOCK", "IF", "LOOP", "DO_WHILE")
+# (case, shader shape, gate, iterations): gate 0 lets every lane into the branch (the loop runs
+# `iterations` times), 1 none.
 CASES = (
-    ("no block", "NONE", 0),
-    ("block", "BLOCK", 0),
-    ("if, taken by every lane", "IF", 0),
-    ("if, taken by none", "IF", 1),
-    ("loop, one iteration", "LOOP", 0),
-    ("loop, no iteration", "LOOP", 1),
+    ("no block", "NONE", 0, 1),
+    ("block", "BLOCK", 0, 1),
+    ("if, taken by every lane", "IF", 0, 1),
+    ("if, taken by none", "IF", 1, 1),
+    ("loop, one iteration", "LOOP", 0, 1),
+    ("loop, three iterations", "LOOP", 0, 3),
+    ("loop, no iteration", "LOOP", 1, 1),
+    ("do-while, one iteration", "DO_WHILE", 0, 1),
+    ("do-while, three iterations", "DO_WHILE", 0, 3),
+    ("do-while, no iteration", "DO_WHILE", 1, 1),
 )
 
 
@@ -52,10 +58,11 @@ def main() -> None:
     defines = "".join(f"#define SHAPE_{s} {i}\n" for i, s in enumerate(SHAPES))
     programs = {s: ctx.compute_shader(f"#version 450\n{defines}#define SHAPE SHAPE_{s}\n{source}") for s in SHAPES}
     rows = {}
-    for case, shape, gate in CASES:
+    for case, shape, gate, iterations in CASES:
         program = programs[shape]
-        if "gate" in program:
-            program["gate"] = gate
+        for name, value in (("gate", gate), ("iterations", iterations)):
+            if name in program:
+                program[name] = value
         results.bind_to_storage_buffer(0)
         rows[case] = median_ms(gl, partial(program.run, args.invocations // 256), args.repeats)
     base, block = rows["no block"], rows["block"] - rows["no block"]

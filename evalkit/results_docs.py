@@ -452,7 +452,8 @@ def gl_branches_markdown(data: dict, source: str) -> str:
         "Branches no lane takes",
         f"What the code of a branch costs in a compute shader when no lane takes it: {data['invocations']:,} "
         f"invocations, each running a block of {data['block_sines']} dependent sines unconditionally, behind an "
-        "`if` on a uniform that every lane or no lane takes, and in a loop that runs once or not at all; median of "
+        "`if` on a uniform that every lane or no lane takes, and in a loop that runs once, three times or not at "
+        "all, tested at its top (for) or at its end (do-while); median of "
         f'{data["repeats"]} dispatches after a warm-up. "/ block" is a case\'s time less the shader without the '
         "block, over the block's. A GPU skips a branch that no lane of a warp takes; what the toolkit does where "
         "a driver does not: [platform notes](../platform.md).",

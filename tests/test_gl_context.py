@@ -245,8 +245,10 @@ def test_the_branch_benchmark_reports_every_case_against_its_block(tmp_path):
     r = subprocess.run([sys.executable, *script], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout.strip().splitlines()[-1])
-    cases = ["no block", "block", "if, taken by every lane", "if, taken by none", "loop, one iteration"]
-    assert list(report["median_ms"]) == [*cases, "loop, no iteration"]
+    cases = ["no block", "block", "if, taken by every lane", "if, taken by none"]
+    iterations = ("one iteration", "three iterations", "no iteration")
+    loops = [f"{loop}, {n}" for loop in ("loop", "do-while") for n in iterations]
+    assert list(report["median_ms"]) == [*cases, *loops]
     assert report["of_block"]["block"] == 1.0 and set(report["of_block"]) == set(report["median_ms"]) - {"no block"}
     assert all(np.isfinite(list(report["of_block"].values())))
     assert json.loads(record.read_text())["record"]["command"].endswith("--record " + str(record))

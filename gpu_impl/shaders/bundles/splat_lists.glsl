@@ -217,56 +217,65 @@ uint splat(uint id) {
     uvec2 mask = uvec2(0u);
     bool kept = true;
 #endif
-    for (int y = y0; y <= y1; y++) {
+    // The row and column loops test at their end (do-while), without `continue`: llvmpipe runs a
+    // loop that tests at its top through its body once more, every lane masked, after the last
+    // lane leaves, and a splat's rows and spans are a few lines each (benchmarks/gl_branches.py;
+    // docs/results/decisions.toml: plain-splats).
+    int y = y0;
+    if (y <= y1) do {
         precise float dy = float(y) - c.y;
         precise float disc = B * B * dy * dy - A * (C * dy * dy - E);
-        if (disc < 0.0) continue;
-        precise float root = sqrt(disc);
-        int x0 = max(max(0, column_lo), int(ceil(c.x + (-B * dy - root) / A)));
-        int x1 = min(min(resolution - 1, column_hi), int(floor(c.x + (-B * dy + root) / A)));
-        // The splat's columns: the ellipse's, inside every cut line.
-        ivec2 inside = ivec2(x0, x1);
-        for (int i = 0; cut && i < 3; i++) {
-            inside = clip_row(inside, cuts_a[i], c.x, dy);
-            inside = clip_row(inside, cuts_b[i], c.x, dy);
-        }
-        // Those no nearer neighbour takes (one no smaller than this splat: reach -3.4e38).
-        ivec2 kept_span = inside;
-        for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
-            vec3 nearer = vec3(-gradient[slot], threshold[slot]);  // dot(q, gradient) <= threshold
-            kept_span = reach[slot] == -3.4e38 ? clip_row(kept_span, nearer, c.x, dy) : kept_span;
-        }
-#if defined COUNT_COVERED
-        ivec2 walked = inside;  // the studies' sum counts the lines neighbours take too
-#else
-        ivec2 walked = kept_span;
-#endif
-        for (int x = walked.x; x <= walked.y; x++) {
-            precise vec2 q = vec2(float(x) - c.x, dy);
-            float qMq = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y;
-            // Beyond the disk before it grew, the line must cross the triangle.
-            if (grown && qMq > E_disk && !inside_triangle(b + to_barycentrics * q)) continue;
-            covered++;
-            if (x < kept_span.x || x > kept_span.y) continue;
-            if (smaller) {
-                bool nearer = false;  // a smaller splat of this triangle nearer the line, reaching it
-                for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
-                    float g = dot(q, gradient[slot]);
-                    nearer = nearer || (g > threshold[slot] && g >= qMq + reach[slot]);
-                }
-                if (nearer) continue;
+        if (!(disc < 0.0)) {
+            precise float root = sqrt(disc);
+            int x0 = max(max(0, column_lo), int(ceil(c.x + (-B * dy - root) / A)));
+            int x1 = min(min(resolution - 1, column_hi), int(floor(c.x + (-B * dy + root) / A)));
+            // The splat's columns: the ellipse's, inside every cut line.
+            ivec2 inside = ivec2(x0, x1);
+            for (int i = 0; cut && i < 3; i++) {
+                inside = clip_row(inside, cuts_a[i], c.x, dy);
+                inside = clip_row(inside, cuts_b[i], c.x, dy);
             }
-            uint list = pixel_list(k, ivec2(x, y));
-#if defined COUNT_SPLATS
-            atomicAdd(list_counts[list], 1u);
-            uint column = uint(x - x_min), row = uint(y - y0);
-            kept = kept && x >= x_min && column < LINES_BOX && row < LINES_BOX;
-            if (kept) mask[row / 4u] |= 1u << (row % 4u * LINES_BOX + column);
+            // Those no nearer neighbour takes (one no smaller than this splat: reach -3.4e38).
+            ivec2 kept_span = inside;
+            for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
+                vec3 nearer = vec3(-gradient[slot], threshold[slot]);  // dot(q, gradient) <= threshold
+                kept_span = reach[slot] == -3.4e38 ? clip_row(kept_span, nearer, c.x, dy) : kept_span;
+            }
+#if defined COUNT_COVERED
+            ivec2 walked = inside;  // the studies' sum counts the lines neighbours take too
 #else
-            write_node(list, node_key(dot(plane, vec3(1.0, float(x), float(y))), ref));
+            ivec2 walked = kept_span;
 #endif
+            int x = walked.x;
+            if (x <= walked.y) do {
+                precise vec2 q = vec2(float(x) - c.x, dy);
+                float qMq = A * q.x * q.x + 2.0 * B * q.x * q.y + C * q.y * q.y;
+                // Beyond the disk before it grew, the line must cross the triangle.
+                bool line = !(grown && qMq > E_disk && !inside_triangle(b + to_barycentrics * q));
+                if (line) covered++;
+                line = line && x >= kept_span.x && x <= kept_span.y;
+                if (smaller) {
+                    bool nearer = false;  // a smaller splat of this triangle nearer the line, reaching it
+                    for (int slot = 0; slot < NEIGHBOUR_SLOTS; slot++) {
+                        float g = dot(q, gradient[slot]);
+                        nearer = nearer || (g > threshold[slot] && g >= qMq + reach[slot]);
+                    }
+                    line = line && !nearer;
+                }
+                if (line) {
+                    uint list = pixel_list(k, ivec2(x, y));
+#if defined COUNT_SPLATS
+                    atomicAdd(list_counts[list], 1u);
+                    uint column = uint(x - x_min), row = uint(y - y0);
+                    kept = kept && x >= x_min && column < LINES_BOX && row < LINES_BOX;
+                    if (kept) mask[row / 4u] |= 1u << (row % 4u * LINES_BOX + column);
+#else
+                    write_node(list, node_key(dot(plane, vec3(1.0, float(x), float(y))), ref));
+#endif
+                }
+            } while (++x <= walked.y);
         }
-    }
+    } while (++y <= y1);
 #if defined COUNT_SPLATS
     if (kept) {
         uint box = uint(x_min) | uint(y0) << 16 | (ref & FACING_BIT);
@@ -289,11 +298,13 @@ void scatter(uint id) {
     uint ref = id | (lines.box & FACING_BIT);
     ivec2 origin = ivec2(lines.box & 0xFFFFu, (lines.box & ~FACING_BIT) >> 16);
     for (uint half_box = 0u; half_box < 2u; half_box++) {
-        for (uint mask = half_box == 0u ? lines.mask_low : lines.mask_high; mask != 0u; mask &= mask - 1u) {
+        uint mask = half_box == 0u ? lines.mask_low : lines.mask_high;
+        if (mask != 0u) do {  // tested at its end, as the count pass's loops are
             uint bit = uint(findLSB(mask));
             ivec2 pixel = origin + ivec2(bit % LINES_BOX, half_box * 4u + bit / LINES_BOX);
             write_node(pixel_list(k, pixel), node_key(dot(plane, vec3(1.0, vec2(pixel))), ref));
-        }
+            mask &= mask - 1u;
+        } while (mask != 0u);
     }
 }
 #endif
