@@ -90,6 +90,8 @@ def measure_scene(
         "median_ms": median,
         "passes_median_ms": {m: {p: statistics.median(r[p] for r in passes[m]) for p in passes[m][0]} for m in passes},
         "perfect_over_imperfect": median[PERFECT] / median[IMPERFECT],
+        # each repeat's two builds, run back to back: how far the machine's noise moves the ratio
+        "perfect_over_imperfect_per_repeat": [p / i for p, i in zip(times[PERFECT], times[IMPERFECT])],
         "perfect_over_raw": median[PERFECT] / median["raw"],
         "nodes": {m: stats[m]["nodes"] for m in stats},
         "raw_nodes": {m: stats[m]["raw_nodes"] for m in stats},
@@ -178,6 +180,8 @@ def print_table(report: dict) -> None:
     for name, r in report["scenes"].items():
         for method, p in r["passes_median_ms"].items():
             print(f"  {name} {method} passes: " + ", ".join(f"{k} {v:.1f} ms" for k, v in p.items()))
+        ratios = ", ".join(f"{x:.2f}" for x in r["perfect_over_imperfect_per_repeat"])
+        print(f"  {name} perfect / imperfect build, each repeat: {ratios}")
         print(
             f"  {name} imperfect nodes: {r['raw_nodes'][IMPERFECT]:,} written (one per splat and line, the nearest "
             f"of a triangle's splats), {r['nodes'][IMPERFECT]:,} kept after merging"

@@ -224,7 +224,8 @@ def bundles_markdown(data: dict, source: str) -> str:
         "Bundle build speed",
         f"One bundle build per row, K = {data['directions']} directions of R = {data['resolution']} lines a side, "
         f"imperfect bundles from N = {data['points']} {data['sampler']} points per direction at splat scale "
-        f"s = {data['splat_scale']}; median of {data['repeats']} builds after a warm-up. *raw* is the perfect "
+        f"s = {data['splat_scale']}; median of {data['repeats']} builds after a warm-up, each repeat's builds back to "
+        "back (*each repeat*: the ratio of each pair, how far the machine's noise moves it). *raw* is the perfect "
         "bundles' geometry drawn with an empty fragment shader: what the rasterizer costs before any list is written.",
         data,
         source,
@@ -237,10 +238,13 @@ def bundles_markdown(data: dict, source: str) -> str:
         m = r["median_ms"]
         rows.append(
             [name, f"{r['triangles']:,}", *(_ms(m[k]) for k in methods), _ms(m["raw"]),
-             f"{r[f'{first}_over_{second}']:.2f}", f"{r[f'{first}_over_raw']:.2f}",
+             f"{r[f'{first}_over_{second}']:.2f}",
+             ", ".join(f"{x:.2f}" for x in r.get(f"{first}_over_{second}_per_repeat", [])) or "-",
+             f"{r[f'{first}_over_raw']:.2f}",
              *(f"{r['nodes'][k]:,}" for k in methods)]
         )  # fmt: skip
-    header = ["scene", "triangles", *(f"{k} ms" for k in methods), "raw ms", f"{first} / {second}", f"{first} / raw",
+    header = ["scene", "triangles", *(f"{k} ms" for k in methods), "raw ms", f"{first} / {second}", "each repeat",
+              f"{first} / raw",
               *(f"nodes {k}" for k in methods)]  # fmt: skip
     lines += _table(header, rows) + ["", "## Passes", ""]
     pass_rows = []
