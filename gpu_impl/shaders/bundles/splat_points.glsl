@@ -45,7 +45,8 @@ uniform uint frame;
 // program of its own over each run (splat_lists.glsl: PLAIN_SPLATS). A SIMD batch's (subgroup's)
 // lanes take the slots of their rank among its lanes of their run, the batches theirs within the
 // workgroup's, and the workgroup its own with one atomic per run. An atomic on one address for
-// every batch cost llvmpipe more than the count pass saved (two CPU threads taking turns at it).
+// every batch took back nearly all that the count pass saved on llvmpipe (two CPU threads taking
+// turns at its cache line; docs/results/decisions.toml: plain-splats).
 // Called where every invocation of the workgroup is (it holds barriers).
 shared uint group_plain, group_cut;  // the workgroup's splats of each run, then its first slot
 
