@@ -34,6 +34,7 @@ from gpu_impl.context import MEMORY_HEADROOM, GLContext, format_bytes, set_unifo
 from gpu_impl.layout import (
     BINDINGS,
     BUNDLE_FRAME,
+    COUNTER_STRIPES,
     COUNTER_WORDS,
     COUNTERS,
     FACING_BIT,
@@ -49,6 +50,7 @@ from gpu_impl.layout import (
     SORT_NETWORK,
     SPLAT_BIT,
     STRIPE_WORDS,
+    STRIPED_COUNTERS,
 )
 from gpu_impl.scene_buffers import GpuScene
 from gpu_impl.timing import PassTimer
@@ -312,10 +314,13 @@ class BundleTracer:
         return self.stats
 
     def read_counters(self) -> np.ndarray:
-        """The build counters (layout.py: COUNTERS), KEPT summed over its stripes."""
+        """The build counters (layout.py: COUNTERS), KEPT summed over its stripes and MAX_LENGTH
+        the largest of its stripes (layout.py: STRIPED_COUNTERS)."""
         words = self.gl.read(self.buffers["COUNTERS"], np.uint32, COUNTER_WORDS).astype(np.int64)
         counters = words[: len(COUNTERS)].copy()
-        counters[COUNTERS["KEPT"]] += words[STRIPE_WORDS:].sum()
+        stripes = words[STRIPE_WORDS:].reshape(COUNTER_STRIPES, STRIPE_WORDS)
+        counters[COUNTERS["KEPT"]] = stripes[:, STRIPED_COUNTERS.index("KEPT")].sum()
+        counters[COUNTERS["MAX_LENGTH"]] = stripes[:, STRIPED_COUNTERS.index("MAX_LENGTH")].max()
         return counters
 
     def _scan_lists(self) -> int:

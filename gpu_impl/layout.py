@@ -166,14 +166,17 @@ COUNTERS = {
     "PLAIN_SPLATS": 10,
     "CUT_SPLATS": 11,
 }
-# KEPT, which the merge adds to for every list, is COUNTER_STRIPES counters a cache line
-# (STRIPE_WORDS) apart after the others: workgroup g adds to stripe g % COUNTER_STRIPES, and the
-# host sums them (bundles.py: read_counters). On llvmpipe the CPU threads took turns at the one
-# address's cache line (docs/results/decisions.toml: plain-splats).
+# KEPT and MAX_LENGTH, which the resolve adds to and raises for every list, are COUNTER_STRIPES
+# stripes a cache line (STRIPE_WORDS) apart after the others, word STRIPED_COUNTERS.index(name) of
+# each: workgroup g takes stripe g % COUNTER_STRIPES, and the host sums and takes the largest
+# (bundles.py: read_counters). On llvmpipe the CPU threads took turns at the one address's cache
+# line, and at MAX_LENGTH's, read for every list, while the other thread queued lists on the same
+# line (docs/results/decisions.toml: plain-splats).
+STRIPED_COUNTERS = ("KEPT", "MAX_LENGTH")
 COUNTER_STRIPES = 64
 STRIPE_WORDS = 16
 COUNTER_WORDS = STRIPE_WORDS * (1 + COUNTER_STRIPES)
-assert len(COUNTERS) <= STRIPE_WORDS
+assert len(COUNTERS) <= STRIPE_WORDS and len(STRIPED_COUNTERS) <= STRIPE_WORDS
 # A raw splat node's reference carries in its top bit which way its surface faces along the line.
 FACING_BIT = np.uint32(0x80000000)
 # The image units of the two R32UI images in which the shadow maps' raster pass keeps each texel's
@@ -256,6 +259,7 @@ SHADER_CONSTANTS = {
     "TEXELS_PER_TRIANGLE": TEXELS_PER_TRIANGLE,
     **{f"SAMPLER_{name.upper()}": value for name, value in SAMPLERS.items()},
     **{f"COUNTER_{name}": value for name, value in COUNTERS.items()},
+    **{f"STRIPE_{name}": word for word, name in enumerate(STRIPED_COUNTERS)},
 }
 
 # Records, as the shaders declare them (std430).

@@ -482,7 +482,9 @@ def test_same_seed_same_lists_and_atlas_batching_changes_nothing(gl):
 def test_the_count_pass_runs_the_uncut_splats_apart_from_the_cut_ones_and_every_splat_once(gl):
     # The points pass queues every splat once, those no line cuts from the front, the cut ones from
     # the back (shaders/bundles/splat_points.glsl: queue_splat), each run counted by a program of
-    # its own; the merge's kept count, added to in stripes, is the lists' lengths summed.
+    # its own; the merge's kept count, added to in stripes, is the lists' lengths summed, and the
+    # longest list, raised in stripes (gpu_impl/layout.py: STRIPED_COUNTERS), the longest of them,
+    # for perfect bundles too.
     with GpuScene(gl, nested_boxes()) as gpu_scene:
         tracer = make_tracer(gl, gpu_scene, "imperfect", directions=6, resolution=32, points=1024)
         stats = tracer.build(DirectionSet.make(6, seed=5))
@@ -492,6 +494,13 @@ def test_the_count_pass_runs_the_uncut_splats_apart_from_the_cut_ones_and_every_
         cut = tracer.read_points()["cut_lines"] != 0
         lengths = np.frombuffer(tracer.buffers["LIST_COUNTS"].read(4 * tracer.list_count), np.uint32)
         tracer.release()
+        perfect = make_tracer(gl, gpu_scene, "perfect", directions=6, resolution=32)
+        perfect_stats = perfect.build(DirectionSet.make(6, seed=5))
+        offsets = perfect.buffers["LIST_OFFSETS"].read(4 * (perfect.list_count + 1))
+        perfect_lengths = np.diff(np.frombuffer(offsets, np.uint32))
+        perfect.release()
+    assert stats["max_list_length"] == lengths.max() > 1
+    assert perfect_stats["max_list_length"] == perfect_lengths.max() > 1
     plain = int(counters[COUNTERS["PLAIN_SPLATS"]])
     assert np.array_equal(np.sort(queue), np.arange(splats))
     assert plain == (~cut).sum() and counters[COUNTERS["CUT_SPLATS"]] == cut.sum() and 0 < plain < splats

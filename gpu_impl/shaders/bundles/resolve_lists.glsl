@@ -268,16 +268,17 @@ void main() {
 #endif
     }
 #endif
-    // Few atomics: a CPU rasterizer runs one per invocation. The kept count is striped by
-    // workgroup (gpu_impl/layout.py: COUNTER_STRIPES), so CPU threads do not take turns at one
-    // address.
+    // Few atomics: a CPU rasterizer runs one per invocation. The kept count and the longest list
+    // are striped by workgroup (gpu_impl/layout.py: STRIPED_COUNTERS), so CPU threads do not take
+    // turns at one cache line.
+    uint stripe = uint(STRIPE_WORDS) * (1u + gl_WorkGroupID.x % uint(COUNTER_STRIPES));
 #if defined MERGE_LISTS
     list_counts[list] = kept;
-    if (kept > 0u) atomicAdd(counters[uint(STRIPE_WORDS) * (1u + gl_WorkGroupID.x % uint(COUNTER_STRIPES))], kept);
+    if (kept > 0u) atomicAdd(counters[stripe + uint(STRIPE_KEPT)], kept);
 #else
     if (redundant > 0u) atomicAdd(counters[COUNTER_REDUNDANT], redundant);
 #endif
-    if (kept > counters[COUNTER_MAX_LENGTH]) atomicMax(counters[COUNTER_MAX_LENGTH], kept);
+    if (kept > counters[stripe + uint(STRIPE_MAX_LENGTH)]) atomicMax(counters[stripe + uint(STRIPE_MAX_LENGTH)], kept);
 }
 
 #endif

@@ -297,15 +297,17 @@ void scatter(uint id) {
     vec3 plane = vec3(lines.depth, lines.depth_x, lines.depth_y);
     uint ref = id | (lines.box & FACING_BIT);
     ivec2 origin = ivec2(lines.box & 0xFFFFu, (lines.box & ~FACING_BIT) >> 16);
-    for (uint half_box = 0u; half_box < 2u; half_box++) {
-        uint mask = half_box == 0u ? lines.mask_low : lines.mask_high;
-        if (mask != 0u) do {  // tested at its end, as the count pass's loops are
-            uint bit = uint(findLSB(mask));
-            ivec2 pixel = origin + ivec2(bit % LINES_BOX, half_box * 4u + bit / LINES_BOX);
-            write_node(pixel_list(k, pixel), node_key(dot(plane, vec3(1.0, vec2(pixel))), ref));
-            mask &= mask - 1u;
-        } while (mask != 0u);
-    }
+    // One loop over the box's 64 bits, tested at its end as the count pass's loops are: a SIMD
+    // batch runs it as often as its lane with the most lines needs. A loop over each half ran as
+    // often as the most lines in the first half and then in the second, and the scatter took a
+    // tenth longer on llvmpipe (docs/results/decisions.toml: plain-splats).
+    uvec2 mask = uvec2(lines.mask_low, lines.mask_high);
+    if (mask != uvec2(0u)) do {
+        uint bit = mask.x != 0u ? uint(findLSB(mask.x)) : 32u + uint(findLSB(mask.y));
+        ivec2 pixel = origin + ivec2(bit % LINES_BOX, bit / LINES_BOX);
+        write_node(pixel_list(k, pixel), node_key(dot(plane, vec3(1.0, vec2(pixel))), ref));
+        if (mask.x != 0u) mask.x &= mask.x - 1u; else mask.y &= mask.y - 1u;
+    } while (mask != uvec2(0u));
 }
 #endif
 
