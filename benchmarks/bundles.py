@@ -36,7 +36,9 @@ PERFECT, IMPERFECT = perfect.METHOD.name, imperfect.METHOD.name
 DEFAULTS = imperfect.ImperfectSettings()
 
 # The targets: imperfect builds at least 6x faster than perfect ones on atrium (the poster: 161 ms
-# against 27 ms) and 10x on the 2.4 M-triangle atrium-dense; perfect builds at most 1.5x the raw
+# against 27 ms) and 10x on the 2.4 M-triangle atrium-dense, in every repeat (each repeat's two
+# builds back to back: on a shared CPU the perfect build's time moves by a quarter from run to run,
+# and a ratio of medians met in one run missed in the next); perfect builds at most 1.5x the raw
 # raster of the same geometry.
 TARGET_SPEEDUP = {"atrium": 6.0, "atrium-dense": 10.0}
 TARGET_PERFECT_OVER_RAW = 1.5
@@ -136,7 +138,7 @@ def run(
     for name, r in results.items():
         if name in TARGET_SPEEDUP:
             targets[f"{name}_imperfect_speedup_ge_{TARGET_SPEEDUP[name]:g}"] = (
-                r["perfect_over_imperfect"] >= TARGET_SPEEDUP[name]
+                min(r["perfect_over_imperfect_per_repeat"]) >= TARGET_SPEEDUP[name]
             )
         targets[f"{name}_perfect_le_{TARGET_PERFECT_OVER_RAW:g}x_raw"] = (
             r["perfect_over_raw"] <= TARGET_PERFECT_OVER_RAW

@@ -225,8 +225,9 @@ def bundles_markdown(data: dict, source: str) -> str:
         f"One bundle build per row, K = {data['directions']} directions of R = {data['resolution']} lines a side, "
         f"imperfect bundles from N = {data['points']} {data['sampler']} points per direction at splat scale "
         f"s = {data['splat_scale']}; median of {data['repeats']} builds after a warm-up, each repeat's builds back to "
-        "back (*each repeat*: the ratio of each pair, how far the machine's noise moves it). *raw* is the perfect "
-        "bundles' geometry drawn with an empty fragment shader: what the rasterizer costs before any list is written.",
+        "back (*each repeat*: the ratio of each pair, how far the machine's noise moves it; a speed-up target is met "
+        "when every repeat's ratio meets it). *raw* is the perfect bundles' geometry drawn with an empty fragment "
+        "shader: what the rasterizer costs before any list is written.",
         data,
         source,
     )
