@@ -34,9 +34,9 @@
 // they share, at one depth up to float32 rounding. A run of nodes facing the same way along the
 // line (FACING_BIT) within merge_tolerance of the run's first node is one surface crossing and
 // keeps one node, the run's middle one (its median depth).
-// Surfaces facing opposite ways (a thin slab's two sides) are never merged. COUNTER_KEPT counts
-// the nodes kept (in stripes); perfect bundles count coincident duplicates, which are all kept, in
-// COUNTER_REDUNDANT.
+// Surfaces facing opposite ways (a thin slab's two sides) are never merged. The nodes kept are
+// counted in stripes (STRIPE_KEPT, gpu_impl/layout.py: STRIPED_COUNTERS); perfect bundles count
+// coincident duplicates, which are all kept, in COUNTER_REDUNDANT.
 
 #extension GL_ARB_gpu_shader_int64 : require
 #include "common.glsl"
@@ -278,7 +278,8 @@ void main() {
 #else
     if (redundant > 0u) atomicAdd(counters[COUNTER_REDUNDANT], redundant);
 #endif
-    if (kept > counters[stripe + uint(STRIPE_MAX_LENGTH)]) atomicMax(counters[stripe + uint(STRIPE_MAX_LENGTH)], kept);
+    uint longest = stripe + uint(STRIPE_MAX_LENGTH);
+    if (kept > counters[longest]) atomicMax(counters[longest], kept);
 }
 
 #endif
