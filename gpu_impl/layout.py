@@ -43,7 +43,7 @@ BINDINGS = {
     "INDICES": 4,
     "AREA_CDF": 5,
     "CDF_GUIDE": 30,
-    # the lines that cut each triangle's splats, and its smooth surface (scene_buffers.py: splat_facts)
+    # the lines that cut each triangle's splats (scene_buffers.py: splat_facts)
     "SPLAT_SHAPES": 12,
     # the imperfect bundles' own point CDF and its guide (scene_buffers.py: surface_area_cdf)
     "SPLAT_CDF": 18,
@@ -120,10 +120,8 @@ TRIANGLE_SOLID = np.uint32(0x40000000)
 # or its flat neighbours' (evalkit/core/scene/edges.py: splat_cuts)
 TRIANGLE_CUT = np.uint32(0x08000000)
 TRIANGLE_MATERIAL = np.uint32(0x07FFFFFF)  # Triangle.material_flags: the material index
-# The words per triangle at the head of the SPLAT_SHAPES buffer (scene_buffers.py: splat_facts):
-# where its cut lines start, its smooth surface, the triangles across its three edges; of those,
-# the top bit: the triangle across runs the edge the same way, so its normal is turned.
-TRIANGLE_FACT_WORDS = np.uint32(5)
+# The top bit of a triangle's word for the triangle across an edge (scene_buffers.py: splat_facts):
+# the triangle across runs the edge the same way, so its normal is turned.
 TRIANGLE_TURNED = np.uint32(0x80000000)
 # Light.position.w; "emitter_sample" is a point drawn on an emissive triangle for next-event
 # estimation (lights.py: EmitterSamples), a point light whose intensity falls as the cosine to its
@@ -196,9 +194,10 @@ MAX_DIRECTIONS = UNIFORM_BLOCK_BYTES // 48
 # Records read as texels by the splat builders and the lookups, which read them by the million
 # (common.glsl: TRIANGLE_TEXELS, SPLAT_TEXELS): textures TEXEL_ROW texels wide, a splat point a texel
 # (SPLAT_POINT's four words), a triangle TEXELS_PER_TRIANGLE (its corners, each with its vertex
-# index, then its normal: scene_buffers.py: GpuScene.triangle_texels), bound at these texture units.
+# index, its normal, then the triangles across its edges and its smooth surface:
+# scene_buffers.py: GpuScene.triangle_texels), bound at these texture units.
 TEXEL_ROW = 4096
-TEXELS_PER_TRIANGLE = 4
+TEXELS_PER_TRIANGLE = 5
 TEXEL_UNITS = {"point_texels": 9, "triangle_texels": 10}
 
 # The most texture arrays the shadow atlas' pages take (gpu_impl/lights.py: AtlasTextures): a
@@ -235,7 +234,6 @@ SHADER_CONSTANTS = {
     "PATH_FROM_CAMERA": PATH_FROM_CAMERA,
     "PATH_BACK": PATH_BACK,
     "NO_TRIANGLE": NO_TRIANGLE,
-    "TRIANGLE_FACT_WORDS": TRIANGLE_FACT_WORDS,
     "TRIANGLE_TURNED": TRIANGLE_TURNED,
     **{f"LIGHT_{kind.upper()}": value for kind, value in LIGHT_KINDS.items()},
     **{

@@ -24,7 +24,6 @@ from gpu_impl.layout import (
     TEXELS_PER_TRIANGLE,
     TRIANGLE,
     TRIANGLE_CUT,
-    TRIANGLE_FACT_WORDS,
     TRIANGLE_SMOOTH,
     TRIANGLE_SOLID,
     TRIANGLE_TURNED,
@@ -149,24 +148,22 @@ class GpuScene:
         splats (`evalkit.core.scene.edges.splat_cuts`: its sharp edges and its flat neighbours';
         TRIANGLE_CUT in the triangle records), its smooth surface (`smooth_surfaces`) and the
         triangles across its edges (`triangle_neighbours`), with the edge pairs found once for all.
-        One SPLAT_SHAPES buffer holds them (shaders/include/scene.glsl: splat_shape, triangle_surface,
-        triangle_across). Found the first time splats or lookups ask; rigid poses keep them."""
+        The SPLAT_SHAPES buffer holds the cut lines (shaders/include/scene.glsl: splat_shape), the
+        triangle texels all three (`triangle_texels`). Found the first time splats or lookups ask;
+        rigid poses keep them."""
         if self._cuts is None:
             a = self.arrays
             pairs = edge_pairs(a.positions, a.faces, a.tri_normal) if len(a.faces) else None
             first, lines = splat_cuts(a.positions, a.faces, a.tri_normal, pairs=pairs)
             self._surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal, pairs=pairs)
             across, turned = triangle_neighbours(a.positions, a.faces, a.tri_normal, pairs=pairs)
-            # Words 5t to 5t + 4: where triangle t's cut lines start, its surface, the triangles
-            # across its edges (NO_TRIANGLE: none; the top bit: turned the other way); word 5T:
-            # where the last one's lines end. Then three words a line.
-            head = np.empty(TRIANGLE_FACT_WORDS * len(a.faces) + 1, np.uint32)
-            head[0::TRIANGLE_FACT_WORDS] = len(head) + 3 * first
-            head[1::TRIANGLE_FACT_WORDS] = self._surfaces
-            for e in range(3):
-                word = across[:, e].astype(np.uint32) | np.where(turned[:, e], TRIANGLE_TURNED, 0).astype(np.uint32)
-                head[2 + e :: TRIANGLE_FACT_WORDS] = np.where(across[:, e] < 0, NO_TRIANGLE, word)
+            # The triangles across each edge (NO_TRIANGLE: none; the top bit: turned the other way).
+            words = across.astype(np.uint32) | np.where(turned, TRIANGLE_TURNED, 0).astype(np.uint32)
+            self._across = np.where(across < 0, NO_TRIANGLE, words)
             self._cut_first, self._cut_lines = first, lines.astype(np.float32).view(np.uint32).reshape(-1, 3)
+            # Word t: where triangle t's cut lines start; word T: where the last one's end. Then
+            # three words a line.
+            head = (len(first) + 3 * first).astype(np.uint32)
             words = np.concatenate([head, self._cut_lines.reshape(-1)])
             self.buffers["SPLAT_SHAPES"] = self.gl.buffer(words.tobytes())
             self._cuts = np.diff(first)
@@ -202,9 +199,10 @@ class GpuScene:
     def triangle_texels(self):
         """The triangles as the splat passes and the lookups read them (shaders/include/common.glsl:
         TRIANGLE_TEXELS), a texture of `TEXELS_PER_TRIANGLE` texels a triangle: its three corners
-        as the vertex records hold them, each with its vertex index, then its normal as the triangle
-        records hold it with the texel of its first cut line; a record past the last with where its
-        lines end; then the cut lines (`splat_facts`), a texel each.
+        as the vertex records hold them, each with its vertex index, its normal as the triangle
+        records hold it with the texel of its first cut line, then the triangles across its edges
+        with its smooth surface (`splat_facts`); a record past the last with where its lines end;
+        then the cut lines, a texel each.
         RGBA32UI, so every float's bits come back as they are. Made the first time they ask; poses
         rewrite the corners and normals (the cut lines, in barycentrics, stay)."""
         if self._triangle_texels is None:
@@ -225,6 +223,8 @@ class GpuScene:
         corners[:, 3, :3] = a.tri_normal.astype(np.float32).view(np.uint32)
         lines = TEXELS_PER_TRIANGLE * (T + 1)
         records[:, 3, 3] = lines + self._cut_first  # the texel of its first cut line; past the last, their end
+        corners[:, 4, :3] = self._across
+        corners[:, 4, 3] = self._surfaces
         texels[lines : lines + len(self._cut_lines), :3] = self._cut_lines
         texture.write(texels.tobytes())
 

@@ -22,6 +22,7 @@ from evalkit.core.scene.edges import (
     sharp_splat_radii,
     smooth_surfaces,
     splat_cuts,
+    triangle_neighbours,
 )
 from evalkit.core.scene.tessellate import box, unit_sphere
 from gpu_impl.bundles import NodeBudgetExceeded
@@ -30,9 +31,10 @@ from gpu_impl.layout import (
     COUNTERS,
     LIST_GROUP,
     MAX_DIRECTIONS,
+    NO_TRIANGLE,
     TEXELS_PER_TRIANGLE,
     TRIANGLE,
-    TRIANGLE_FACT_WORDS,
+    TRIANGLE_TURNED,
     VERTEX,
 )
 from gpu_impl.methods.imperfect import splat_centres
@@ -626,9 +628,11 @@ def test_cli_reports_an_exceeded_budget_in_one_line(tmp_path):
 
 
 def test_the_triangle_texels_hold_what_the_scene_buffers_hold_in_every_pose(gl):
-    """The compute splatter reads the triangles (corners, normals, cut lines) as texels
-    (GpuScene.triangle_texels), made once: they hold what the buffers the other passes read hold,
-    and a pose rewrites them as it does the buffers, or the splats would stay where the geometry was."""
+    """The compute splatter and the lookups read the triangles (corners, normals, cut lines, the
+    triangles across their edges, their smooth surfaces) as texels (GpuScene.triangle_texels), made
+    once: they hold what the buffers the other passes read hold, and the edges and surfaces the scene
+    has, and a pose rewrites them as it does the buffers, or the splats would stay where the geometry
+    was."""
     scene = load_scene("atrium-animated")
     with GpuScene(gl, scene.at(0.0), sphere=enclosing_sphere([scene.at(0.0), scene.at(3.0)])) as gpu_scene:
         made = gpu_scene.triangle_texels()
@@ -648,11 +652,19 @@ def test_the_triangle_texels_hold_what_the_scene_buffers_hold_in_every_pose(gl):
     assert np.array_equal(texels[:, 3, :3].view(np.float32), triangles["normal"])
     # A record past the last says where its lines end; then the cut lines, a texel each, as the
     # splat shapes' words hold them after their heads.
-    head = TRIANGLE_FACT_WORDS * T + 1
+    head = T + 1
     lines, start = shapes[head:].reshape(-1, 3), TEXELS_PER_TRIANGLE * (T + 1)
-    first = all_texels[TEXELS_PER_TRIANGLE - 1 : start : TEXELS_PER_TRIANGLE, 3]
-    assert len(lines) > 1000 and np.array_equal((shapes[0:head:TRIANGLE_FACT_WORDS] - head) // 3, first - start)
+    first = all_texels[3:start:TEXELS_PER_TRIANGLE, 3]
+    assert len(lines) > 1000 and np.array_equal((shapes[:head] - head) // 3, first - start)
     assert np.array_equal(all_texels[start : start + len(lines), :3], lines)
+    # The triangles across each edge, with the turned bit, and each triangle's smooth surface.
+    a = scene.at(0.0).arrays()  # rigid poses keep them
+    across, turned = triangle_neighbours(a.positions, a.faces, a.tri_normal)
+    words = texels[:, 4, :3].astype(np.int64)
+    assert (across >= 0).mean() > 0.9 and turned.any()
+    assert np.array_equal(np.where(words == NO_TRIANGLE, -1, words & ~TRIANGLE_TURNED), across)
+    assert np.array_equal((words != NO_TRIANGLE) & (words & TRIANGLE_TURNED != 0), turned)
+    assert np.array_equal(texels[:, 4, 3], smooth_surfaces(a.positions, a.faces, a.tri_normal))
 
 
 @pytest.mark.parametrize("splat_scale", [1.5, 4.0])

@@ -141,16 +141,16 @@ bool inside_triangle(vec2 b) {
 
 // SPLAT_SHAPES: the passes that cut splats (imperfect bundles' points and builders, imperfect
 // shadow maps) read each triangle's cut lines, and the paths' steps (bundle_step.glsl) its cut
-// lines and the triangles across its edges, perfect bundles' too; the others leave the buffer out
-// (a compute pass may use at most 16 storage blocks).
+// lines, its smooth surface and the triangles across its edges, perfect bundles' too; the others
+// leave the buffer out (a compute pass may use at most 16 storage blocks).
 #if defined SPLAT_SHAPES
-// One array of 32-bit words (gpu_impl/scene_buffers.py: splat_facts): for each triangle t,
-// TRIANGLE_FACT_WORDS (5) words from word 5t: where its cut lines start (up to where the next
-// triangle's start, or, past the last, word 5T: where the lines end), its smooth surface
-// (evalkit/core/scene/edges.py: smooth_surfaces), and the triangles across its three edges
-// (triangle_neighbours); after these, three words a line, the bits of (l1, l2, l0): l1 b1 + l2 b2
-// + l0 is the distance of the point at barycentrics b from the line, positive on the surface's
-// side (evalkit/core/scene/edges.py: splat_cuts).
+// One array of 32-bit words (gpu_impl/scene_buffers.py: splat_facts): word t, where triangle t's
+// cut lines start (up to where the next triangle's start, or, past the last, word T: where the
+// lines end); after these, three words a line, the bits of (l1, l2, l0): l1 b1 + l2 b2 + l0 is
+// the distance of the point at barycentrics b from the line, positive on the surface's side
+// (evalkit/core/scene/edges.py: splat_cuts). Each triangle's smooth surface
+// (evalkit/core/scene/edges.py: smooth_surfaces) and the triangles across its three edges
+// (triangle_neighbours) only the paths' steps read, as texels.
 layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uint splat_shapes[]; };
 
 #if defined TRIANGLE_TEXELS
@@ -160,9 +160,9 @@ layout(std430, binding = BINDING_SPLAT_SHAPES) readonly buffer SplatShapes { uin
 // lines), and the splat points (bundle.glsl: SPLAT_TEXELS), as texels
 // (gpu_impl/layout.py: TEXEL_ROW; gpu_impl/scene_buffers.py: GpuScene.triangle_texels): the same
 // words as the storage buffers hold, so the same arithmetic. Per triangle TEXELS_PER_TRIANGLE
-// texels: its corners, each with its vertex index, then its normal with the texel of its first
-// cut line (past the last triangle, one more record: where the last one's lines end); the cut
-// lines follow, a texel each.
+// texels: its corners, each with its vertex index, its normal with the texel of its first cut
+// line (past the last triangle, one more record: where the last one's lines end), then the
+// triangles across its three edges with its smooth surface; the cut lines follow, a texel each.
 
 uint cut_lines_start(uint t) {
     return triangle_texel(t, 3u).w;
@@ -178,7 +178,7 @@ uint triangle_cut_lines(uint t) {
 }
 #else
 uint cut_lines_start(uint t) {
-    return splat_shapes[TRIANGLE_FACT_WORDS * t];
+    return splat_shapes[t];
 }
 
 vec3 cut_line_at(uint start, uint i) {
@@ -188,21 +188,25 @@ vec3 cut_line_at(uint start, uint i) {
 
 // All of triangle t's cut lines, bit i for its line i.
 uint triangle_cut_lines(uint t) {
-    uint first = splat_shapes[TRIANGLE_FACT_WORDS * t], end = splat_shapes[TRIANGLE_FACT_WORDS * (t + 1u)];
+    uint first = splat_shapes[t], end = splat_shapes[t + 1u];
     return triangle_cut(t) ? (1u << ((end - first) / 3u)) - 1u : 0u;
 }
 #endif
 
+#if defined TRIANGLE_TEXELS
 // Triangle t's smooth surface: triangles joined across edges that bend less than the crease angle.
+// Texels, as are the triangles across its edges, which a lookup's walk reads at every hop: from
+// the storage buffer the bounce passes took longer (docs/results/decisions.toml: walk-by-distance).
 uint triangle_surface(uint t) {
-    return splat_shapes[TRIANGLE_FACT_WORDS * t + 1u];
+    return triangle_texel(t, 4u).w;
 }
 
 // The triangle across triangle t's edge e (from corner e to corner e + 1), NO_TRIANGLE where there
 // is none, with TRIANGLE_TURNED set where its normal must be turned to agree with t's.
 uint triangle_across(uint t, uint e) {
-    return splat_shapes[TRIANGLE_FACT_WORDS * t + 2u + e];
+    return triangle_texel(t, 4u)[e];
 }
+#endif
 
 // The lines that cut a splat (imperfect bundles', imperfect shadow maps'): of the sharp edges of
 // its triangle and of the triangle's flat neighbours, those nearer its centre than its radius (the
