@@ -158,8 +158,8 @@ class GpuScene:
             self._surfaces = smooth_surfaces(a.positions, a.faces, a.tri_normal, pairs=pairs)
             across, turned = triangle_neighbours(a.positions, a.faces, a.tri_normal, pairs=pairs)
             # The triangles across each edge (NO_TRIANGLE: none; the top bit: turned the other way).
-            words = across.astype(np.uint32) | np.where(turned, TRIANGLE_TURNED, 0).astype(np.uint32)
-            self._across = np.where(across < 0, NO_TRIANGLE, words)
+            flagged = across.astype(np.uint32) | np.where(turned, TRIANGLE_TURNED, 0).astype(np.uint32)
+            self._across = np.where(across < 0, NO_TRIANGLE, flagged)
             self._cut_first, self._cut_lines = first, lines.astype(np.float32).view(np.uint32).reshape(-1, 3)
             # Word t: where triangle t's cut lines start; word T: where the last one's end. Then
             # three words a line.
