@@ -30,7 +30,7 @@ from evalkit.core.scene.summary import scene_summary
 from evalkit.core.settings import DEPTH_TOLERANCE, PRESETS, RenderSettings, declared
 from evalkit.demo import run_demo, summary_lines
 from evalkit.doctor import diagnose, report_lines
-from evalkit.fidelity import DEFAULT_WIDTH, TOLERANCE, check_scene, fidelity_of, summary_line
+from evalkit.fidelity import DEFAULT_WIDTH, TOLERANCE, check_scene, fidelity_of, ratio_text, summary_line
 from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png, teaser
 from evalkit.metrics.bundles import compare_bundles, scene_surfaces
 from evalkit.metrics.confidence import confidence, pool_renders
@@ -86,7 +86,7 @@ def _scene_check(args) -> int:
         f"{w}x{h}, {args.spp} spp in {args.chunks} chunks, B={args.bounces}, seed {args.seed}"
     )
     for name, image in result["images"].items():
-        ratios = "  ".join(_ratio_text(r) for r in image["ratio"])
+        ratios = "  ".join(ratio_text(r) for r in image["ratio"])
         print(
             f"{name:<11} mean ratio (r, g, b) {ratios}; relMSE {image['relmse']:.3g}; "
             f"{100 * (1 - image['z_outside_share']):.2f} % of pixels pass the z-test"
@@ -94,19 +94,12 @@ def _scene_check(args) -> int:
     for w in result["approximations"]:
         print(f"import      {w}")
     if result["bundles"] is not None:
-        ratios = "  ".join(f"{name} {_ratio_text(r)}" for name, r in result["bundles"]["ratio"].items())
+        ratios = "  ".join(f"{name} {ratio_text(r)}" for name, r in result["bundles"]["ratio"].items())
         print(f"bundles     {args.render} bundles' image means over Mitsuba's render of the file: {ratios}")
     print(summary_line(result) + f" (tolerance {100 * result['tolerance']:g} %)")
     if args.json:
         print(json.dumps(result))
     return 0 if result["passed"] else 1
-
-
-def _ratio_text(row: dict) -> str:
-    if row["ratio"] is None:
-        return "n/a"
-    interval = "" if row["lo"] is None else f" [{row['lo']:.4f}, {row['hi']:.4f}]"
-    return f"{row['ratio']:.4f}{interval}"
 
 
 def _scene_info(args) -> int:

@@ -78,6 +78,8 @@ def check_scene(
         runs["imported"].append(chunk_images(mi, imported, integrators, bounces, s))
         progress(f"chunk {chunk + 1}/{chunks}: {per_chunk} spp of both, {time.perf_counter() - start:.1f} s")
     a, b = np.stack(runs["imported"]), np.stack(runs["original"])  # (C, 3 images, H, W, 3)
+    if not (b.any() or a.any()):
+        raise InputError(str(path), "Mitsuba renders the file and its import black: no light reaches the sensor")
     images, originals = {}, {}
     for i, name in enumerate(IMAGES):
         test, ref = a[:, i].mean(axis=0), b[:, i].mean(axis=0)
@@ -86,7 +88,7 @@ def check_scene(
         ratio = render_ratio(a[:, i].mean(axis=(1, 2)), b[:, i].mean(axis=(1, 2)))
         z = z_test(test, test_var, ref, ref_var)
         images[name] = {
-            "ratio": [_interval(row) for row in ratio["per_channel"]],
+            "ratio": [_channel(row, b[:, i, ..., c], a[:, i, ..., c]) for c, row in enumerate(ratio["per_channel"])],
             "relmse": relmse(test, ref).value,
             "z_outside_share": z["outside_share"],
             "z_tested": z["tested"],
@@ -130,7 +132,7 @@ def fidelity_of(scene) -> dict | None:
 def summary_line(result: dict) -> str:
     """The check in one line: the total image's ratios per channel and the z-test's share."""
     total = result["images"]["total"]
-    ratios = ", ".join(f"{r['ratio']:.4f}" for r in total["ratio"])
+    ratios = ", ".join(ratio_text(r, interval=False) for r in total["ratio"])
     verdict = "passed" if result["passed"] else "FAILED"
     return (
         f"import fidelity {verdict}: total image mean over Mitsuba's own load (r, g, b) {ratios}; "
@@ -143,6 +145,23 @@ def _key(scene_hash: str) -> str:
     return f"fidelity-{scene_hash}"
 
 
+def ratio_text(row: dict, interval: bool = True) -> str:
+    """A channel's ratio as the check prints it: with its interval, or what a black channel means."""
+    if row.get("black"):
+        return {"both": "black in both", "original": "black in the file only"}[row["black"]]
+    if row["ratio"] is None:
+        return "n/a"
+    bounds = "" if row["lo"] is None or not interval else f" [{row['lo']:.4f}, {row['hi']:.4f}]"
+    return f"{row['ratio']:.4f}{bounds}"
+
+
+def _channel(row: dict, original: np.ndarray, imported: np.ndarray) -> dict:
+    """A channel's ratio row; where the file renders it black, ``black`` says whether the import
+    does too ("both": nothing to compare, it passes) or not ("original": light the file has not)."""
+    black = None if original.any() else ("original" if imported.any() else "both")
+    return {**_interval(row), "black": black}
+
+
 def _interval(row: dict) -> dict:
     return {
         k: (None if row.get(k) is None or not np.isfinite(row[k]) else float(row[k])) for k in ("ratio", "lo", "hi")
@@ -150,6 +169,6 @@ def _interval(row: dict) -> dict:
 
 
 def _within(row: dict, tolerance: float) -> bool:
-    if row["ratio"] is None:  # a channel black in both (0 / 0)
-        return True
-    return abs(row["ratio"] - 1.0) <= tolerance
+    if row.get("black"):
+        return row["black"] == "both"
+    return row["ratio"] is not None and abs(row["ratio"] - 1.0) <= tolerance

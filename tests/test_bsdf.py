@@ -17,6 +17,7 @@ from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene import assemble, load_scene
 from evalkit.core.scene.assemble import look_at
 from evalkit.core.scene.builtin import glossy_box
+from evalkit.core.scene.gloss import metallic_roughness
 from evalkit.core.scene.mitsuba_io import load_mitsuba_dict, to_mitsuba_dict
 from evalkit.core.scene.model import Camera, Gloss, Light, Material, Mesh
 from evalkit.core.scene.summary import scene_summary
@@ -293,3 +294,10 @@ def test_a_principled_bsdf_becomes_the_nearest_gloss_and_says_what_it_leaves_out
             assert head_on == pytest.approx([0.9, 0.6, 0.3], abs=1e-4)
         else:  # Mitsuba's default specular 0.5 is a dielectric of index 1.5
             assert mat.gloss.eta[0] == pytest.approx(1.5) and mat.albedo == pytest.approx((0.5, 0.5, 0.5))
+
+
+@pytest.mark.parametrize(("metallic", "kind", "taken"), [(0.5, "roughconductor", 1), (0.49, "roughplastic", 0)])
+def test_a_partly_metallic_material_is_said_to_be_what_it_becomes(metallic, kind, taken):
+    # Half metallic becomes a metal; the note said "taken as 0" (Python rounds 0.5 to even).
+    gloss, what = metallic_roughness((0.8, 0.5, 0.3), metallic, 0.4)
+    assert gloss.kind == kind and f"metallic {metallic:g} is taken as {taken}" in what

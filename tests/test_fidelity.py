@@ -71,3 +71,44 @@ def test_an_approximated_bsdf_fails_the_check_and_scene_info_and_renders_say_so(
     timings = json.loads((out / "timings.json").read_text())
     assert timings["stats"]["import_fidelity"]["passed"] is False
     assert any("import fidelity FAILED" in w for w in timings["warnings"])
+
+
+# A floor and a cube under one point light; the camera's direction is substituted.
+ONE_LIGHT = """<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="45"/>
+    <transform name="to_world"><lookat origin="0, 1.5, 4" target="{target}" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/></film></sensor>
+  <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.6, 0.6"/></bsdf></shape>
+  <shape type="cube"><transform name="to_world"><scale value="0.5"/><translate y="0.5"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf></shape>
+  <emitter type="point"><point name="position" x="1" y="2.5" z="1"/>
+    <rgb name="intensity" value="{intensity}"/></emitter>
+</scene>
+"""
+
+
+def test_a_channel_black_in_the_file_and_its_import_passes_and_is_printed_as_such(tmp_path):
+    # A red light leaves green and blue black in both renders: nothing to compare there, and the
+    # check said so by failing to print its summary (a None ratio formatted as a number).
+    path = tmp_path / "red.xml"
+    path.write_text(ONE_LIGHT.format(target="0, 0.5, 0", intensity="8, 0, 0"))
+    run = run_evalkit("scene", "check", str(path), "--spp", "8", "--chunks", "2", "--json")
+    assert run.returncode == 0, run.stderr
+    result = json.loads(run.stdout.strip().splitlines()[-1])
+    red, green, blue = result["images"]["total"]["ratio"]
+    assert red["black"] is None and abs(red["ratio"] - 1.0) <= 0.01
+    assert green["black"] == blue["black"] == "both"
+    assert "import fidelity passed: total image mean over Mitsuba's own load (r, g, b) 1.0" in run.stdout
+    assert "black in both, black in both" in run.stdout
+
+
+def test_a_sensor_that_sees_no_light_is_refused_in_one_line(tmp_path):
+    # Looking away from everything: both renders are black, and a check of nothing would pass.
+    path = tmp_path / "away.xml"
+    path.write_text(ONE_LIGHT.format(target="0, 1.5, 8", intensity="8, 8, 8"))
+    run = run_evalkit("scene", "check", str(path), "--spp", "8", "--chunks", "2")
+    assert run.returncode != 0 and "Traceback" not in run.stderr
+    assert run.stderr.strip() == (
+        f"evalkit: error: {path}: Mitsuba renders the file and its import black: no light reaches the sensor"
+    )

@@ -19,7 +19,7 @@ def metallic_roughness(base, metallic: float, roughness: float, ior: float = 1.5
     alpha = max(roughness * roughness, MIN_ALPHA)
     notes = [f"GGX alpha = roughness^2 = {alpha:.4g}"]
     if 0.0 < metallic < 1.0:
-        notes.append(f"metallic {metallic:g} is taken as {round(metallic)}")
+        notes.append(f"metallic {metallic:g} is taken as {int(metallic >= 0.5)}")
     if metallic >= 0.5:
         f0 = np.sqrt(np.clip(np.asarray(base, dtype=np.float64), 0.0, 0.998))
         eta = tuple(float(x) for x in (1.0 + f0) / (1.0 - f0))
