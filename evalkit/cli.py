@@ -58,6 +58,18 @@ def _doctor(args) -> int:
     return 0 if ok else 1
 
 
+def _bsdf_text(material: dict) -> str:
+    """A material's BSDF as `evalkit scene info` prints it: a diffuse albedo, or the glossy lobe
+    and what it reflects (a conductor has no diffuse albedo)."""
+    b = material["bsdf"]
+    if b["type"] == "diffuse":
+        return f"albedo {_vec(material['albedo'])}"
+    lobe = f"{b['type']} ({b['distribution']}, alpha {b['alpha']:.4g})"
+    if b["type"] == "roughconductor":
+        return f"{lobe}, eta {_vec(b['eta'])}, k {_vec(b['k'])}"
+    return f"{lobe}, index {b['int_ior / ext_ior']:.4g} over albedo {_vec(material['albedo'])}"
+
+
 def _scene_check(args) -> int:
     bar = ProgressLine(quiet=args.json)
     try:
@@ -119,10 +131,7 @@ def _scene_info(args) -> int:
         tex = f", texture {m['texture'][1]}x{m['texture'][0]}" if m["texture"] else ""
         emit = f", emission {_vec(m['emission'])}" if max(m["emission"]) > 0 else ""
         note = f" [{m['source_bsdf']}, approximated]" if m["approximated"] else ""
-        print(
-            f"material    {m['name']}: albedo {_vec(m['albedo'])}{tex}{emit}"
-            f"{', two-sided' if m['twosided'] else ''}{note}"
-        )
+        print(f"material    {m['name']}: {_bsdf_text(m)}{tex}{emit}{', two-sided' if m['twosided'] else ''}{note}")
     for light in info["lights"]:
         print(f"light       {light['kind']}: {_vec(light['intensity'])}")
     c = info["camera"]

@@ -90,6 +90,17 @@ def test_render_warns_below_the_resolution_scene_info_advised(tmp_path):
         assert (warned in done.stdout) == below and any(warned in w for w in written) == below
 
 
+def test_scene_info_names_a_glossy_lobe_where_a_diffuse_albedo_would_read_black():
+    # A conductor has no diffuse albedo: the line printed "albedo (0, 0, 0)" for it.
+    corpus = Path(__file__).parent / "data" / "import_corpus" / "glossy.xml"
+    done = run_evalkit("scene", "info", str(corpus))
+    assert done.returncode == 0, done.stderr
+    lines = [line for line in done.stdout.splitlines() if line.startswith("material")]
+    assert "roughplastic (ggx, alpha 0.15), index 1.6 over albedo (0.5, 0.45, 0.4)" in lines[0], lines
+    conductors = [line for line in lines if "roughconductor (" in line]
+    assert len(conductors) == 2 and not any("albedo" in line for line in conductors), lines
+
+
 def test_scene_info_gltf_with_warnings(tmp_path):
     import trimesh
 
