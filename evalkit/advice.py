@@ -72,7 +72,7 @@ def known_to_the_cache(scene: Scene, result) -> None:
     if fidelity is None:
         return
     result.stats["import_fidelity"] = {
-        k: fidelity[k] for k in ("passed", "tolerance", "settings", "mitsuba", "evalkit")
+        k: fidelity.get(k) for k in ("passed", "verdict", "tolerance", "settings", "mitsuba", "evalkit")
     } | {"total": fidelity["images"]["total"]}
     if not fidelity["passed"]:
         result.warnings.append(summary_line(fidelity))

@@ -11,7 +11,7 @@ from conftest import run_evalkit
 
 from evalkit.core.scene import load_scene
 from evalkit.core.settings import RenderSettings
-from evalkit.fidelity import check_scene, fidelity_of
+from evalkit.fidelity import _verdict, check_scene, fidelity_of, summary_line
 
 CORPUS = Path(__file__).parent / "data" / "import_corpus"
 # The check's samples and chunks per corpus scene (default 32 in 4). Its z-test takes each pixel's
@@ -112,3 +112,31 @@ def test_a_sensor_that_sees_no_light_is_refused_in_one_line(tmp_path):
     assert run.stderr.strip() == (
         f"evalkit: error: {path}: Mitsuba renders the file and its import black: no light reaches the sensor"
     )
+
+
+def _row(ratio, lo, hi):
+    return {"ratio": ratio, "lo": lo, "hi": hi, "black": None}
+
+
+@pytest.mark.parametrize(
+    ("rows", "verdict"),
+    [
+        ([_row(1.004, 0.99, 1.02)] * 3, "passed"),
+        # 64 spp of a scene whose import is exact (256 spp: 0.9999 [0.9965, 1.0033]) read as FAILED
+        ([_row(1.0106, 0.9962, 1.0249), _row(1.0096, 0.9952, 1.0240), _row(1.0108, 0.9970, 1.0247)], "inconclusive"),
+        ([_row(1.004, 0.99, 1.02), _row(1.03, 1.01, 1.05), _row(1.0, 0.99, 1.01)], "failed"),
+    ],
+)
+def test_a_difference_within_noise_of_1_is_inconclusive_not_failed(rows, verdict):
+    assert _verdict(rows, 0.01, z_ok=True) == verdict
+    assert _verdict(rows, 0.01, z_ok=False) == "failed"  # pixels beyond their noise decide alone
+    result = {
+        "verdict": verdict,
+        "passed": verdict == "passed",
+        "images": {"total": {"ratio": rows, "z_outside_share": 0.0}},
+        "settings": {"spp": 64, "bounces": 2},
+        "tolerance": 0.01,
+    }
+    line = summary_line(result)
+    assert line.startswith(f"import fidelity {'FAILED' if verdict == 'failed' else verdict}: ")
+    assert ("check again with --spp 256" in line) == (verdict == "inconclusive")
