@@ -107,6 +107,7 @@ MATERIAL_TWOSIDED = np.uint32(2)
 MATERIAL_NEAREST = np.uint32(4)  # nearest texel, else bilinear
 MATERIAL_WRAP_MIRROR = np.uint32(8)  # mirrored repeat; with neither wrap bit, repeat
 MATERIAL_WRAP_CLAMP = np.uint32(16)
+MATERIAL_VERTEX_COLORS = np.uint32(32)  # the diffuse reflectance is the vertices' colours
 # Material.gloss.x: the BSDF (bsdf.glsl); .y: the microfacet distribution
 BSDF_DIFFUSE = np.uint32(0)
 BSDF_ROUGH_CONDUCTOR = np.uint32(1)
@@ -216,6 +217,7 @@ SHADER_CONSTANTS = {
     "MATERIAL_NEAREST": MATERIAL_NEAREST,
     "MATERIAL_WRAP_MIRROR": MATERIAL_WRAP_MIRROR,
     "MATERIAL_WRAP_CLAMP": MATERIAL_WRAP_CLAMP,
+    "MATERIAL_VERTEX_COLORS": MATERIAL_VERTEX_COLORS,
     "BSDF_DIFFUSE": BSDF_DIFFUSE,
     "BSDF_ROUGH_CONDUCTOR": BSDF_ROUGH_CONDUCTOR,
     "BSDF_ROUGH_PLASTIC": BSDF_ROUGH_PLASTIC,
@@ -276,7 +278,8 @@ MATERIAL = np.dtype(
     ]
 )
 TRIANGLE = np.dtype([("normal", "<f4", 3), ("material_flags", "<u4")])  # scene.glsl: Triangle
-VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2)])  # scene.glsl: Vertex
+# scene.glsl: Vertex
+VERTEX = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2), ("color", "<f4", 3)])
 # bundle.glsl: SplatPoint
 SPLAT_POINT = np.dtype([("triangle", "<u4"), ("barycentrics", "<u4"), ("radius", "<f4"), ("cut_lines", "<u4")])
 # scene.glsl: splat_shapes, a triangle's first cut line's word, its surface, or a third of a line

@@ -16,6 +16,7 @@ from gpu_impl.layout import (
     MATERIAL_NEAREST,
     MATERIAL_TEXTURED,
     MATERIAL_TWOSIDED,
+    MATERIAL_VERTEX_COLORS,
     MATERIAL_WRAP_CLAMP,
     MATERIAL_WRAP_MIRROR,
     MICROFACET_BECKMANN,
@@ -88,6 +89,8 @@ class GpuScene:
                 materials["texture"][i, :3] = (place(m.texture), w, h)
                 flags |= MATERIAL_TEXTURED | (MATERIAL_NEAREST if m.filter_type == "nearest" else 0)
                 flags |= {"repeat": 0, "mirror": MATERIAL_WRAP_MIRROR, "clamp": MATERIAL_WRAP_CLAMP}[m.wrap_mode]
+            if m.vertex_colors:
+                flags |= MATERIAL_VERTEX_COLORS
             materials["texture"][i, 3] = flags
             if m.gloss is not None:
                 g = m.gloss
@@ -234,10 +237,11 @@ class GpuScene:
 
     def _geometry(self, a) -> dict[str, bytes]:
         """The buffers that move with the geometry: positions (the raster passes' vertices),
-        vertex records (position, normal, uv: what shaders read) and triangle records."""
+        vertex records (position, normal, uv, colour: what shaders read) and triangle records."""
         positions = self._positions(a)
         vertices = np.zeros(len(positions), dtype=VERTEX)
-        vertices["position"], vertices["normal"], vertices["uv"] = positions, a.normals, a.uvs
+        vertices["position"], vertices["normal"] = positions, a.normals
+        vertices["uv"], vertices["color"] = a.uvs, a.colors
         return {
             "POSITIONS": positions[self.raster_sources].tobytes(),
             "VERTICES": vertices.tobytes(),

@@ -95,6 +95,7 @@ class ExactTracer:
         self._emission = np.array([m.emission for m in scene.materials], dtype=np.float64).reshape(-1, 3)
         self._albedo = np.array([m.albedo for m in scene.materials], dtype=np.float64).reshape(-1, 3)
         self._textured = [i for i, m in enumerate(scene.materials) if m.texture is not None]
+        self._vertex_colored = [i for i, m in enumerate(scene.materials) if m.vertex_colors]
 
     # --- first hits ----------------------------------------------------------------------------
 
@@ -180,6 +181,10 @@ class ExactTracer:
                 mat = self.scene.materials[m]
                 uv = self._interpolate(a.uvs, prim[sel], b1[sel], b2[sel])
                 albedo[sel] = sample_texture(mat.texture, uv, mat.to_uv, mat.wrap_mode, mat.filter_type)
+        for m in self._vertex_colored:
+            sel = np.nonzero(material == m)[0]
+            if len(sel):
+                albedo[sel] = np.clip(self._interpolate(a.colors, prim[sel], b1[sel], b2[sel]), 0.0, 1.0)
         return normal, geometric, albedo, self._emission[material], material
 
     def _interpolate(self, values: np.ndarray, prim: np.ndarray, b1: np.ndarray, b2: np.ndarray) -> np.ndarray:

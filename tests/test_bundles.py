@@ -47,6 +47,7 @@ from gpu_impl.scene_buffers import (
     surface_area_cdf,
     surface_weights,
 )
+from references.embree import ExactTracer
 
 # Matching tolerance for perfect bundles: float32 depth of a point within the bounding sphere.
 PERFECT_DEPTH_TOLERANCE = 1e-5
@@ -321,6 +322,41 @@ def test_texture_lookups_wrap_any_size_and_sign_as_mitsuba_does(gl, wrap_mode, f
     off = np.abs(bundles.albedo - expected).max(axis=1) > 2e-3  # half-float storage
     # Nearest lookups of points within float rounding of a texel border may pick its neighbour.
     assert off.mean() < (0.002 if filter_type == "nearest" else 1e-9), off.mean()
+
+
+# Four corners' colours, linear: every node's reflectance is theirs interpolated over its triangle.
+CORNER_COLORS = np.array([[0.9, 0.1, 0.1], [0.1, 0.8, 0.2], [0.2, 0.2, 0.9], [0.7, 0.7, 0.05]])
+
+
+def quad_colors_at(p: np.ndarray) -> np.ndarray:
+    """The colours of `CORNER_COLORS` interpolated at points p (N, 2) of QUAD, triangle by triangle."""
+    x, y = p[:, 0], p[:, 1]
+    lower = x >= y  # face 0 (corners 0, 1, 2): p = c0 + x (c1 - c0) + y (c2 - c1)
+    c0, c1, c2, c3 = CORNER_COLORS
+    return np.where(
+        lower[:, None],
+        c0 + x[:, None] * (c1 - c0) + y[:, None] * (c2 - c1),
+        c0 + x[:, None] * (c2 - c3) + y[:, None] * (c3 - c0),
+    )
+
+
+@pytest.mark.parametrize("method", ["perfect", "imperfect"])
+def test_vertex_colors_are_interpolated_over_each_triangle(gl, method):
+    # A material that reflects its mesh's vertex colours (Mitsuba's mesh_attribute texture), on
+    # the GPU and in Embree's exact bundles alike.
+    mesh = Mesh("quad", QUAD, QUAD_FACES, 0, colors=CORNER_COLORS)
+    scene = scene_of([mesh], [Material("painted", vertex_colors=True)])
+    bundles = build(gl, scene, method, K=4, R=64, points=8192)
+    p = (hit_points(bundles) + scene.origin)[:, :2]
+    inside = (p.min(axis=1) > 1e-3) & (p.max(axis=1) < 1.0 - 1e-3)
+    if bundles.has_splats:  # a splat that overhangs its triangle carries the triangle's colours on
+        inside &= (bundles.splat_triangle == 0) == (p[:, 0] >= p[:, 1])
+    assert inside.mean() > 0.75
+    expected = quad_colors_at(p[inside])
+    assert np.abs(bundles.albedo[inside] - expected).max() < 2e-3  # half-float storage
+    exact = ExactTracer(scene).bundles(bundles.directions, 64)
+    q = (hit_points(exact) + scene.origin)[:, :2]
+    assert np.abs(exact.albedo - quad_colors_at(q)).max() < 1e-6
 
 
 def test_coincident_triangles_are_kept_and_counted_redundant(gl):

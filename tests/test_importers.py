@@ -14,6 +14,7 @@ from evalkit.core.errors import InputError
 from evalkit.core.scene import load_scene
 from evalkit.core.scene.builtin import FURNACE_ALBEDO, FURNACE_EMISSION, furnace_radiance
 from evalkit.core.scene.colour import srgb_to_linear
+from evalkit.core.scene.edges import triangle_neighbours
 from evalkit.core.scene.mitsuba_io import SMOOTH_ALPHA, SPHERE_SEGMENTS, load_mitsuba_dict, to_mitsuba_dict
 
 
@@ -201,6 +202,40 @@ def test_gltf_glb_ply(tmp_path, ext):
         assert mat.approximated and any("glTF metallic-roughness" in w for w in s.warnings)
         assert mat.emission == pytest.approx((1.0, 0.5, 0.0))
         assert not any("default sun" in w for w in s.warnings)
+
+
+@pytest.mark.parametrize("ext, decode", [("ply", srgb_to_linear), ("glb", lambda c: c)])
+def test_mesh_vertex_colors_are_the_reflectance_decoded_as_the_format_says(tmp_path, ext, decode):
+    # PLY's 8-bit colours are sRGB, as its textures are; glTF's COLOR_0 is linear (its specification).
+    # They were averaged into one albedo, with only a warning.
+    m = trimesh.creation.icosphere(subdivisions=1)
+    codes = np.random.default_rng(3).integers(0, 256, (len(m.vertices), 4)).astype(np.uint8)
+    m.visual.vertex_colors = codes
+    m.export(tmp_path / f"ball.{ext}")
+    s = load_scene(tmp_path / f"ball.{ext}")
+    (mesh,), (mat,) = s.meshes, s.materials
+    assert mat.vertex_colors and not mat.approximated and mat.texture is None
+    assert not any("colour" in w for w in s.warnings), s.warnings
+    # trimesh keeps a PLY's vertices in their order; glTF's exporter may merge or reorder them
+    found = {tuple(np.round(p, 5)): c for p, c in zip(mesh.positions + s.origin, mesh.colors)}
+    for p, c in zip(m.vertices, codes[:, :3] / 255.0):
+        assert found[tuple(np.round(p, 5))] == pytest.approx(decode(c), abs=1e-6)
+
+
+def test_face_colors_give_each_corner_its_face_colour(tmp_path):
+    m = trimesh.creation.box()
+    colors = np.random.default_rng(4).integers(0, 256, (len(m.faces), 4)).astype(np.uint8)
+    m.visual.face_colors = colors
+    m.export(tmp_path / "box.ply")
+    s = load_scene(tmp_path / "box.ply")
+    (mesh,), (mat,) = s.meshes, s.materials
+    assert mat.vertex_colors and not mat.approximated
+    assert len(mesh.positions) == 3 * len(mesh.faces) == 36  # corners unshared
+    expected = srgb_to_linear(colors[:, :3] / 255.0)
+    np.testing.assert_allclose(mesh.colors.reshape(-1, 3, 3), np.repeat(expected[:, None], 3, axis=1), atol=1e-9)
+    # The box's faces still meet across their edges: the corners are welded by position there.
+    across, _ = triangle_neighbours(mesh.positions, mesh.faces, s.arrays().tri_normal)
+    assert (across >= 0).all()
 
 
 @pytest.mark.parametrize(
@@ -441,10 +476,27 @@ def test_instances_cylinders_and_flipped_shapes_import_as_mitsuba_sees_them(mi, 
             "shape 'lamp': textured area emission is not supported",
         ),
         (
-            '<shape type="ply" id="box"><string name="filename" value="colours.ply"/><bsdf type="diffuse" id="paint">'
+            '<shape type="ply" id="box"><string name="filename" value="colours.ply"/><bsdf type="blendbsdf" id="paint">'
+            '<texture type="mesh_attribute" name="weight"><string name="name" value="vertex_color"/></texture>'
+            '<bsdf type="diffuse"/><bsdf type="conductor"/></bsdf></shape>',
+            "BSDF 'paint': a mesh_attribute texture is supported as a diffuse reflectance of a mesh's vertex or face",
+        ),
+        (
+            '<shape type="ply" id="box"><string name="filename" value="rgb.ply"/><bsdf type="blendbsdf" id="paint">'
+            '<float name="weight" value="0.5"/><bsdf type="diffuse"><texture type="mesh_attribute" name="reflectance">'
+            '<string name="name" value="vertex_color"/></texture></bsdf><bsdf type="conductor"/></bsdf></shape>',
+            r"BSDF 'paint' \(BlendBSDF\): vertex or face colours are supported on diffuse BSDFs only",
+        ),
+        (
+            '<shape type="ply" id="box"><string name="filename" value="colours.ply"/><bsdf type="diffuse">'
             '<texture type="mesh_attribute" name="reflectance"><string name="name" value="vertex_color"/></texture>'
             "</bsdf></shape>",
-            "BSDF 'paint': vertex and face colours",
+            "shape 'box': mesh attribute 'vertex_color' has 32 values for 8 elements, not 3",  # RGBA
+        ),
+        (
+            '<shape type="sphere" id="ball"><bsdf type="diffuse"><texture type="mesh_attribute" name="reflectance">'
+            '<string name="name" value="vertex_color"/></texture></bsdf></shape>',
+            r"shape 'ball' \(Sphere\): a mesh_attribute texture needs a mesh's attributes",
         ),
         ('<emitter type="projector"/>', "emitter plugin Projector is not supported"),
     ],
@@ -455,6 +507,13 @@ def test_what_the_toolkit_cannot_represent_is_refused_in_one_line(tmp_path, body
     box = trimesh.creation.box()
     box.visual.vertex_colors = np.full((len(box.vertices), 4), 200, dtype=np.uint8)
     box.export(tmp_path / "colours.ply")
+    rgb = "".join(f"{x} {y} {z} 0.5 0.4 0.3\n" for x, y, z in box.vertices)
+    faces = "".join(f"3 {a} {b} {c}\n" for a, b, c in box.faces)
+    header = "".join(f"property float {p}\n" for p in "xyzrgb")
+    (tmp_path / "rgb.ply").write_text(
+        f"ply\nformat ascii 1.0\nelement vertex 8\n{header}element face 12\nproperty list uchar int vertex_indices\n"
+        f"end_header\n{rgb}{faces}"
+    )
     path = xml_scene(tmp_path, '<shape type="rectangle"/>' + body)
     with pytest.raises(InputError, match=message) as e:
         load_scene(path)

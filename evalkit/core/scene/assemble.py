@@ -94,6 +94,7 @@ def assemble(
     if not clean:
         raise InputError(source, f"the scene has no triangle geometry ({removed} triangles, all degenerate)")
 
+    clean = _vertex_colors(source, clean, materials, warnings)
     for i, mat in enumerate(materials):
         _check_finite(source, f"material '{mat.name}' albedo", mat.albedo)
         _check_finite(source, f"material '{mat.name}' emission", mat.emission)
@@ -190,7 +191,36 @@ def _validate_mesh(source: str, mesh: Mesh, n_materials: int) -> Mesh:
             raise InputError(source, f"{where}: uvs have shape {uvs.shape}, expected ({p.shape[0]}, 2)")
         if not np.isfinite(uvs).all():
             raise InputError(source, f"{where}: uvs contain NaN or Inf")
-    return Mesh(mesh.name, p, f.astype(np.int64), mesh.material, normals, uvs, mesh.motion)
+    colors = mesh.colors
+    if colors is not None:
+        colors = np.asarray(colors, dtype=np.float64)
+        if colors.shape != p.shape:
+            raise InputError(source, f"{where}: vertex colours have shape {colors.shape}, expected {p.shape}")
+        if not np.isfinite(colors).all():
+            raise InputError(source, f"{where}: vertex colours contain NaN or Inf")
+    return replace(mesh, positions=p, faces=f.astype(np.int64), normals=normals, uvs=uvs, colors=colors)
+
+
+def _vertex_colors(source: str, meshes: list[Mesh], materials: list[Material], warnings: list[str]) -> list[Mesh]:
+    """Checks that vertex colours and the materials that reflect them go together, and clamps
+    colours to [0, 1] (a reflectance above 1 makes light), saying how many were clamped."""
+    out = []
+    for mesh in meshes:
+        mat = materials[mesh.material]
+        where = f"mesh '{mesh.name}'"
+        if mat.vertex_colors and mesh.colors is None:
+            raise InputError(source, f"{where}: material '{mat.name}' reflects vertex colours and the mesh has none")
+        if mat.vertex_colors and mat.texture is not None:
+            raise InputError(source, f"{where}: vertex colours and a texture on one material are not supported")
+        if mesh.colors is not None and not mat.vertex_colors:
+            mesh = replace(mesh, colors=None)  # colours no material reflects: not part of the scene
+        elif mesh.colors is not None:
+            outside = int(((mesh.colors < 0.0) | (mesh.colors > 1.0)).any(axis=1).sum())
+            if outside:
+                warnings.append(f"{where}: {outside} vertex colour(s) outside [0, 1] clamped (a reflectance)")
+                mesh = replace(mesh, colors=np.clip(mesh.colors, 0.0, 1.0))
+        out.append(mesh)
+    return out
 
 
 def _unit_normals(source: str, mesh: Mesh) -> Mesh:
@@ -218,14 +248,13 @@ def _subset_faces(mesh: Mesh, keep: np.ndarray) -> Mesh:
     def pick(a):
         return None if a is None else a[used]
 
-    return Mesh(
-        mesh.name,
-        mesh.positions[used],
-        inverse.reshape(-1, 3),
-        mesh.material,
-        pick(mesh.normals),
-        pick(mesh.uvs),
-        mesh.motion,
+    return replace(
+        mesh,
+        positions=mesh.positions[used],
+        faces=inverse.reshape(-1, 3),
+        normals=pick(mesh.normals),
+        uvs=pick(mesh.uvs),
+        colors=pick(mesh.colors),
     )
 
 

@@ -7,7 +7,8 @@ dropped behind our back) and `assemble` validates what came back.
 Material mapping: a PBR material's base colour (factor times texture) or a simple material's
 diffuse colour and image become the albedo; 8-bit textures are sRGB and are linearised; factors
 are linear. glTF ``doubleSided`` maps to a two-sided material; OBJ and PLY have no such notion and
-are imported two-sided. A glTF metallic-roughness material becomes a rough conductor or a rough
+are imported two-sided. Vertex or face colours on a mesh without a material become its
+reflectance (`_colors`). A glTF metallic-roughness material becomes a rough conductor or a rough
 plastic (`_gloss` says how), with a warning, since glTF's BRDF is neither exactly. A file with no
 emissive material gets a default sun, and every file gets a default camera (trimesh reads none),
 both stated in the scene's warnings.
@@ -106,26 +107,37 @@ def _mesh(path, node, geometry, transform, materials, material_index, warnings) 
     if uv is not None and len(uv) == len(vertices):
         uvs = np.asarray(uv, dtype=np.float64).copy()
         uvs[:, 1] = 1.0 - uvs[:, 1]  # trimesh: v up from the image's bottom row; ours: row = v * H
+    colors = _colors(path, visual)
+    if colors is not None and getattr(visual, "kind", None) == "face":  # each corner its face's colour
+        positions, normals, uvs = (
+            None if a is None else a[faces].reshape(-1, a.shape[1]) for a in (positions, normals, uvs)
+        )
+        colors, faces = np.repeat(colors, 3, axis=0), np.arange(3 * len(faces)).reshape(-1, 3)
     key = id(getattr(visual, "material", visual))
     if key not in material_index:
         material_index[key] = len(materials)
-        materials.append(_material(node, visual, uvs is not None, warnings))
-    return Mesh(str(node), positions, faces, material_index[key], normals, uvs)
+        materials.append(_material(node, visual, uvs is not None, colors, warnings))
+    return Mesh(str(node), positions, faces, material_index[key], normals, uvs, colors=colors)
 
 
-def _material(node, visual, has_uvs: bool, warnings: list[str]) -> Material:
+def _colors(path: str, visual) -> np.ndarray | None:
+    """A mesh's vertex or face colours as linear reflectance, or None. glTF's are linear (its
+    specification); PLY's and OBJ's 8-bit colours are sRGB, as their textures are."""
+    kind = getattr(visual, "kind", None) if getattr(visual, "material", None) is None else None
+    if kind not in ("vertex", "face"):
+        return None
+    codes = np.asarray(visual.vertex_colors if kind == "vertex" else visual.face_colors, dtype=np.float64)[:, :3]
+    linear = path.lower().endswith((".gltf", ".glb"))
+    return codes / 255.0 if linear else srgb_to_linear(codes / 255.0)
+
+
+def _material(node, visual, has_uvs: bool, colors, warnings: list[str]) -> Material:
     material = getattr(visual, "material", None)
-    if material is None:  # ColorVisuals: per-vertex or per-face colours
-        kind = getattr(visual, "kind", None)
-        if kind is None:
+    if material is None:  # ColorVisuals: per-vertex or per-face colours, or none
+        if colors is None:
             return Material(f"{node}.default", albedo=(0.5, 0.5, 0.5), twosided=True, source_bsdf="none")
-        colors = (
-            np.asarray(visual.vertex_colors if kind == "vertex" else visual.face_colors, dtype=np.float64)[:, :3]
-            / 255.0
-        )
-        mean = rgb(srgb_to_linear(colors).mean(axis=0))
-        warnings.append(f"'{node}': {kind} colours are approximated by their mean {tuple(round(c, 4) for c in mean)}")
-        return Material(f"{node}.colors", albedo=mean, twosided=True, source_bsdf=f"{kind} colors", approximated=True)
+        kind = f"{visual.kind} colors"
+        return Material(f"{node}.colors", rgb(colors.mean(axis=0)), twosided=True, source_bsdf=kind, vertex_colors=True)
 
     name = getattr(material, "name", None) or f"{node}.material"
     kind = type(material).__name__

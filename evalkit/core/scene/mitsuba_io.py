@@ -208,7 +208,7 @@ def from_mitsuba_scene(mi, mi_scene, name: str, source: str, notes: list[str] = 
     materials: list[Material] = []
     material_index: dict[tuple, int] = {}
     meshes: list[Mesh] = []
-    shapes = [(shape, _shape_geometry(mi, shape, shape.class_name())) for shape in mi_scene.shapes()]
+    shapes = [(shape, _shape_geometry(mi, shape, shape.class_name(), source)) for shape in mi_scene.shapes()]
     # Mitsuba merges meshes that share a BSDF, in an order that changes from run to run, so the
     # shapes and their triangles are put in a canonical order: the content hash, primitive ids and
     # reference store must not depend on thread timing.
@@ -227,9 +227,9 @@ def from_mitsuba_scene(mi, mi_scene, name: str, source: str, notes: list[str] = 
         key = (bsdf.ptr, emission)
         if key not in material_index:
             material_index[key] = len(materials)
-            materials.append(_material(mi, bsdf, shape_name, emission, warnings, source))
-        positions, faces, normals, uvs = geometry
-        meshes.append(Mesh(shape_name, positions, faces, material_index[key], normals, uvs))
+            materials.append(_material(mi, bsdf, shape_name, emission, warnings, source, geometry[4]))
+        positions, faces, normals, uvs, colors = geometry
+        meshes.append(Mesh(shape_name, positions, faces, material_index[key], normals, uvs, colors=colors))
 
     lights = []
     for emitter in mi_scene.emitters():
@@ -260,14 +260,15 @@ def _matrix(transform) -> np.ndarray:
     return _np(transform.matrix).reshape(4, 4)
 
 
-def _shape_geometry(mi, shape, kind):
-    """(positions, faces, normals or None, uvs or None) in world space, or None if unsupported."""
+def _shape_geometry(mi, shape, kind, source: str):
+    """(positions, faces, normals or None, uvs or None, vertex colours or None) in world space, or
+    None if unsupported."""
     if shape.is_mesh():
         positions = _np(shape.vertex_positions_buffer()).reshape(-1, 3)
         faces = np.array(shape.faces_buffer(), dtype=np.int64).reshape(-1, 3)
         normals = _np(shape.vertex_normals_buffer()).reshape(-1, 3) if shape.has_vertex_normals() else None
         uvs = _np(shape.vertex_texcoords_buffer()).reshape(-1, 2) if shape.has_vertex_texcoords() else None
-        return positions, faces, normals, uvs
+        return _mesh_colors(mi, shape, source, positions, faces, normals, uvs)
     tessellate = {
         "Sphere": lambda: unit_sphere(SPHERE_SEGMENTS),
         "Disk": lambda: unit_disk(DISK_SEGMENTS),
@@ -277,11 +278,53 @@ def _shape_geometry(mi, shape, kind):
         pos, faces, normals, uv = tessellate[kind]()
         if shape.has_flipped_normals():  # flip_normals: the front side (and emission) faces in
             faces, normals = faces[:, ::-1], -normals
-        return _transform((pos, faces, normals, uv), _matrix(mi.traverse(shape)["to_world"]))
+        if _color_attribute(shape.bsdf()) is not None:
+            raise InputError(
+                source, f"shape '{shape.id()}' ({kind}): a mesh_attribute texture needs a mesh's attributes"
+            )
+        return (*_transform((pos, faces, normals, uv), _matrix(mi.traverse(shape)["to_world"])), None)
     return None
 
 
-def _canonical_order(positions, faces, normals, uvs):
+# A diffuse BSDF's reflectance read from a mesh attribute.
+MESH_ATTRIBUTE = re.compile(r'\breflectance = MeshAttribute\[\s*name = "((?:vertex|face)_\w+)",\s*scale = "([^"]+)"')
+
+
+def _color_attribute(bsdf) -> tuple[str, float] | None:
+    """The mesh attribute (its name and scale) that ``bsdf``'s diffuse reflectance reads, or None;
+    a mesh_attribute anywhere else in it (a blend weight, a roughness) is refused by `_material`."""
+    found = {(m.group(1), float(m.group(2))) for m in MESH_ATTRIBUTE.finditer(str(bsdf))}
+    return found.pop() if len(found) == 1 else None
+
+
+def _mesh_colors(mi, shape, source: str, positions, faces, normals, uvs):
+    """The mesh with the colours its BSDF reads from a vertex or face attribute (times the
+    texture's scale), as vertex colours: a face attribute gives each corner its face's colour, so
+    the corners are not shared. Mitsuba reflects an attribute of 3 channels; one of 4 (a PLY's
+    RGBA) it renders black, so any other count is refused."""
+    found = _color_attribute(shape.bsdf())
+    if found is None:
+        return positions, faces, normals, uvs, None
+    name, scale = found
+    params = mi.traverse(shape)
+    per = len(positions) if name.startswith("vertex_") else len(faces)
+    values = _np(params[name]) if name in params else np.zeros(0)
+    if values.size != 3 * per:
+        raise InputError(
+            source,
+            f"shape '{shape.id()}': mesh attribute '{name}' has {values.size} values for {per} elements, not 3 "
+            "(rgb) each, which Mitsuba's mesh_attribute reflects",
+        )
+    colors = values.reshape(per, 3) * scale
+    if name.startswith("face_"):
+        positions, normals, uvs = (
+            None if a is None else a[faces].reshape(-1, a.shape[1]) for a in (positions, normals, uvs)
+        )
+        colors, faces = np.repeat(colors, 3, axis=0), np.arange(3 * len(faces)).reshape(-1, 3)
+    return positions, faces, normals, uvs, colors
+
+
+def _canonical_order(positions, faces, normals, uvs, colors):
     """The mesh with its triangles sorted by their corner positions and its vertices in order of
     first use (winding and corner order kept)."""
     key = positions[faces].reshape(len(faces), 9)
@@ -294,7 +337,7 @@ def _canonical_order(positions, faces, normals, uvs):
     def pick(a):
         return None if a is None else a[vertices]
 
-    return positions[vertices], remap[faces], pick(normals), pick(uvs)
+    return positions[vertices], remap[faces], pick(normals), pick(uvs), pick(colors)
 
 
 def _transform(local, to_world: np.ndarray):
@@ -324,15 +367,27 @@ def _area_emission(mi, shape, shape_name: str, source: str):
     return rgb(_np(params["radiance.value"]))
 
 
-def _material(mi, bsdf, shape_name: str, emission, warnings: list[str], source: str) -> Material:
+def _material(mi, bsdf, shape_name: str, emission, warnings: list[str], source: str, colors) -> Material:
     params = mi.traverse(bsdf)
     kind = bsdf.class_name()
     name = bsdf.id() or f"{shape_name}.bsdf"
-    if "MeshAttribute[" in str(bsdf):
-        raise InputError(source, f"BSDF '{name}': vertex and face colours (mesh_attribute textures) are not supported")
+    attributes = str(bsdf).count("MeshAttribute[")
+    if attributes and (colors is None or attributes != len(MESH_ATTRIBUTE.findall(str(bsdf)))):
+        raise InputError(
+            source,
+            f"BSDF '{name}': a mesh_attribute texture is supported as a diffuse reflectance of a mesh's vertex or "
+            "face colours only",
+        )
     diffuse = kind == "SmoothDiffuse" or (kind == "TwoSidedBRDF" and _twosided_diffuse(mi, bsdf))
     gloss, approximation = (None, None) if diffuse else _gloss(bsdf, params, name, source)
-    texture, albedo, off = ({}, (0.0, 0.0, 0.0), 0.0) if _conductor(gloss) else _reflectance(mi, bsdf, params)
+    if colors is not None and not diffuse:  # Mitsuba's glossy BSDFs need their base's mean, which mesh_attribute lacks
+        raise InputError(source, f"BSDF '{name}' ({kind}): vertex or face colours are supported on diffuse BSDFs only")
+    if colors is not None:
+        texture, albedo, off = {"vertex_colors": True}, rgb(colors.mean(axis=0)), 0.0
+    elif _conductor(gloss):
+        texture, albedo, off = {}, (0.0, 0.0, 0.0), 0.0
+    else:
+        texture, albedo, off = _reflectance(mi, bsdf, params)
     notes = [] if approximation is None else [approximation]
     if not diffuse and gloss is None:
         # A rough conductor's "diffuse reflectance" reads as 20 or more: a diffuse surface with it
@@ -629,6 +684,8 @@ def to_mitsuba_dict(scene: Scene, mi, spp: int = 64, width: int | None = None, h
             params["vertex_normals"] = mi.Float(mesh.normals.astype(np.float32).ravel())
         if mesh.uvs is not None:
             params["vertex_texcoords"] = mi.Float(mesh.uvs.astype(np.float32).ravel())
+        if mesh.colors is not None:
+            m.add_attribute("vertex_color", 3, mi.Float(mesh.colors.astype(np.float32).ravel()))
         params.update()
         d[f"mesh{i:05d}"] = m
     for i, light in enumerate(scene.lights):
@@ -662,7 +719,9 @@ def sensor_dict(camera: Camera, mi, spp: int, width: int | None, height: int | N
 
 
 def _bsdf_dict(mi, mat: Material) -> dict:
-    if mat.texture is None:
+    if mat.vertex_colors:
+        reflectance = {"type": "mesh_attribute", "name": "vertex_color"}
+    elif mat.texture is None:
         reflectance = {"type": "rgb", "value": list(mat.albedo)}
     else:
         reflectance = {

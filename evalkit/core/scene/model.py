@@ -67,7 +67,9 @@ class Material:
     ``wrap_mode`` and ``filter_type``, as Mitsuba's. ``source_bsdf`` names what the file asked for,
     and ``approximated`` says whether the import approximated it (a smooth plastic or conductor
     made rough, a principled or glTF material mapped to the nearest gloss, another BSDF treated as
-    diffuse, a procedural texture baked).
+    diffuse, a procedural texture baked). With ``vertex_colors`` the diffuse reflectance is each
+    mesh's own `Mesh.colors`, interpolated over every triangle as Mitsuba's ``mesh_attribute``
+    texture of ``vertex_color`` interpolates it; ``albedo`` then holds their mean (for reports).
     """
 
     name: str
@@ -81,6 +83,7 @@ class Material:
     wrap_mode: str = "repeat"
     filter_type: str = "bilinear"
     gloss: Gloss | None = None
+    vertex_colors: bool = False
 
     @property
     def emissive(self) -> bool:
@@ -119,7 +122,9 @@ class Mesh:
 
     positions (V, 3) float64 in scene space; faces (F, 3) int64 vertex indices, counter-clockwise
     seen from the front; normals (V, 3) float64 unit shading normals or None (flat shading with
-    the geometric normal, as Mitsuba does without vertex normals); uvs (V, 2) float64 or None.
+    the geometric normal, as Mitsuba does without vertex normals); uvs (V, 2) float64 or None;
+    colors (V, 3) float64 linear reflectance per vertex, where its material has ``vertex_colors``
+    (face colours are vertex colours of unshared corners).
     """
 
     name: str
@@ -129,6 +134,7 @@ class Mesh:
     normals: np.ndarray | None = None
     uvs: np.ndarray | None = None
     motion: Motion | None = None  # rigid animation; None for static geometry
+    colors: np.ndarray | None = None
 
     def triangle_areas(self) -> np.ndarray:
         p = self.positions[self.faces]
@@ -246,6 +252,7 @@ class SceneFeatures:
     twosided: bool
     approximated_bsdfs: tuple[str, ...]
     glossy: bool = False  # a material has a `Gloss`
+    vertex_colors: bool = False  # a material reflects its meshes' vertex colours
 
 
 @dataclass(frozen=True, eq=False)
@@ -253,7 +260,8 @@ class SceneArrays:
     """All triangles of a scene in one indexed array set; a triangle's index here is its primitive id
     everywhere (GL bundles, Embree, BundleSet.prim_id): meshes in order, faces in order.
 
-    positions (V, 3), normals (V, 3) (zero rows where the mesh has none), uvs (V, 2) float64;
+    positions (V, 3), normals (V, 3) (zero rows where the mesh has none), uvs (V, 2), colors (V, 3)
+    (zero rows where the mesh has none) float64;
     faces (T, 3) int64; tri_material (T,) int64; tri_normal (T, 3) unit geometric normals
     (counter-clockwise front); tri_smooth (T,) bool, whether the shading normal interpolates
     ``normals`` (else it is ``tri_normal``); tri_area (T,) float64.
@@ -262,6 +270,7 @@ class SceneArrays:
     positions: np.ndarray
     normals: np.ndarray
     uvs: np.ndarray
+    colors: np.ndarray
     faces: np.ndarray
     tri_material: np.ndarray
     tri_normal: np.ndarray
@@ -301,7 +310,7 @@ class Scene:
 
     def arrays(self) -> SceneArrays:
         """The scene's triangles as one `SceneArrays` (see there for the primitive ids)."""
-        positions, normals, uvs, faces, material, smooth = [], [], [], [], [], []
+        positions, normals, uvs, colors, faces, material, smooth = [], [], [], [], [], [], []
         base = 0
         for mesh in self.meshes:
             p, f, n, uv = mesh.positions, mesh.faces, mesh.normals, mesh.uvs
@@ -314,6 +323,7 @@ class Scene:
             positions.append(p)
             normals.append(np.zeros_like(p) if n is None else n)
             uvs.append(np.zeros((len(p), 2)) if uv is None else uv)
+            colors.append(np.zeros_like(p) if mesh.colors is None else mesh.colors)
             faces.append(f + base)
             material.append(np.full(len(f), mesh.material, dtype=np.int64))
             smooth.append(np.full(len(f), n is not None))
@@ -327,6 +337,7 @@ class Scene:
             positions,
             np.concatenate(normals),
             np.concatenate(uvs),
+            np.concatenate(colors),
             faces,
             np.concatenate(material),
             cross / twice_area[:, None],
@@ -368,6 +379,7 @@ class Scene:
             twosided=any(m.twosided for m in mats),
             approximated_bsdfs=tuple(sorted({f"{m.name} ({m.source_bsdf})" for m in mats if m.approximated})),
             glossy=any(m.gloss is not None for m in mats),
+            vertex_colors=any(m.vertex_colors for m in mats),
         )
 
     def content_hash(self) -> str:
@@ -390,6 +402,8 @@ class Scene:
             put(m.positions, m.faces.astype(np.int64), m.normals, m.uvs, m.material)
             if m.motion is not None:  # static scenes keep the hashes their stored references have
                 put(m.motion)
+            if m.colors is not None:
+                put(m.colors)
         for mat in self.materials:
             put(mat.albedo, mat.texture, mat.emission, mat.twosided)
             if mat.gloss is not None:  # diffuse scenes keep the hashes of their stored references

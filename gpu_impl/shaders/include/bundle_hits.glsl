@@ -20,7 +20,7 @@ BundleHit triangle_hit(vec3 position, uint t) {
     vec3 p0, p1, p2;
     uvec3 v = triangle_corners(t, p0, p1, p2);
     vec2 b = plane_barycentrics(p0, p1 - p0, p2 - p0, position);
-    return BundleHit(t, position, shading_normal(t, v, b.x, b.y), material_albedo(triangle_material(t), surface_uv(v, b.x, b.y)));
+    return BundleHit(t, position, shading_normal(t, v, b.x, b.y), material_albedo(triangle_material(t), v, b));
 }
 
 BundleHit bundle_hit(vec3 position, uint ref) {
@@ -33,7 +33,7 @@ BundleHit bundle_hit(vec3 position, uint ref) {
     vec2 b = plane_barycentrics(p0, p1 - p0, p2 - p0, position);
     vec2 centre = point_barycentrics(ref);
     hit.normal = shading_normal(hit.triangle, v, centre.x, centre.y);
-    hit.albedo = material_albedo(triangle_material(hit.triangle), surface_uv(v, b.x, b.y));
+    hit.albedo = material_albedo(triangle_material(hit.triangle), v, b);
     return hit;
 #else
     return triangle_hit(position, ref);

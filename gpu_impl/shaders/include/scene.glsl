@@ -24,6 +24,7 @@ struct Vertex {
     float x, y, z;     // position relative to the bundle centre
     float nx, ny, nz;  // normal; zero where a mesh has none
     float u, v;
+    float r, g, b;     // linear reflectance, where the material reflects vertex colours
 };
 // The flags MATERIAL_TEXTURED, MATERIAL_TWOSIDED, TRIANGLE_SMOOTH, TRIANGLE_SOLID, TRIANGLE_CUT, the
 // mask TRIANGLE_MATERIAL and MAX_SPLAT_CUTS come from gpu_impl/layout.py.
@@ -124,6 +125,8 @@ vec2 surface_uv(uvec3 v, float b1, float b2) {
     vec2 uv0 = vertex_uv(v.x);
     return uv0 + b1 * (vertex_uv(v.y) - uv0) + b2 * (vertex_uv(v.z) - uv0);
 }
+
+vec3 vertex_color(uint i) { return vec3(vertices[i].r, vertices[i].g, vertices[i].b); }
 
 // The barycentrics (b1, b2) of p projected onto the plane of the triangle with corner p0 and
 // edges e1, e2: outside [0, 1] beyond the triangle, so a splat that overhangs its triangle
@@ -326,16 +329,23 @@ int wrap_texel(int i, int n, bool mirror, bool clamped) {
     return m < n ? m : period - 1 - m;
 }
 
-// Mitsuba's bitmap lookup: the mesh's uv through to_uv, then texel (row, col) centred on
-// ((col + 0.5) / W, (row + 0.5) / H), bilinear or nearest, wrapped by wrap_texel; the same as
-// evalkit.core.scene.colour.sample_texture. TEXTURES 0 (a scene without textures) compiles the
-// texture fetch out.
+// Material m's diffuse reflectance at barycentrics b of a triangle with vertices v: its vertices'
+// colours interpolated (Mitsuba's mesh_attribute texture; clamped to [0, 1], as a splat's b may
+// lie beyond its triangle), or Mitsuba's bitmap lookup: the mesh's uv through to_uv, then texel
+// (row, col) centred on ((col + 0.5) / W, (row + 0.5) / H), bilinear or nearest, wrapped by
+// wrap_texel; the same as evalkit.core.scene.colour.sample_texture. TEXTURES 0 (a scene whose
+// reflectance varies over no surface: no textures, no vertex colours) compiles both out.
 #ifndef TEXTURES
 #define TEXTURES 1
 #endif
-vec3 material_albedo(uint m, vec2 uv) {
+vec3 material_albedo(uint m, uvec3 v, vec2 b) {
     uvec4 tex = materials[m].texture;
+    if (TEXTURES != 0 && (tex.w & MATERIAL_VERTEX_COLORS) != 0u) {
+        vec3 c0 = vertex_color(v.x);
+        return clamp(c0 + b.x * (vertex_color(v.y) - c0) + b.y * (vertex_color(v.z) - c0), 0.0, 1.0);
+    }
     if (TEXTURES == 0 || (tex.w & MATERIAL_TEXTURED) == 0u) return materials[m].albedo.rgb;
+    vec2 uv = surface_uv(v, b.x, b.y);
     ivec2 size = ivec2(tex.yz);
     bool mirror = (tex.w & MATERIAL_WRAP_MIRROR) != 0u, clamped = (tex.w & MATERIAL_WRAP_CLAMP) != 0u;
     vec3 uv1 = vec3(uv, 1.0);

@@ -119,7 +119,7 @@ Surface reflective_shadow_map(Light light, vec3 origin, vec3 omega) {
     s.position = origin + depth * omega;
     s.normal = n;
     s.geometric = dot(g, omega) < 0.0 ? g : -g;
-    s.albedo = material_albedo(m, surface_uv(v, b1, b2));
+    s.albedo = material_albedo(m, v, vec2(b1, b2));
     s.triangle = t;
     return s;
 }

@@ -60,7 +60,7 @@ void main() {
         if (front || material_twosided(m)) {
             if (front) direct = materials[m].emission.rgb;  // emitters emit from their front only
             else n = -n;
-            vec3 albedo = material_albedo(m, surface_uv(v, b1, b2));
+            vec3 albedo = material_albedo(m, v, vec2(b1, b2));
 #if SHADOW_LIGHTS && GLOSSY
             if (gathers) direct += light_reflected(eye + depth * dir, n, 0.0, m, albedo, -dir);
 #elif SHADOW_LIGHTS
