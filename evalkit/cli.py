@@ -62,6 +62,8 @@ def _bsdf_text(material: dict) -> str:
     """A material's BSDF as `evalkit scene info` prints it: a diffuse albedo, or the glossy lobe
     and what it reflects (a conductor has no diffuse albedo)."""
     b = material["bsdf"]
+    if material["vertex_colors"]:
+        return f"vertex colours (mean {_vec(material['albedo'])})"
     if b["type"] == "diffuse":
         return f"albedo {_vec(material['albedo'])}"
     lobe = f"{b['type']} ({b['distribution']}, alpha {b['alpha']:.4g})"
@@ -141,7 +143,7 @@ def _scene_info(args) -> int:
     )
     print(
         f"features    textures={f['textures']} emitters={f['emitters']} environment={f['environment']} "
-        f"lights={','.join(f['light_types']) or '-'}"
+        f"lights={','.join(f['light_types']) or '-'} vertex_colors={f['vertex_colors']}"
     )
     advice = cached_resolution_advice(scene, args.seed, bounces=args.bounces)
     probed = ", ".join(f"{100 * e:.1f} % at R={r}" for r, e in advice["wrong_lookups_per_path"].items())

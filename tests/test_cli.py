@@ -101,6 +101,14 @@ def test_scene_info_names_a_glossy_lobe_where_a_diffuse_albedo_would_read_black(
     assert len(conductors) == 2 and not any("albedo" in line for line in conductors), lines
 
 
+def test_scene_info_says_a_material_reflects_vertex_colours():
+    corpus = Path(__file__).parent / "data" / "import_corpus" / "vertex_colors.xml"
+    done = run_evalkit("scene", "info", str(corpus))
+    assert done.returncode == 0, done.stderr
+    painted = [line for line in done.stdout.splitlines() if "vertex colours (mean (" in line]
+    assert len(painted) == 2 and "vertex_colors=True" in done.stdout, done.stdout
+
+
 def test_scene_info_gltf_with_warnings(tmp_path):
     import trimesh
 

@@ -27,6 +27,7 @@ def scene_summary(scene: Scene) -> dict:
                 "name": scene.materials[i].name,
                 "albedo": list(scene.materials[i].albedo),
                 "texture": None if scene.materials[i].texture is None else list(scene.materials[i].texture.shape[:2]),
+                "vertex_colors": scene.materials[i].vertex_colors,
                 "emission": list(scene.materials[i].emission),
                 "twosided": scene.materials[i].twosided,
                 "source_bsdf": scene.materials[i].source_bsdf,
@@ -53,6 +54,7 @@ def scene_summary(scene: Scene) -> dict:
             "twosided": f.twosided,
             "approximated_bsdfs": list(f.approximated_bsdfs),
             "glossy": f.glossy,
+            "vertex_colors": f.vertex_colors,
         },
         "warnings": list(scene.warnings),
     }
