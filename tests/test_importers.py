@@ -204,6 +204,26 @@ def test_gltf_glb_ply(tmp_path, ext):
         assert not any("default sun" in w for w in s.warnings)
 
 
+@pytest.mark.parametrize("normals", ["", '<boolean name="face_normals" value="true"/>'])
+def test_a_mesh_with_flip_normals_faces_the_other_way(tmp_path, normals):
+    # Mitsuba turns a mesh's normals where it shades it: an emitter lights the other side. The
+    # import kept the file's winding, and such a lamp lit nothing (the import check: 0 of the image).
+    (tmp_path / "up.obj").write_text(
+        "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvn 0 1 0\nf 1//1 3//1 2//1\nf 1//1 4//1 3//1\n"
+    )
+    s = load_scene(
+        xml_scene(
+            tmp_path,
+            f'<shape type="obj"><string name="filename" value="up.obj"/>{normals}'
+            '<boolean name="flip_normals" value="true"/><emitter type="area"/></shape>',
+        )
+    )
+    a = s.arrays()
+    assert np.allclose(a.tri_normal, [0, -1, 0])
+    if not normals:  # the file's vertex normals turn with the faces
+        assert a.tri_smooth.all() and np.allclose(a.normals, [0, -1, 0])
+
+
 @pytest.mark.parametrize("ext, decode", [("ply", srgb_to_linear), ("glb", lambda c: c)])
 def test_mesh_vertex_colors_are_the_reflectance_decoded_as_the_format_says(tmp_path, ext, decode):
     # PLY's 8-bit colours are sRGB, as its textures are; glTF's COLOR_0 is linear (its specification).

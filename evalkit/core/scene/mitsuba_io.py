@@ -268,6 +268,8 @@ def _shape_geometry(mi, shape, kind, source: str):
         faces = np.array(shape.faces_buffer(), dtype=np.int64).reshape(-1, 3)
         normals = _np(shape.vertex_normals_buffer()).reshape(-1, 3) if shape.has_vertex_normals() else None
         uvs = _np(shape.vertex_texcoords_buffer()).reshape(-1, 2) if shape.has_vertex_texcoords() else None
+        if shape.has_flipped_normals():  # Mitsuba turns the normals when it shades: the front side is the other
+            faces, normals = faces[:, ::-1].copy(), None if normals is None else -normals
         return _mesh_colors(mi, shape, source, positions, faces, normals, uvs)
     tessellate = {
         "Sphere": lambda: unit_sphere(SPHERE_SEGMENTS),
