@@ -178,6 +178,26 @@ def test_obj_with_mtl_texture(tmp_path):
     assert any("default sun" in w for w in s.warnings) and any("default camera" in w for w in s.warnings)
 
 
+def test_obj_materials_emit_their_ke_and_keep_their_kd_and_say_what_they_leave_out(tmp_path):
+    # MTL's Ke was dropped (the lamp went dark and a default sun lit the scene instead), and Kd was
+    # read from trimesh's 8-bit copy (0.7 became 0.698).
+    (tmp_path / "m.mtl").write_text(
+        "newmtl white\nKd 0.7 0.6 0.5\nnewmtl lamp\nKd 0 0 0\nKe 10 9 8\n"
+        "newmtl shiny\nKd 0.2 0.2 0.2\nKs 0.5 0.5 0.5\nd 0.8\n"
+    )
+    quads = "".join(
+        f"v -1 {y} -1\nv 1 {y} -1\nv 1 {y} 1\nv -1 {y} 1\nusemtl {m}\nf {4 * i + 1} {4 * i + 3} {4 * i + 2}\n"
+        for i, (y, m) in enumerate([(0, "white"), (2, "lamp"), (1, "shiny")])
+    )
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\n" + quads)
+    s = load_scene(tmp_path / "m.obj")
+    mats = {m.name: m for m in s.materials}
+    assert mats["white"].albedo == (0.7, 0.6, 0.5) and mats["lamp"].emission == (10.0, 9.0, 8.0)
+    assert not any("default sun" in w for w in s.warnings)
+    (left,) = [w for w in s.warnings if "left out" in w]
+    assert left.startswith("material 'shiny': its specular Ks (0.5, 0.5, 0.5) and its transparency (d, Tr)")
+
+
 @pytest.mark.parametrize("ext", ["gltf", "glb", "ply"])
 def test_gltf_glb_ply(tmp_path, ext):
     m = trimesh.creation.box(extents=[1, 2, 3])

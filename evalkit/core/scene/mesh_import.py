@@ -148,9 +148,9 @@ def _material(node, visual, has_uvs: bool, colors, warnings: list[str]) -> Mater
         twosided = bool(material.doubleSided)
         approximated = True  # glTF's BRDF is not Mitsuba's rough conductor or plastic (`_gloss`)
     else:  # SimpleMaterial (OBJ/MTL)
-        factor = _color(getattr(material, "diffuse", None), default=(0.8, 0.8, 0.8))
+        factor, emission = _mtl(material, name, warnings)
         image = getattr(material, "image", None)
-        emission, twosided, approximated = (0.0, 0.0, 0.0), True, False
+        twosided, approximated = True, False
     texture = None
     if image is not None:
         if not has_uvs:
@@ -180,6 +180,36 @@ def _gloss(material, name: str, base: tuple, warnings: list[str]) -> Gloss:
         what += "; its metallic-roughness texture is replaced by its factors"
     warnings.append(f"material '{name}' (glTF metallic-roughness) is approximated as {what}")
     return gloss
+
+
+def _mtl(material, name: str, warnings: list[str]) -> tuple[tuple, tuple]:
+    """An MTL material's diffuse colour (Kd) and emitted radiance (Ke), read from its statements
+    as written: trimesh's own colours are rounded to 8 bits, and it has no emission. A specular
+    (Ks) or a transparency (d, Tr) is left out, with a warning."""
+    statements = getattr(material, "kwargs", None) or {}
+
+    def values(key):
+        v = statements.get(key)
+        return None if v is None else np.asarray(v, dtype=np.float64).reshape(-1)
+
+    kd, ke, ks = values("kd"), values("ke"), values("ks")
+    diffuse = rgb(kd[:3]) if kd is not None and kd.size >= 3 else _color(getattr(material, "diffuse", None), (0.8,) * 3)
+    emission = rgb(ke[:3]) if ke is not None and ke.size >= 3 else (0.0, 0.0, 0.0)
+    left_out = []
+    if ks is not None and ks.size >= 3 and ks[:3].max() > 0.0:
+        left_out.append(f"its specular Ks {_rounded(ks[:3])}")
+    opacity, transparency = values("d"), values("tr")
+    if (opacity is not None and opacity[:1].min(initial=1.0) < 1.0) or (
+        transparency is not None and transparency[:1].max(initial=0.0) > 0.0
+    ):
+        left_out.append("its transparency (d, Tr)")
+    if left_out:
+        warnings.append(f"material '{name}': {' and '.join(left_out)} left out; rendered diffuse with Kd")
+    return diffuse, emission
+
+
+def _rounded(c) -> tuple:
+    return tuple(round(float(x), 4) for x in c)
 
 
 def _color(value, default):
