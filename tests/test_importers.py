@@ -220,6 +220,7 @@ def test_gltf_glb_ply(tmp_path, ext):
         assert mat.albedo == pytest.approx((0.2, 0.4, 0.6), abs=3e-3)
         assert mat.gloss.kind == "roughplastic" and mat.gloss.alpha == pytest.approx(0.25)  # roughness^2
         assert mat.approximated and any("glTF metallic-roughness" in w for w in s.warnings)
+        assert any("base colour factor as trimesh reads it, rounded to 8 bits" in w for w in s.warnings)
         assert mat.emission == pytest.approx((1.0, 0.5, 0.0))
         assert not any("default sun" in w for w in s.warnings)
 

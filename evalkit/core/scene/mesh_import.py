@@ -178,6 +178,7 @@ def _gloss(material, name: str, base: tuple, warnings: list[str]) -> Gloss:
     gloss, what = metallic_roughness(base, metallic, roughness, GLTF_DIELECTRIC_IOR)
     if material.metallicRoughnessTexture is not None:
         what += "; its metallic-roughness texture is replaced by its factors"
+    what += "; its base colour factor as trimesh reads it, rounded to 8 bits (within 1/510)"
     warnings.append(f"material '{name}' (glTF metallic-roughness) is approximated as {what}")
     return gloss
 
