@@ -201,6 +201,18 @@ def _validate_mesh(source: str, mesh: Mesh, n_materials: int) -> Mesh:
     return replace(mesh, positions=p, faces=f.astype(np.int64), normals=normals, uvs=uvs, colors=colors)
 
 
+def face_colors_at_corners(positions, faces, normals, uvs, face_colors):
+    """A mesh whose faces have colours as one whose vertices have them: every corner its own
+    vertex with its face's colour (faces still meet where their corners do: edges weld by
+    position). Returns (positions, faces, normals, uvs, vertex colours)."""
+
+    def corners(a):
+        return None if a is None else a[faces].reshape(-1, a.shape[1])
+
+    corner_faces = np.arange(3 * len(faces)).reshape(-1, 3)
+    return corners(positions), corner_faces, corners(normals), corners(uvs), np.repeat(face_colors, 3, axis=0)
+
+
 def _vertex_colors(source: str, meshes: list[Mesh], materials: list[Material], warnings: list[str]) -> list[Mesh]:
     """Checks that vertex colours and the materials that reflect them go together, and clamps
     colours to [0, 1] (a reflectance above 1 makes light), saying how many were clamped."""

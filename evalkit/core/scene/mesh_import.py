@@ -21,7 +21,7 @@ import os
 import numpy as np
 
 from evalkit.core.errors import InputError
-from evalkit.core.scene.assemble import assemble, default_sun
+from evalkit.core.scene.assemble import assemble, default_sun, face_colors_at_corners
 from evalkit.core.scene.colour import rgb, srgb_to_linear
 from evalkit.core.scene.gloss import metallic_roughness
 from evalkit.core.scene.mesh_lines import check_obj, check_ply
@@ -108,11 +108,8 @@ def _mesh(path, node, geometry, transform, materials, material_index, warnings) 
         uvs = np.asarray(uv, dtype=np.float64).copy()
         uvs[:, 1] = 1.0 - uvs[:, 1]  # trimesh: v up from the image's bottom row; ours: row = v * H
     colors = _colors(path, visual)
-    if colors is not None and getattr(visual, "kind", None) == "face":  # each corner its face's colour
-        positions, normals, uvs = (
-            None if a is None else a[faces].reshape(-1, a.shape[1]) for a in (positions, normals, uvs)
-        )
-        colors, faces = np.repeat(colors, 3, axis=0), np.arange(3 * len(faces)).reshape(-1, 3)
+    if colors is not None and getattr(visual, "kind", None) == "face":
+        positions, faces, normals, uvs, colors = face_colors_at_corners(positions, faces, normals, uvs, colors)
     key = id(getattr(visual, "material", visual))
     if key not in material_index:
         material_index[key] = len(materials)

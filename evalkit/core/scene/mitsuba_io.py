@@ -39,7 +39,7 @@ import numpy as np
 from evalkit.core.bsdf import MIN_ALPHA, rough_plastic_tables
 from evalkit.core.errors import InputError
 from evalkit.core.mitsuba_env import mitsuba
-from evalkit.core.scene.assemble import assemble
+from evalkit.core.scene.assemble import assemble, face_colors_at_corners
 from evalkit.core.scene.colour import rgb, sample_texture
 from evalkit.core.scene.gloss import metallic_roughness
 from evalkit.core.scene.model import FILTER_TYPES, WRAP_MODES, Camera, Gloss, Light, Material, Mesh, Scene
@@ -319,10 +319,7 @@ def _mesh_colors(mi, shape, source: str, positions, faces, normals, uvs):
         )
     colors = values.reshape(per, 3) * scale
     if name.startswith("face_"):
-        positions, normals, uvs = (
-            None if a is None else a[faces].reshape(-1, a.shape[1]) for a in (positions, normals, uvs)
-        )
-        colors, faces = np.repeat(colors, 3, axis=0), np.arange(3 * len(faces)).reshape(-1, 3)
+        return face_colors_at_corners(positions, faces, normals, uvs, colors)
     return positions, faces, normals, uvs, colors
 
 
