@@ -198,6 +198,28 @@ def test_obj_materials_emit_their_ke_and_keep_their_kd_and_say_what_they_leave_o
     assert left.startswith("material 'shiny': its specular Ks (0.5, 0.5, 0.5) and its transparency (d, Tr)")
 
 
+def test_a_gltf_material_says_what_it_leaves_out_and_refuses_textured_emission(tmp_path):
+    # A normal map and an alpha mask were dropped without a word (foliage rendered as opaque quads),
+    # and an emissive texture's factor was taken as the whole emission.
+    image = Image.new("RGB", (4, 4), (200, 100, 50))
+    m = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(m.vertices), 2))
+    pbr = trimesh.visual.material.PBRMaterial
+    leaf = pbr(normalTexture=image, alphaMode="MASK", alphaCutoff=0.5)
+    m.visual = trimesh.visual.TextureVisuals(uv=uv, material=leaf)
+    m.export(tmp_path / "leaf.glb")
+    s = load_scene(tmp_path / "leaf.glb")
+    assert any(
+        "its normal map (the mesh's normals shade it) and its alpha mode MASK (rendered opaque) left out" in w
+        for w in s.warnings
+    ), s.warnings
+    m.visual = trimesh.visual.TextureVisuals(uv=uv, material=pbr(emissiveFactor=[1, 1, 1], emissiveTexture=image))
+    m.export(tmp_path / "screen.glb")
+    with pytest.raises(InputError, match="textured emission \\(emissiveTexture\\) is not supported") as e:
+        load_scene(tmp_path / "screen.glb")
+    assert "\n" not in str(e.value)
+
+
 @pytest.mark.parametrize("ext", ["gltf", "glb", "ply"])
 def test_gltf_glb_ply(tmp_path, ext):
     m = trimesh.creation.box(extents=[1, 2, 3])

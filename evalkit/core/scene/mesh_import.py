@@ -113,7 +113,7 @@ def _mesh(path, node, geometry, transform, materials, material_index, warnings) 
     key = id(getattr(visual, "material", visual))
     if key not in material_index:
         material_index[key] = len(materials)
-        materials.append(_material(node, visual, uvs is not None, colors, warnings))
+        materials.append(_material(path, node, visual, uvs is not None, colors, warnings))
     return Mesh(str(node), positions, faces, material_index[key], normals, uvs, colors=colors)
 
 
@@ -128,7 +128,7 @@ def _colors(path: str, visual) -> np.ndarray | None:
     return codes / 255.0 if linear else srgb_to_linear(codes / 255.0)
 
 
-def _material(node, visual, has_uvs: bool, colors, warnings: list[str]) -> Material:
+def _material(path: str, node, visual, has_uvs: bool, colors, warnings: list[str]) -> Material:
     material = getattr(visual, "material", None)
     if material is None:  # ColorVisuals: per-vertex or per-face colours, or none
         if colors is None:
@@ -142,6 +142,15 @@ def _material(node, visual, has_uvs: bool, colors, warnings: list[str]) -> Mater
         factor = _color(material.baseColorFactor, default=(1.0, 1.0, 1.0))
         image = material.baseColorTexture
         emission = rgb(material.emissiveFactor) if material.emissiveFactor is not None else (0.0, 0.0, 0.0)
+        if material.emissiveTexture is not None and max(emission) > 0.0:
+            raise InputError(path, f"material '{name}': textured emission (emissiveTexture) is not supported")
+        left_out = []
+        if material.normalTexture is not None:
+            left_out.append("its normal map (the mesh's normals shade it)")
+        if material.alphaMode not in (None, "OPAQUE"):
+            left_out.append(f"its alpha mode {material.alphaMode} (rendered opaque)")
+        if left_out:
+            warnings.append(f"material '{name}': {' and '.join(left_out)} left out")
         twosided = bool(material.doubleSided)
         approximated = True  # glTF's BRDF is not Mitsuba's rough conductor or plastic (`_gloss`)
     else:  # SimpleMaterial (OBJ/MTL)
