@@ -105,6 +105,12 @@ def _scene_check(args) -> int:
             f"{name:<11} mean ratio (r, g, b) {ratios}; relMSE {image['relmse']:.3g}; "
             f"{100 * (1 - image['z_outside_share']):.2f} % of pixels pass the z-test"
         )
+    camera = result["camera"]
+    if camera is not None:
+        print(
+            f"camera      the import's rays against the file's sensor's: up to {camera['angle_degrees']:.3g} degrees "
+            f"and {camera['offset']:.3g} bounding radii apart"
+        )
     for w in result["approximations"]:
         print(f"import      {w}")
     if result["bundles"] is not None:

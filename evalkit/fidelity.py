@@ -72,6 +72,7 @@ def check_scene(
     mi, original = load_mitsuba_original(path, variant)
     per_chunk = spp // chunks
     sensor = mi.load_dict(sensor_dict(scene.camera, mi, per_chunk, width, height, offset=scene.origin))
+    camera = camera_agreement(mi, original, scene)
     imported = mi.load_dict(to_mitsuba_dict(scene, mi, spp=per_chunk, width=width, height=height))
     integrators = path_integrators(mi, bounces)
     runs = {"original": [], "imported": []}
@@ -106,7 +107,7 @@ def check_scene(
         bundle_check = {"settings": rendered_by.params, "ratio": rendered, "warnings": rendered_by.warnings}
     total = images["total"]
     z_ok = not total["z_outside_share"] > 1.0 - Z_SHARE  # NaN (nothing tested: a black image) passes
-    verdict = _verdict(total["ratio"], tolerance, z_ok)
+    verdict = _verdict(total["ratio"], tolerance, z_ok and (camera is None or camera["within"]))
     result = {
         "scene": scene.name,
         "source": str(path),
@@ -116,6 +117,7 @@ def check_scene(
         "z_share": Z_SHARE,
         "images": images,
         "approximations": list(scene.warnings),
+        "camera": camera,
         "verdict": verdict,
         "passed": verdict == "passed",
         "bundles": bundle_check if bundles is not None else None,
@@ -126,6 +128,38 @@ def check_scene(
     }
     cache.store("facts", _key(scene.content_hash()), result)
     return result
+
+
+# How far the import's camera may be from the file's: its rays' directions (degrees: a thousandth
+# of a degree is a few thousandths of a pixel of a 96-pixel film over 50 degrees) and origins (in
+# bounding radii). The same camera gives the same rays to float32 round-off.
+CAMERA_ANGLE_DEGREES = 1e-3
+CAMERA_OFFSET = 1e-5
+CAMERA_GRID = 9  # film positions a side
+
+
+def camera_agreement(mi, original, scene) -> dict | None:
+    """The rays of the file's own sensor against those of the imported camera (in the file's
+    world space, on the same film) at a grid of film positions through the lens's centre: the
+    largest angle between two directions (degrees), the largest distance between two origins (in
+    bounding radii), and whether both are within `CAMERA_ANGLE_DEGREES` and `CAMERA_OFFSET`. The
+    renders share the imported camera, so this is what checks the camera itself. None where the
+    file has no sensor (the toolkit then frames the scene with a camera of its own, and says so)."""
+    if not original.sensors():
+        return None
+    own = mi.load_dict(sensor_dict(scene.camera, mi, 1, None, None, offset=scene.origin))
+    g = (np.arange(CAMERA_GRID) + 0.5) / CAMERA_GRID
+    u, v = (a.ravel() for a in np.meshgrid(g, g))
+
+    def rays(sensor):
+        ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(u, v), mi.Point2f(0.5, 0.5))
+        return (np.array(x, dtype=np.float64).reshape(3, -1).T for x in (ray.o, ray.d))
+
+    (o0, d0), (o1, d1) = rays(original.sensors()[0]), rays(own)
+    angle = float(np.degrees(2.0 * np.arcsin(np.clip(np.linalg.norm(d0 - d1, axis=1) / 2.0, 0.0, 1.0))).max())
+    offset = float(np.linalg.norm(o0 - o1, axis=1).max()) / scene.bounding_sphere()[1]
+    within = angle <= CAMERA_ANGLE_DEGREES and offset <= CAMERA_OFFSET
+    return {"angle_degrees": angle, "offset": offset, "within": within}
 
 
 def fidelity_of(scene) -> dict | None:
@@ -145,6 +179,9 @@ def summary_line(result: dict) -> str:
         f"({spp} spp, B={result['settings']['bounces']}, tolerance {100 * result['tolerance']:g} %, "
         "evalkit scene check)"
     )
+    camera = result.get("camera")
+    if camera and not camera["within"]:
+        line += f"; the camera's rays part from the file's by up to {camera['angle_degrees']:.3g} degrees"
     if verdict == "inconclusive":
         line += f"; a channel beyond the tolerance is within noise of 1: check again with --spp {4 * spp}"
     return line

@@ -4,6 +4,7 @@ rendered by Mitsuba. The corpus (tests/data/import_corpus) holds one scene per i
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -140,3 +141,23 @@ def test_a_difference_within_noise_of_1_is_inconclusive_not_failed(rows, verdict
     line = summary_line(result)
     assert line.startswith(f"import fidelity {'FAILED' if verdict == 'failed' else verdict}: ")
     assert ("check again with --spp 256" in line) == (verdict == "inconclusive")
+
+
+def test_a_camera_imported_wrong_fails_the_check(monkeypatch):
+    # Both renders use the imported camera, so only comparing the rays with the file's own sensor's
+    # sees a camera imported wrong (as an orthographic sensor once became a default perspective one).
+    import evalkit.fidelity as fidelity
+
+    read = fidelity.load_scene
+
+    def wider(path):
+        scene = read(path)
+        return replace(scene, camera=replace(scene.camera, fov=scene.camera.fov * 1.01))
+
+    exact = check_scene(str(CORPUS / "lights.xml"), spp=8, chunks=2, width=24)
+    assert exact["camera"]["within"] and exact["passed"]
+    monkeypatch.setattr(fidelity, "load_scene", wider)
+    result = check_scene(str(CORPUS / "lights.xml"), spp=8, chunks=2, width=24)
+    assert not result["camera"]["within"] and result["camera"]["angle_degrees"] > 0.1
+    assert result["verdict"] == "failed" and not result["passed"]
+    assert "the camera's rays part from the file's by up to" in summary_line(result)
