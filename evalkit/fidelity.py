@@ -38,6 +38,9 @@ from references.mitsuba import chunk_images, chunk_seed, path_integrators
 TOLERANCE = 0.01  # the image mean, per channel
 VERDICTS = {"passed": "passed", "failed": "FAILED", "inconclusive": "inconclusive"}  # as the summary says them
 Z_SHARE = 0.9975  # pixels that must pass the z-test: Mitsuba's own render tests' share
+# The fewest chunks whose per-pixel variances the z-test's normal law holds for at that share: an
+# exact import passed 99.97 % at 8 (64 spp) and 96.56 % at 2 (16 spp), a PLY-and-OBJ scene.
+Z_CHUNKS = 8
 DEFAULT_WIDTH = 96
 
 
@@ -107,7 +110,7 @@ def check_scene(
         bundle_check = {"settings": rendered_by.params, "ratio": rendered, "warnings": rendered_by.warnings}
     total = images["total"]
     z_ok = not total["z_outside_share"] > 1.0 - Z_SHARE  # NaN (nothing tested: a black image) passes
-    verdict = _verdict(total["ratio"], tolerance, z_ok and (camera is None or camera["within"]))
+    verdict = _verdict(total["ratio"], tolerance, z_ok, camera is None or camera["within"], chunks)
     result = {
         "scene": scene.name,
         "source": str(path),
@@ -183,7 +186,11 @@ def summary_line(result: dict) -> str:
     if camera and not camera["within"]:
         line += f"; the camera's rays part from the file's by up to {camera['angle_degrees']:.3g} degrees"
     if verdict == "inconclusive":
-        line += f"; a channel beyond the tolerance is within noise of 1: check again with --spp {4 * spp}"
+        chunks = result["settings"].get("chunks", Z_CHUNKS)
+        if total["z_outside_share"] > 1.0 - Z_SHARE and chunks < Z_CHUNKS:
+            line += f"; the z-test's variances come from {chunks} chunks: check again with --chunks {Z_CHUNKS}"
+        else:
+            line += f"; a channel beyond the tolerance is within noise of 1: check again with --spp {4 * spp}"
     return line
 
 
@@ -214,17 +221,18 @@ def _interval(row: dict) -> dict:
     }
 
 
-def _verdict(rows: list[dict], tolerance: float, z_ok: bool) -> str:
-    """ "passed" when every channel's ratio is within ``tolerance`` and the z-test passes; where a
-    channel is beyond the tolerance, "failed" if its 95 % interval excludes 1 (the import differs),
-    else "inconclusive" (the samples cannot tell a difference from their noise)."""
-    if not z_ok:
-        return "failed"
+def _verdict(rows: list[dict], tolerance: float, z_ok: bool, camera_ok: bool, chunks: int) -> str:
+    """ "passed" when every channel's ratio is within ``tolerance``, the z-test passes and the
+    camera's rays are the file's; "failed" where the camera differs, a channel is beyond the
+    tolerance with a 95 % interval that excludes 1, or the z-test fails on variances from at least
+    `Z_CHUNKS` chunks; else "inconclusive": the samples cannot tell a difference from their noise
+    (a channel beyond the tolerance whose interval holds 1, or a z-test on variances from too few
+    chunks, whose heavy tails put an exact import's pixels outside: 3 % of them at 2 chunks)."""
     beyond = [r for r in rows if not _within(r, tolerance)]
-    if not beyond:
-        return "passed"
     noisy = all(r["lo"] is not None and r["lo"] <= 1.0 <= r["hi"] for r in beyond)
-    return "inconclusive" if noisy else "failed"
+    if not camera_ok or not noisy or (not z_ok and chunks >= Z_CHUNKS):
+        return "failed"
+    return "passed" if z_ok and not beyond else "inconclusive"
 
 
 def _within(row: dict, tolerance: float) -> bool:

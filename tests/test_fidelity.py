@@ -129,18 +129,27 @@ def _row(ratio, lo, hi):
     ],
 )
 def test_a_difference_within_noise_of_1_is_inconclusive_not_failed(rows, verdict):
-    assert _verdict(rows, 0.01, z_ok=True) == verdict
-    assert _verdict(rows, 0.01, z_ok=False) == "failed"  # pixels beyond their noise decide alone
+    assert _verdict(rows, 0.01, z_ok=True, camera_ok=True, chunks=8) == verdict
+    # On variances from enough chunks, pixels beyond their noise fail the check alone; from too
+    # few, the z-test's heavy tails cannot (an exact import: 96.56 % of pixels passed at 2 chunks).
+    assert _verdict(rows, 0.01, z_ok=False, camera_ok=True, chunks=8) == "failed"
+    assert _verdict(rows, 0.01, z_ok=False, camera_ok=True, chunks=2) == (
+        "failed" if verdict == "failed" else "inconclusive"
+    )
+    assert _verdict(rows, 0.01, z_ok=True, camera_ok=False, chunks=8) == "failed"
     result = {
         "verdict": verdict,
         "passed": verdict == "passed",
         "images": {"total": {"ratio": rows, "z_outside_share": 0.0}},
-        "settings": {"spp": 64, "bounces": 2},
+        "settings": {"spp": 64, "bounces": 2, "chunks": 8},
         "tolerance": 0.01,
     }
     line = summary_line(result)
     assert line.startswith(f"import fidelity {'FAILED' if verdict == 'failed' else verdict}: ")
     assert ("check again with --spp 256" in line) == (verdict == "inconclusive")
+    few = {**result, "verdict": "inconclusive", "settings": {"spp": 16, "bounces": 2, "chunks": 2}}
+    few["images"] = {"total": {"ratio": rows, "z_outside_share": 0.03}}
+    assert summary_line(few).endswith("the z-test's variances come from 2 chunks: check again with --chunks 8")
 
 
 def test_a_camera_imported_wrong_fails_the_check(monkeypatch):
