@@ -3,6 +3,8 @@ one-line errors for bad files."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -218,6 +220,58 @@ def test_a_gltf_material_says_what_it_leaves_out_and_refuses_textured_emission(t
     with pytest.raises(InputError, match="textured emission \\(emissiveTexture\\) is not supported") as e:
         load_scene(tmp_path / "screen.glb")
     assert "\n" not in str(e.value)
+
+
+def rewrite_glb(path, edit) -> None:
+    """A GLB file with its JSON chunk changed by ``edit`` (a function of the parsed JSON)."""
+    data = path.read_bytes()
+    length = int.from_bytes(data[12:16], "little")
+    doc = edit(json.loads(data[20 : 20 + length]))
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    rest = data[20 + length :]
+    body = len(text).to_bytes(4, "little") + b"JSON" + text + rest
+    path.write_bytes(data[:8] + (12 + len(body)).to_bytes(4, "little") + body)
+
+
+def test_a_gltf_camera_is_the_scenes_camera_wherever_its_node_is(tmp_path):
+    # A glTF's camera was dropped ("no camera in the input"), and trimesh reads only a root node's.
+    scene = trimesh.Scene(trimesh.creation.box())
+    scene.set_camera(angles=(0.3, 0.5, 0.0), distance=4.0, fov=(50.0, 40.0))
+    scene.export(tmp_path / "seen.glb")
+    s = load_scene(tmp_path / "seen.glb")
+    assert not any("no camera" in w for w in s.warnings)
+    placed = np.asarray(trimesh.load(tmp_path / "seen.glb", force="scene").camera_transform)
+    np.testing.assert_allclose(s.camera.to_world[:3, :3], placed[:3, :3] @ np.diag([-1.0, 1.0, -1.0]), atol=1e-9)
+    np.testing.assert_allclose(s.camera.position + s.origin, placed[:3, 3], atol=1e-9)
+    assert (s.camera.fov, s.camera.fov_axis, s.camera.width / s.camera.height) == (pytest.approx(40.0), "y", 1.25)
+
+    def nest(doc):  # the camera under a parent moved by 5 along z and scaled by 2 (a camera keeps no scale)
+        (i,) = [n for n, node in enumerate(doc["nodes"]) if "camera" in node]
+        doc["nodes"].append({"translation": [0.0, 0.0, 5.0], "scale": [2.0, 2.0, 2.0], "children": [i]})
+        roots = doc["scenes"][doc.get("scene", 0)]["nodes"]
+        roots[roots.index(i)] = len(doc["nodes"]) - 1
+        box = {"xmag": 3.0, "ymag": 2.0, "znear": 0.1, "zfar": 50.0}
+        doc["cameras"][0] = {"type": "orthographic", "orthographic": box}
+        return doc
+
+    rewrite_glb(tmp_path / "seen.glb", nest)
+    s = load_scene(tmp_path / "seen.glb")
+    assert s.camera.orthographic and (s.camera.width, s.camera.height) == (768, 512)
+    np.testing.assert_allclose(s.camera.position + s.origin, 2.0 * placed[:3, 3] + [0.0, 0.0, 5.0], atol=1e-9)
+    # an orthographic camera's scale is its half-width: xmag
+    np.testing.assert_allclose(np.linalg.norm(s.camera.to_world[:3, :3], axis=0), [3.0, 3.0, 1.0], atol=1e-9)
+
+    def lit(doc):  # punctual lights, whose photometric units the toolkit does not read, are said
+        doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "point", "intensity": 20.0}]}}
+        doc.setdefault("extensionsUsed", []).append("KHR_lights_punctual")
+        return doc
+
+    rewrite_glb(tmp_path / "seen.glb", lit)
+    assert (
+        "1 KHR_lights_punctual light(s) left out (their units are photometric)"
+        in load_scene(tmp_path / "seen.glb").warnings
+    )
 
 
 @pytest.mark.parametrize("ext", ["gltf", "glb", "ply"])

@@ -10,12 +10,14 @@ are linear. glTF ``doubleSided`` maps to a two-sided material; OBJ and PLY have 
 are imported two-sided. Vertex or face colours on a mesh without a material become its
 reflectance (`_colors`). A glTF metallic-roughness material becomes a rough conductor or a rough
 plastic (`_gloss` says how), with a warning, since glTF's BRDF is neither exactly. A file with no
-emissive material gets a default sun, and every file gets a default camera (trimesh reads none),
-both stated in the scene's warnings.
+emissive material gets a default sun, and a file without a camera (OBJ and PLY have none; a glTF
+file's is read by `_gltf_camera`) a default one, both stated in the scene's warnings.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import os
 
 import numpy as np
@@ -25,7 +27,7 @@ from evalkit.core.scene.assemble import assemble, default_sun, face_colors_at_co
 from evalkit.core.scene.colour import rgb, srgb_to_linear
 from evalkit.core.scene.gloss import metallic_roughness
 from evalkit.core.scene.mesh_lines import check_obj, check_ply
-from evalkit.core.scene.model import Gloss, Material, Mesh, Scene
+from evalkit.core.scene.model import Camera, Gloss, Material, Mesh, Scene
 
 
 def load_mesh_file(path: str | os.PathLike) -> Scene:
@@ -73,7 +75,86 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
         lights.append(default_sun())
         warnings.append("no emissive material in the file; a default sun (directional light) is used")
     name = os.path.splitext(os.path.basename(path))[0]
-    return assemble(name, path, meshes, materials, lights, camera=None, warnings=warnings)
+    camera = None
+    if extension in (".gltf", ".glb"):
+        doc = _gltf_document(path)
+        try:
+            camera = _gltf_camera(doc)
+        except (KeyError, IndexError, TypeError, ValueError, ZeroDivisionError) as e:
+            raise InputError(path, f"its camera cannot be read: {type(e).__name__}: {e}") from None
+        lights_left_out = len(doc.get("extensions", {}).get("KHR_lights_punctual", {}).get("lights", []))
+        if lights_left_out:
+            warnings.append(f"{lights_left_out} KHR_lights_punctual light(s) left out (their units are photometric)")
+    return assemble(name, path, meshes, materials, lights, camera=camera, warnings=warnings)
+
+
+# glTF cameras look along -z with +x to the right; Mitsuba's camera space looks along +z with +x
+# to the left: a half turn about y.
+GLTF_TO_MITSUBA_CAMERA = np.diag([-1.0, 1.0, -1.0, 1.0])
+GLTF_FILM_HEIGHT = 512  # glTF gives a camera an aspect ratio, not a film
+
+
+def _gltf_camera(doc: dict) -> Camera | None:
+    """The first camera of a glTF document's scene (breadth first), placed by the transforms of
+    every node above it, as the toolkit's camera; None without one. trimesh reads only a camera on
+    a root node, and only a perspective one, so the file's own description is read here."""
+    nodes, cameras = doc.get("nodes", []), doc.get("cameras", [])
+    scenes = doc.get("scenes") or [{"nodes": list(range(len(nodes)))}]
+    queue = [(i, np.eye(4)) for i in scenes[doc.get("scene", 0)].get("nodes", [])]
+    while queue:
+        i, above = queue.pop(0)
+        node = nodes[i]
+        world = above @ _gltf_node_matrix(node)
+        if "camera" in node:
+            return _camera_of(cameras[node["camera"]], world)
+        queue.extend((child, world) for child in node.get("children", []))
+    return None
+
+
+def _gltf_document(path: str) -> dict:
+    with open(path, "rb") as f:
+        data = f.read()
+    if data[:4] == b"glTF":  # GLB: a 12-byte header, then the JSON chunk's length, type and text
+        length = int.from_bytes(data[12:16], "little")
+        data = data[20 : 20 + length]
+    return json.loads(data)
+
+
+def _gltf_node_matrix(node: dict) -> np.ndarray:
+    if "matrix" in node:
+        return np.asarray(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major
+    x, y, z, w = node.get("rotation", (0.0, 0.0, 0.0, 1.0))
+    rotation = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    m = np.eye(4)
+    m[:3, :3] = rotation * np.asarray(node.get("scale", (1.0, 1.0, 1.0)), dtype=np.float64)
+    m[:3, 3] = node.get("translation", (0.0, 0.0, 0.0))
+    return m
+
+
+def _camera_of(camera: dict, world: np.ndarray) -> Camera:
+    """A glTF camera at the node transform ``world`` (its scale dropped: a camera's transform
+    places it, and Mitsuba refuses a scaled one)."""
+    to_world = world.copy()
+    to_world[:3, :3] /= np.linalg.norm(to_world[:3, :3], axis=0)
+    to_world = to_world @ GLTF_TO_MITSUBA_CAMERA
+    if camera.get("type") == "orthographic":
+        o = camera["orthographic"]
+        xmag, ymag = float(o["xmag"]), float(o["ymag"])
+        width = max(1, round(GLTF_FILM_HEIGHT * xmag / ymag))
+        # Mitsuba's orthographic camera sees x in [-1, 1] across its film: its scale is the half-width.
+        to_world = to_world @ np.diag([xmag, xmag, 1.0, 1.0])
+        near, far = float(o.get("znear", 1e-3)), float(o.get("zfar", 1e4))
+        return Camera(to_world, 0.0, "x", width, GLTF_FILM_HEIGHT, near_clip=near, far_clip=far, kind="orthographic")
+    p = camera["perspective"]
+    width = max(1, round(GLTF_FILM_HEIGHT * float(p.get("aspectRatio", 1.0))))
+    near, far = float(p.get("znear", 1e-3)), float(p.get("zfar", 1e4))
+    return Camera(to_world, math.degrees(float(p["yfov"])), "y", width, GLTF_FILM_HEIGHT, near_clip=near, far_clip=far)
 
 
 def _mesh(path, node, geometry, transform, materials, material_index, warnings) -> Mesh | None:
