@@ -180,6 +180,29 @@ def test_obj_with_mtl_texture(tmp_path):
     assert any("default sun" in w for w in s.warnings) and any("default camera" in w for w in s.warnings)
 
 
+def test_obj_map_kd_options_scale_and_offset_the_uvs_and_the_rest_are_said(tmp_path):
+    # trimesh took "-s 2 3 1 t.png" for a file name and dropped the texture without a word.
+    texels = write_texture(tmp_path / "t.png")
+    (tmp_path / "m.mtl").write_text("newmtl tiles\nKd 1 1 1\nmap_Kd -s 2 3 1 -o 0.25 0.5 -clamp on -bm 0.5 t.png\n")
+    (tmp_path / "m.obj").write_text(
+        "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "usemtl tiles\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
+    s = load_scene(tmp_path / "m.obj")
+    (mat,) = s.materials
+    np.testing.assert_allclose(mat.texture, srgb_to_linear(texels / 255.0), atol=1e-6)
+    assert mat.wrap_mode == "clamp"
+    # OBJ's (u, v) (v up the image) looks up (2 u + 0.25, 3 v + 0.5) there; our v runs down it
+    for u, v in [(0.0, 0.0), (0.3, 0.7), (1.0, 1.0)]:
+        mapped = mat.to_uv @ [u, 1.0 - v, 1.0]
+        np.testing.assert_allclose(mapped[:2], [2 * u + 0.25, 1.0 - (3 * v + 0.5)], atol=1e-12)
+    assert "material 'tiles': its map_Kd options -bm left out" in s.warnings
+    (tmp_path / "m.mtl").write_text("newmtl tiles\nmap_Kd gone.png\n")
+    with pytest.raises(InputError, match="material 'tiles': its map_Kd '.*gone.png' cannot be read") as e:
+        load_scene(tmp_path / "m.obj")
+    assert str(e.value).startswith(str(tmp_path / "m.mtl"))
+
+
 def test_obj_materials_emit_their_ke_and_keep_their_kd_and_say_what_they_leave_out(tmp_path):
     # MTL's Ke was dropped (the lamp went dark and a default sun lit the scene instead), and Kd was
     # read from trimesh's 8-bit copy (0.7 became 0.698).

@@ -56,6 +56,7 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
         ) from None
 
     warnings: list[str] = []
+    maps = _mtl_maps(path) if extension == ".obj" else {}
     materials: list[Material] = []
     material_index: dict[int, int] = {}
     meshes: list[Mesh] = []
@@ -65,7 +66,8 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
         if not isinstance(geometry, trimesh.Trimesh):
             warnings.append(f"'{geometry_name}' is a {type(geometry).__name__}, not a triangle mesh; it is left out")
             continue
-        mesh = _mesh(path, node, geometry, np.asarray(transform, dtype=np.float64), materials, material_index, warnings)
+        transform = np.asarray(transform, dtype=np.float64)
+        mesh = _mesh(path, node, geometry, transform, materials, material_index, maps, warnings)
         if mesh is not None:
             meshes.append(mesh)
     if not meshes:
@@ -86,6 +88,82 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
         if lights_left_out:
             warnings.append(f"{lights_left_out} KHR_lights_punctual light(s) left out (their units are photometric)")
     return assemble(name, path, meshes, materials, lights, camera=camera, warnings=warnings)
+
+
+# MTL texture options and how many values each takes (a range: -o, -s and -t take one to three).
+MTL_OPTIONS = {
+    "-blendu": (1, 1), "-blendv": (1, 1), "-cc": (1, 1), "-clamp": (1, 1), "-mm": (2, 2), "-o": (1, 3),
+    "-s": (1, 3), "-t": (1, 3), "-texres": (1, 1), "-bm": (1, 1), "-boost": (1, 1), "-imfchan": (1, 1), "-type": (1, 1),
+}  # fmt: skip
+
+
+def _mtl_maps(obj_path: str) -> dict[str, tuple[str, dict, str]]:
+    """Per material of an OBJ's MTL files, its map_Kd: (the image's path, its options, the MTL
+    file), read here because trimesh takes an option for part of the file name and then drops the
+    texture without a word."""
+    folder = os.path.dirname(os.path.abspath(obj_path))
+    with open(obj_path, encoding="utf-8", errors="replace") as f:
+        libraries = [name for line in f if line.startswith("mtllib") for name in line.split()[1:]]
+    maps, material = {}, None
+    for library in libraries:
+        mtl = os.path.join(folder, library)
+        if not os.path.isfile(mtl):
+            continue  # trimesh reads what it finds; a missing library leaves its materials white, as it says
+        with open(mtl, encoding="utf-8", errors="replace") as f:
+            for line in f:
+                words = line.split()
+                if words[:1] == ["newmtl"] and len(words) > 1:
+                    material = " ".join(words[1:])
+                elif words[:1] and words[0].lower() == "map_kd" and material is not None:
+                    options, i = {}, 1
+                    while i < len(words) - 1 and words[i].lower() in MTL_OPTIONS:
+                        least, most = MTL_OPTIONS[words[i].lower()]
+                        values = words[i + 1 : i + 1 + least]
+                        for extra in words[i + 1 + least : i + 1 + most]:
+                            try:
+                                float(extra)
+                            except ValueError:
+                                break
+                            values.append(extra)
+                        options[words[i].lower()] = values
+                        i += 1 + len(values)
+                    image = os.path.join(os.path.dirname(mtl), " ".join(words[i:]))
+                    maps[material] = (image, options, mtl)
+    return maps
+
+
+def _mtl_image(name: str, file: str, options: dict, mtl: str, warnings: list[str]):
+    """A map_Kd's image, and its lookup (`_mtl_lookup`)."""
+    from PIL import Image
+
+    try:
+        image = Image.open(file)
+        image.load()
+    except (OSError, ValueError) as e:
+        why = f"{type(e).__name__}: {e}"
+        raise InputError(mtl, f"material '{name}': its map_Kd '{file}' cannot be read: {why}") from None
+    return image, _mtl_lookup(name, options, warnings)
+
+
+def _mtl_lookup(name: str, options: dict, warnings: list[str]) -> dict:
+    """A map_Kd's options as the texture lookup's: -s and -o scale and offset the uvs, u' = s u + o
+    (three.js's and Blender's reading), in our uvs whose v runs down the image; -clamp on clamps.
+    Any other option is left out, with a warning."""
+
+    def triple(key, default):
+        v = [float(x) for x in options.get(key, [])]
+        return v + [default] * (2 - len(v))
+
+    (su, sv), (ou, ov) = triple("-s", 1.0)[:2], triple("-o", 0.0)[:2]
+    lookup = {}
+    if "-s" in options or "-o" in options:
+        lookup["to_uv"] = np.array([[su, 0.0, ou], [0.0, sv, 1.0 - sv - ov], [0.0, 0.0, 1.0]])
+    if options.get("-clamp", ["off"])[0].lower() == "on":
+        lookup["wrap_mode"] = "clamp"
+    left_out = sorted(set(options) - {"-s", "-o", "-clamp"})
+    if left_out:
+        warnings.append(f"material '{name}': its map_Kd options {', '.join(left_out)} left out")
+    return lookup
 
 
 # glTF cameras look along -z with +x to the right; Mitsuba's camera space looks along +z with +x
@@ -157,7 +235,7 @@ def _camera_of(camera: dict, world: np.ndarray) -> Camera:
     return Camera(to_world, math.degrees(float(p["yfov"])), "y", width, GLTF_FILM_HEIGHT, near_clip=near, far_clip=far)
 
 
-def _mesh(path, node, geometry, transform, materials, material_index, warnings) -> Mesh | None:
+def _mesh(path, node, geometry, transform, materials, material_index, maps, warnings) -> Mesh | None:
     vertices = np.asarray(geometry.vertices, dtype=np.float64)
     faces = np.asarray(geometry.faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # e.g. an OBJ 'v' line with two coordinates
@@ -194,7 +272,7 @@ def _mesh(path, node, geometry, transform, materials, material_index, warnings) 
     key = id(getattr(visual, "material", visual))
     if key not in material_index:
         material_index[key] = len(materials)
-        materials.append(_material(path, node, visual, uvs is not None, colors, warnings))
+        materials.append(_material(path, node, visual, uvs is not None, colors, maps, warnings))
     return Mesh(str(node), positions, faces, material_index[key], normals, uvs, colors=colors)
 
 
@@ -209,7 +287,7 @@ def _colors(path: str, visual) -> np.ndarray | None:
     return codes / 255.0 if linear else srgb_to_linear(codes / 255.0)
 
 
-def _material(path: str, node, visual, has_uvs: bool, colors, warnings: list[str]) -> Material:
+def _material(path: str, node, visual, has_uvs: bool, colors, maps: dict, warnings: list[str]) -> Material:
     material = getattr(visual, "material", None)
     if material is None:  # ColorVisuals: per-vertex or per-face colours, or none
         if colors is None:
@@ -219,6 +297,7 @@ def _material(path: str, node, visual, has_uvs: bool, colors, warnings: list[str
 
     name = getattr(material, "name", None) or f"{node}.material"
     kind = type(material).__name__
+    lookup = {}
     if kind == "PBRMaterial":
         factor = _color(material.baseColorFactor, default=(1.0, 1.0, 1.0))
         image = material.baseColorTexture
@@ -238,6 +317,8 @@ def _material(path: str, node, visual, has_uvs: bool, colors, warnings: list[str
         factor, emission = _mtl(material, name, warnings)
         image = getattr(material, "image", None)
         twosided, approximated = True, False
+        if name in maps:
+            image, lookup = _mtl_image(name, *maps[name], warnings)
     texture = None
     if image is not None:
         if not has_uvs:
@@ -250,7 +331,10 @@ def _material(path: str, node, visual, has_uvs: bool, colors, warnings: list[str
     gloss = _gloss(material, name, albedo, warnings) if kind == "PBRMaterial" else None
     if gloss is not None and gloss.kind == "roughconductor":
         albedo, texture = (0.0, 0.0, 0.0), None  # a metal has no diffuse base
-    return Material(name, albedo, texture, emission, twosided, source_bsdf=kind, approximated=approximated, gloss=gloss)
+    lookup = lookup if texture is not None else {}
+    return Material(
+        name, albedo, texture, emission, twosided, source_bsdf=kind, approximated=approximated, gloss=gloss, **lookup
+    )
 
 
 # glTF's dielectrics reflect 4 % at normal incidence: Mitsuba's rough plastic of index 1.5.
