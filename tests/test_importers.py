@@ -296,6 +296,16 @@ def test_a_gltf_camera_is_the_scenes_camera_wherever_its_node_is(tmp_path):
         in load_scene(tmp_path / "seen.glb").warnings
     )
 
+    def tiled(doc):  # a texture transform, which trimesh drops, is said too
+        transform = {"KHR_texture_transform": {"scale": [4.0, 4.0]}}
+        doc["materials"] = [{"name": "floor", "pbrMetallicRoughness": {"extensions": transform}}]
+        return doc
+
+    rewrite_glb(tmp_path / "seen.glb", tiled)
+    assert "the texture transforms (KHR_texture_transform) of material(s) floor left out" in (
+        load_scene(tmp_path / "seen.glb").warnings
+    )
+
 
 @pytest.mark.parametrize("ext", ["gltf", "glb", "ply"])
 def test_gltf_glb_ply(tmp_path, ext):

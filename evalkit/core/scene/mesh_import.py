@@ -87,6 +87,14 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
         lights_left_out = len(doc.get("extensions", {}).get("KHR_lights_punctual", {}).get("lights", []))
         if lights_left_out:
             warnings.append(f"{lights_left_out} KHR_lights_punctual light(s) left out (their units are photometric)")
+        transformed = [
+            m.get("name", str(i))
+            for i, m in enumerate(doc.get("materials", []))
+            if "KHR_texture_transform" in json.dumps(m)
+        ]
+        if transformed:
+            names = ", ".join(transformed)
+            warnings.append(f"the texture transforms (KHR_texture_transform) of material(s) {names} left out")
     return assemble(name, path, meshes, materials, lights, camera=camera, warnings=warnings)
 
 
