@@ -203,6 +203,14 @@ def test_obj_map_kd_options_scale_and_offset_the_uvs_and_the_rest_are_said(tmp_p
     assert str(e.value).startswith(str(tmp_path / "m.mtl"))
 
 
+def test_an_mtl_colour_that_is_not_numbers_is_left_out_and_said(tmp_path):
+    (tmp_path / "m.mtl").write_text("newmtl bad\nKd 0.5 0.5 0.5\nKe a b c\n")
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl bad\nf 1 2 3\n")
+    s = load_scene(tmp_path / "m.obj")
+    assert s.materials[0].emission == (0.0, 0.0, 0.0) and s.materials[0].albedo == (0.5, 0.5, 0.5)
+    assert "material 'bad': its Ke ['a', 'b', 'c'] is not numbers; left out" in s.warnings
+
+
 def test_obj_materials_emit_their_ke_and_keep_their_kd_and_say_what_they_leave_out(tmp_path):
     # MTL's Ke was dropped (the lamp went dark and a default sun lit the scene instead), and Kd was
     # read from trimesh's 8-bit copy (0.7 became 0.698).

@@ -203,7 +203,13 @@ def _gltf_document(path: str) -> dict:
     if data[:4] == b"glTF":  # GLB: a 12-byte header, then the JSON chunk's length, type and text
         length = int.from_bytes(data[12:16], "little")
         data = data[20 : 20 + length]
-    return json.loads(data)
+    try:
+        doc = json.loads(data)
+    except ValueError as e:
+        raise InputError(path, f"its glTF JSON cannot be read: {e}") from None
+    if not isinstance(doc, dict):
+        raise InputError(path, "its glTF JSON is not an object")
+    return doc
 
 
 def _gltf_node_matrix(node: dict) -> np.ndarray:
@@ -370,7 +376,11 @@ def _mtl(material, name: str, warnings: list[str]) -> tuple[tuple, tuple]:
 
     def values(key):
         v = statements.get(key)
-        return None if v is None else np.asarray(v, dtype=np.float64).reshape(-1)
+        try:
+            return None if v is None else np.asarray(v, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            warnings.append(f"material '{name}': its {key.capitalize()} {v} is not numbers; left out")
+            return None
 
     kd, ke, ks = values("kd"), values("ke"), values("ks")
     diffuse = rgb(kd[:3]) if kd is not None and kd.size >= 3 else _color(getattr(material, "diffuse", None), (0.8,) * 3)
