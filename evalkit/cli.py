@@ -105,6 +105,11 @@ def _scene_check(args) -> int:
             f"{name:<11} mean ratio (r, g, b) {ratios}; relMSE {image['relmse']:.3g}; "
             f"{100 * (1 - image['z_outside_share']):.2f} % of pixels pass the z-test"
         )
+    if result["compared"] == "geometry":
+        print(
+            "compared    geometry and normals alone, both grey under a constant sky: Mitsuba reads no MTL, and a "
+            "PLY's colours as raw codes"
+        )
     camera = result["camera"]
     if camera is not None:
         print(
@@ -830,10 +835,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_scene_info)
     p = scene.add_parser(
         "check",
-        help="render a Mitsuba XML file and the toolkit's import of it with Mitsuba and compare them: the image "
-        "mean per channel with its 95 %% interval, relMSE, the z-test; exit 1 beyond the tolerance",
+        help="render a Mitsuba XML file (or an OBJ or PLY file's geometry) and the toolkit's import of it with "
+        "Mitsuba and compare them: the image mean per channel with its 95 %% interval, relMSE, the z-test, the "
+        "camera; exit 1 unless it passes",
     )
-    p.add_argument("scene", help="a Mitsuba .xml file")
+    p.add_argument("scene", help="a Mitsuba .xml file, or an .obj or .ply file")
     p.add_argument("--bounces", type=int, default=1)
     p.add_argument("--spp", type=int, default=64, help="samples per pixel of each render")
     p.add_argument("--chunks", type=int, default=8, help="chunks the spp are rendered in (the noise comes from them)")

@@ -11,15 +11,16 @@ the same seed per chunk, so the check measures the import alone and none of the 
 Per image (direct, indirect, total) it reports the imported image mean over the original's per
 channel with its 95 % interval (`render_ratio`, chunks paired: they share their seeds), relMSE, and
 the per-pixel z-test's share of pixels outside (Sidak-corrected, as Mitsuba's render tests), with
-the approximations the import made. The check passes when every channel of the total image is
-within ``tolerance`` of 1 and at least `Z_SHARE` of its pixels pass the z-test; a channel beyond
-the tolerance whose 95 % interval still holds 1 makes it inconclusive (more samples decide), not
-failed.
+the approximations the import made; and how far the imported camera's rays are from the file's
+sensor's (`camera_agreement`). An OBJ or PLY file is compared with Mitsuba's own reading of it as
+geometry alone (`_mesh_file_scenes`). The verdict (`_verdict`) is passed, failed, or inconclusive
+where the samples cannot tell a difference from their noise.
 """
 
 from __future__ import annotations
 
 import importlib.metadata
+import os
 import time
 from dataclasses import replace
 
@@ -27,7 +28,8 @@ import numpy as np
 
 from evalkit.core import cache
 from evalkit.core.errors import InputError
-from evalkit.core.scene import load_scene
+from evalkit.core.mitsuba_env import mitsuba
+from evalkit.core.scene import Light, Material, load_scene
 from evalkit.core.scene.mitsuba_io import load_mitsuba_original, sensor_dict, to_mitsuba_dict
 from evalkit.core.settings import IMAGES, RenderSettings
 from evalkit.metrics.confidence import mean_ratio, render_ratio, z_test
@@ -65,18 +67,25 @@ def check_scene(
     the figures, the settings and versions that made them, and ``passed`` (the import's fidelity);
     the result is stored in the user cache under the imported scene's content, where `fidelity_of`
     finds it."""
-    if not str(path).lower().endswith(".xml"):
-        raise InputError(str(path), "the import check compares a Mitsuba XML file with its import")
+    mesh_file = str(path).lower().endswith(MESH_FILES)
+    if not (mesh_file or str(path).lower().endswith(".xml")):
+        raise InputError(str(path), "the import check compares a Mitsuba XML, OBJ or PLY file with its import")
     if chunks < 2 or spp % chunks:
         raise InputError(str(path), f"{chunks} chunks must be at least 2 and divide spp={spp}")
     progress = progress or (lambda line: None)
     start = time.perf_counter()
     scene = load_scene(path)
-    mi, original = load_mitsuba_original(path, variant)
     per_chunk = spp // chunks
-    sensor = mi.load_dict(sensor_dict(scene.camera, mi, per_chunk, width, height, offset=scene.origin))
-    camera = camera_agreement(mi, original, scene)
-    imported = mi.load_dict(to_mitsuba_dict(scene, mi, spp=per_chunk, width=width, height=height))
+    if mesh_file:  # in scene space, with the import's camera: the file has none
+        mi = mitsuba(variant)
+        original, imported = _mesh_file_scenes(mi, scene, str(path), per_chunk, width, height)
+        sensor = mi.load_dict(sensor_dict(scene.camera, mi, per_chunk, width, height))
+        camera = None
+    else:
+        mi, original = load_mitsuba_original(path, variant)
+        sensor = mi.load_dict(sensor_dict(scene.camera, mi, per_chunk, width, height, offset=scene.origin))
+        camera = camera_agreement(mi, original, scene)
+        imported = mi.load_dict(to_mitsuba_dict(scene, mi, spp=per_chunk, width=width, height=height))
     integrators = path_integrators(mi, bounces)
     runs = {"original": [], "imported": []}
     for chunk in range(chunks):
@@ -119,6 +128,7 @@ def check_scene(
         "tolerance": tolerance,
         "z_share": Z_SHARE,
         "images": images,
+        "compared": "geometry" if mesh_file else "scene",
         "approximations": list(scene.warnings),
         "camera": camera,
         "verdict": verdict,
@@ -163,6 +173,40 @@ def camera_agreement(mi, original, scene) -> dict | None:
     offset = float(np.linalg.norm(o0 - o1, axis=1).max()) / scene.bounding_sphere()[1]
     within = angle <= CAMERA_ANGLE_DEGREES and offset <= CAMERA_OFFSET
     return {"angle_degrees": angle, "offset": offset, "within": within}
+
+
+# A mesh file's check: Mitsuba reads an OBJ's or PLY's geometry and normals, but no MTL, and a
+# PLY's colours as raw 8-bit codes, so the file and the import are compared as geometry alone: one
+# two-sided grey diffuse BSDF on both, under a constant sky.
+MESH_FILES = (".obj", ".ply")
+
+
+def _mesh_file_scenes(mi, scene, path: str, spp: int, width: int | None, height: int | None):
+    """(the file as Mitsuba's obj or ply plugin loads it, moved into the import's scene space; the
+    import with the same grey BSDF and sky). A file without normals is flat-shaded by the toolkit
+    and given face normals in Mitsuba, which would interpolate normals of its own."""
+    grey = Material("grey", (0.5, 0.5, 0.5), twosided=True)
+    sky = Light("constant", (1.0, 1.0, 1.0))
+    geometry = replace(
+        scene,
+        meshes=[replace(m, material=0, colors=None) for m in scene.meshes],
+        materials=[grey],
+        lights=[sky],
+    )
+    flat = all(m.normals is None for m in scene.meshes)
+    reflectance = {"type": "rgb", "value": grey.albedo}
+    original = {
+        "type": "scene",
+        "file": {
+            "type": os.path.splitext(path)[1].lower().lstrip("."),
+            "filename": os.path.abspath(path),
+            "face_normals": flat,
+            "to_world": mi.ScalarTransform4f().translate((-scene.origin).tolist()),
+            "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": reflectance}},
+        },
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": sky.intensity}},
+    }
+    return mi.load_dict(original), mi.load_dict(to_mitsuba_dict(geometry, mi, spp=spp, width=width, height=height))
 
 
 def fidelity_of(scene) -> dict | None:

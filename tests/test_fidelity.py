@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+import trimesh
 from conftest import run_evalkit
 
 from evalkit.core.scene import load_scene
@@ -170,3 +171,32 @@ def test_a_camera_imported_wrong_fails_the_check(monkeypatch):
     assert not result["camera"]["within"] and result["camera"]["angle_degrees"] > 0.1
     assert result["verdict"] == "failed" and not result["passed"]
     assert "the camera's rays part from the file's by up to" in summary_line(result)
+
+
+def test_a_mesh_files_geometry_is_checked_against_mitsubas_own_reading(tmp_path, monkeypatch):
+    # "For OBJ/PLY, compare against Mitsuba loading the same file directly": Mitsuba reads no MTL
+    # and a PLY's colours as raw codes, so the two are compared grey under a sky, as geometry.
+    import evalkit.fidelity as fidelity
+
+    (tmp_path / "m.mtl").write_text("newmtl lamp\nKd 0 0 0\nKe 5 5 5\n")
+    box = trimesh.creation.box()
+    (tmp_path / "box.obj").write_text(
+        "mtllib m.mtl\n"
+        + "".join(f"v {x} {y} {z}\n" for x, y, z in box.vertices)
+        + "usemtl lamp\n"
+        + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in box.faces)
+    )
+    run = run_evalkit("scene", "check", str(tmp_path / "box.obj"), "--spp", "16", "--chunks", "8", "--json")
+    assert run.returncode == 0, run.stdout + run.stderr
+    result = json.loads(run.stdout.strip().splitlines()[-1])
+    assert result["compared"] == "geometry" and result["camera"] is None and result["passed"]
+    assert "compared    geometry and normals alone" in run.stdout
+    read = fidelity.load_scene
+
+    def wider(path):  # an import that read the box 5 % wide
+        scene = read(path)
+        return replace(scene, meshes=[replace(m, positions=m.positions * [1.05, 1.0, 1.0]) for m in scene.meshes])
+
+    monkeypatch.setattr(fidelity, "load_scene", wider)
+    wrong = check_scene(str(tmp_path / "box.obj"), spp=16, chunks=8, width=48)
+    assert wrong["verdict"] == "failed", wrong["images"]["total"]
