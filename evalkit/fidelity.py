@@ -74,10 +74,11 @@ def check_scene(
         raise InputError(str(path), f"{chunks} chunks must be at least 2 and divide spp={spp}")
     progress = progress or (lambda line: None)
     start = time.perf_counter()
-    scene = load_scene(path)
+    scene = loaded = load_scene(path)
     per_chunk = spp // chunks
     if mesh_file:  # in scene space, with the import's camera: the file has none
         mi = mitsuba(variant)
+        scene = geometry_only(scene)  # what the bundles render too, for like to be compared with like
         original, imported = _mesh_file_scenes(mi, scene, str(path), per_chunk, width, height)
         sensor = mi.load_dict(sensor_dict(scene.camera, mi, per_chunk, width, height))
         camera = None
@@ -121,15 +122,15 @@ def check_scene(
     z_ok = not total["z_outside_share"] > 1.0 - Z_SHARE  # NaN (nothing tested: a black image) passes
     verdict = _verdict(total["ratio"], tolerance, z_ok, camera is None or camera["within"], chunks)
     result = {
-        "scene": scene.name,
+        "scene": loaded.name,
         "source": str(path),
-        "scene_hash": scene.content_hash(),
+        "scene_hash": loaded.content_hash(),
         "settings": {"bounces": bounces, "spp": spp, "chunks": chunks, "seed": seed, "size": list(test.shape[1::-1])},
         "tolerance": tolerance,
         "z_share": Z_SHARE,
         "images": images,
         "compared": "geometry" if mesh_file else "scene",
-        "approximations": list(scene.warnings),
+        "approximations": list(loaded.warnings),
         "camera": camera,
         "verdict": verdict,
         "passed": verdict == "passed",
@@ -139,7 +140,7 @@ def check_scene(
         "evalkit": importlib.metadata.version("raybundle-evalkit"),
         "seconds": round(time.perf_counter() - start, 3),
     }
-    cache.store("facts", _key(scene.content_hash()), result)
+    cache.store("facts", _key(result["scene_hash"]), result)
     return result
 
 
@@ -181,27 +182,31 @@ def camera_agreement(mi, original, scene) -> dict | None:
 MESH_FILES = (".obj", ".ply")
 
 
-def _mesh_file_scenes(mi, scene, path: str, spp: int, width: int | None, height: int | None):
-    """(the file as Mitsuba's obj or ply plugin loads it, moved into the import's scene space; the
-    import with the same grey BSDF and sky). A file without normals is flat-shaded by the toolkit
-    and given face normals in Mitsuba, which would interpolate normals of its own."""
-    grey = Material("grey", (0.5, 0.5, 0.5), twosided=True)
-    sky = Light("constant", (1.0, 1.0, 1.0))
-    geometry = replace(
+def geometry_only(scene):
+    """``scene`` with one two-sided grey diffuse material and a constant sky: what a mesh file's
+    check compares (`MESH_FILES`)."""
+    return replace(
         scene,
         meshes=[replace(m, material=0, colors=None) for m in scene.meshes],
-        materials=[grey],
-        lights=[sky],
+        materials=[Material("grey", (0.5, 0.5, 0.5), twosided=True)],
+        lights=[Light("constant", (1.0, 1.0, 1.0))],
     )
-    flat = all(m.normals is None for m in scene.meshes)
+
+
+def _mesh_file_scenes(mi, geometry, path: str, spp: int, width: int | None, height: int | None):
+    """(the file as Mitsuba's obj or ply plugin loads it, moved into the import's scene space, with
+    the BSDF and sky of ``geometry``; ``geometry`` exported). A file without normals is
+    flat-shaded by the toolkit and given face normals in Mitsuba, which would interpolate normals
+    of its own."""
+    (grey,), (sky,) = geometry.materials, geometry.lights
     reflectance = {"type": "rgb", "value": grey.albedo}
     original = {
         "type": "scene",
         "file": {
             "type": os.path.splitext(path)[1].lower().lstrip("."),
             "filename": os.path.abspath(path),
-            "face_normals": flat,
-            "to_world": mi.ScalarTransform4f().translate((-scene.origin).tolist()),
+            "face_normals": all(m.normals is None for m in geometry.meshes),
+            "to_world": mi.ScalarTransform4f().translate((-geometry.origin).tolist()),
             "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": reflectance}},
         },
         "sky": {"type": "constant", "radiance": {"type": "rgb", "value": sky.intensity}},

@@ -191,6 +191,7 @@ def test_a_mesh_files_geometry_is_checked_against_mitsubas_own_reading(tmp_path,
     result = json.loads(run.stdout.strip().splitlines()[-1])
     assert result["compared"] == "geometry" and result["camera"] is None and result["passed"]
     assert "compared    geometry and normals alone" in run.stdout
+    assert fidelity_of(load_scene(tmp_path / "box.obj"))["compared"] == "geometry"  # found by info and renders
     read = fidelity.load_scene
 
     def wider(path):  # an import that read the box 5 % wide
