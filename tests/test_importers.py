@@ -231,6 +231,27 @@ def test_obj_materials_emit_their_ke_and_keep_their_kd_and_say_what_they_leave_o
     assert left.startswith("material 'shiny': its specular Ks (0.5, 0.5, 0.5) and its transparency (d, Tr)")
 
 
+def test_gltf_vertex_colours_under_a_material_are_averaged_into_it_and_said(tmp_path):
+    # COLOR_0 multiplies a glTF material's base colour; under a material trimesh keeps it aside,
+    # and it was dropped without a word.
+    m = trimesh.creation.box()
+    m.visual.vertex_colors = np.tile([200, 50, 100, 255], (len(m.vertices), 1)).astype(np.uint8)
+    m.export(tmp_path / "painted.glb")
+
+    def material(doc):
+        pbr = {"baseColorFactor": [0.5, 0.5, 0.5, 1.0], "metallicFactor": 0.0}
+        doc["materials"] = [{"name": "paint", "pbrMetallicRoughness": pbr}]
+        doc["meshes"][0]["primitives"][0]["material"] = 0
+        return doc
+
+    rewrite_glb(tmp_path / "painted.glb", material)
+    s = load_scene(tmp_path / "painted.glb")
+    (mat,) = s.materials
+    assert mat.albedo == pytest.approx((0.5 * 200 / 255, 0.5 * 50 / 255, 0.5 * 100 / 255), abs=3e-3)
+    said = "its COLOR_0 vertex colours are approximated by their mean (0.7843, 0.1961, 0.3922)"
+    assert any(said in w for w in s.warnings), s.warnings
+
+
 def test_a_gltf_material_says_what_it_leaves_out_and_refuses_textured_emission(tmp_path):
     # A normal map and an alpha mask were dropped without a word (foliage rendered as opaque quads),
     # and an emissive texture's factor was taken as the whole emission.

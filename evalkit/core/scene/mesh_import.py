@@ -325,6 +325,14 @@ def _material(path: str, node, visual, has_uvs: bool, colors, maps: dict, warnin
             left_out.append(f"its alpha mode {material.alphaMode} (rendered opaque)")
         if left_out:
             warnings.append(f"material '{name}': {' and '.join(left_out)} left out")
+        colors = getattr(visual, "vertex_attributes", {}).get("color")
+        if colors is not None:  # glTF's base colour is the factor times COLOR_0 (linear)
+            mean = np.asarray(colors, dtype=np.float64)[:, :3].mean(axis=0) / 255.0
+            factor = rgb(np.asarray(factor) * mean)
+            warnings.append(
+                f"material '{name}': its COLOR_0 vertex colours are approximated by their mean {_rounded(mean)} "
+                "(a glossy base takes no vertex colours)"
+            )
         twosided = bool(material.doubleSided)
         approximated = True  # glTF's BRDF is not Mitsuba's rough conductor or plastic (`_gloss`)
     else:  # SimpleMaterial (OBJ/MTL)
