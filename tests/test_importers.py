@@ -252,6 +252,34 @@ def test_gltf_vertex_colours_under_a_material_are_averaged_into_it_and_said(tmp_
     assert any(said in w for w in s.warnings), s.warnings
 
 
+def test_a_gltf_emissive_strength_multiplies_the_emission(tmp_path):
+    # KHR_materials_emissive_strength (Blender writes it for lamps brighter than 1) was dropped by
+    # trimesh: a lamp of strength 40 lit at 1/40 of its power.
+    m = trimesh.creation.box()
+    lamp = trimesh.visual.material.PBRMaterial(emissiveFactor=[1.0, 0.5, 0.25])
+    m.visual = trimesh.visual.TextureVisuals(material=lamp)
+    m.export(tmp_path / "lamp.glb")
+
+    def strong(doc):
+        (material,) = doc["materials"]
+        material["name"] = "lamp"
+        material["extensions"] = {"KHR_materials_emissive_strength": {"emissiveStrength": 40.0}}
+        return doc
+
+    rewrite_glb(tmp_path / "lamp.glb", strong)
+    (mat,) = load_scene(tmp_path / "lamp.glb").materials
+    assert mat.emission == pytest.approx((40.0, 20.0, 10.0))
+
+    def unnamed(doc):  # trimesh's materials cannot be matched to the file's without a name: said
+        del doc["materials"][0]["name"]
+        return doc
+
+    rewrite_glb(tmp_path / "lamp.glb", unnamed)
+    s = load_scene(tmp_path / "lamp.glb")
+    assert s.materials[0].emission == pytest.approx((1.0, 0.5, 0.25))
+    assert "the emissive strength (KHR_materials_emissive_strength) of 1 unnamed material(s) left out" in s.warnings
+
+
 def test_a_gltf_material_says_what_it_leaves_out_and_refuses_textured_emission(tmp_path):
     # A normal map and an alpha mask were dropped without a word (foliage rendered as opaque quads),
     # and an emissive texture's factor was taken as the whole emission.

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from typing import NamedTuple
 
 import numpy as np
 
@@ -28,6 +29,14 @@ from evalkit.core.scene.colour import rgb, srgb_to_linear
 from evalkit.core.scene.gloss import metallic_roughness
 from evalkit.core.scene.mesh_lines import check_obj, check_ply
 from evalkit.core.scene.model import Camera, Gloss, Material, Mesh, Scene
+
+
+class OwnReading(NamedTuple):
+    """What the toolkit reads from a mesh file itself, where trimesh drops it: per OBJ material its
+    map_Kd (`_mtl_maps`), per named glTF material its emissive strength (`_emissive_strengths`)."""
+
+    map_kd: dict
+    emissive_strengths: dict
 
 
 def load_mesh_file(path: str | os.PathLike) -> Scene:
@@ -56,7 +65,8 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
         ) from None
 
     warnings: list[str] = []
-    maps = _mtl_maps(path) if extension == ".obj" else {}
+    doc = _gltf_document(path) if extension in (".gltf", ".glb") else {}
+    own = OwnReading(_mtl_maps(path) if extension == ".obj" else {}, _emissive_strengths(doc, warnings))
     materials: list[Material] = []
     material_index: dict[int, int] = {}
     meshes: list[Mesh] = []
@@ -67,7 +77,7 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
             warnings.append(f"'{geometry_name}' is a {type(geometry).__name__}, not a triangle mesh; it is left out")
             continue
         transform = np.asarray(transform, dtype=np.float64)
-        mesh = _mesh(path, node, geometry, transform, materials, material_index, maps, warnings)
+        mesh = _mesh(path, node, geometry, transform, materials, material_index, own, warnings)
         if mesh is not None:
             meshes.append(mesh)
     if not meshes:
@@ -78,8 +88,7 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
         warnings.append("no emissive material in the file; a default sun (directional light) is used")
     name = os.path.splitext(os.path.basename(path))[0]
     camera = None
-    if extension in (".gltf", ".glb"):
-        doc = _gltf_document(path)
+    if doc:
         try:
             camera = _gltf_camera(doc)
         except (KeyError, IndexError, TypeError, ValueError, ZeroDivisionError) as e:
@@ -138,6 +147,25 @@ def _mtl_maps(obj_path: str) -> dict[str, tuple[str, dict, str]]:
                     image = os.path.join(os.path.dirname(mtl), " ".join(words[i:]))
                     maps[material] = (image, options, mtl)
     return maps
+
+
+def _emissive_strengths(doc: dict, warnings: list[str]) -> dict[str, float]:
+    """Per named glTF material, its KHR_materials_emissive_strength, which multiplies its emissive
+    factor (trimesh drops it); that of an unnamed material, which trimesh's materials cannot be
+    matched to, is named in a warning."""
+    strengths, unnamed = {}, 0
+    for m in doc.get("materials", []):
+        strength = m.get("extensions", {}).get("KHR_materials_emissive_strength", {}).get("emissiveStrength")
+        if strength is None:
+            continue
+        if "name" in m:
+            strengths[m["name"]] = float(strength)
+        else:
+            unnamed += 1
+    if unnamed:
+        what = "the emissive strength (KHR_materials_emissive_strength)"
+        warnings.append(f"{what} of {unnamed} unnamed material(s) left out")
+    return strengths
 
 
 def _mtl_image(name: str, file: str, options: dict, mtl: str, warnings: list[str]):
@@ -249,7 +277,7 @@ def _camera_of(camera: dict, world: np.ndarray) -> Camera:
     return Camera(to_world, math.degrees(float(p["yfov"])), "y", width, GLTF_FILM_HEIGHT, near_clip=near, far_clip=far)
 
 
-def _mesh(path, node, geometry, transform, materials, material_index, maps, warnings) -> Mesh | None:
+def _mesh(path, node, geometry, transform, materials, material_index, own, warnings) -> Mesh | None:
     vertices = np.asarray(geometry.vertices, dtype=np.float64)
     faces = np.asarray(geometry.faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # e.g. an OBJ 'v' line with two coordinates
@@ -286,7 +314,7 @@ def _mesh(path, node, geometry, transform, materials, material_index, maps, warn
     key = id(getattr(visual, "material", visual))
     if key not in material_index:
         material_index[key] = len(materials)
-        materials.append(_material(path, node, visual, uvs is not None, colors, maps, warnings))
+        materials.append(_material(path, node, visual, uvs is not None, colors, own, warnings))
     return Mesh(str(node), positions, faces, material_index[key], normals, uvs, colors=colors)
 
 
@@ -301,7 +329,7 @@ def _colors(path: str, visual) -> np.ndarray | None:
     return codes / 255.0 if linear else srgb_to_linear(codes / 255.0)
 
 
-def _material(path: str, node, visual, has_uvs: bool, colors, maps: dict, warnings: list[str]) -> Material:
+def _material(path: str, node, visual, has_uvs: bool, colors, own: OwnReading, warnings: list[str]) -> Material:
     material = getattr(visual, "material", None)
     if material is None:  # ColorVisuals: per-vertex or per-face colours, or none
         if colors is None:
@@ -316,6 +344,7 @@ def _material(path: str, node, visual, has_uvs: bool, colors, maps: dict, warnin
         factor = _color(material.baseColorFactor, default=(1.0, 1.0, 1.0))
         image = material.baseColorTexture
         emission = rgb(material.emissiveFactor) if material.emissiveFactor is not None else (0.0, 0.0, 0.0)
+        emission = rgb(np.asarray(emission) * own.emissive_strengths.get(name, 1.0))
         if material.emissiveTexture is not None and max(emission) > 0.0:
             raise InputError(path, f"material '{name}': textured emission (emissiveTexture) is not supported")
         left_out = []
@@ -339,8 +368,8 @@ def _material(path: str, node, visual, has_uvs: bool, colors, maps: dict, warnin
         factor, emission = _mtl(material, name, warnings)
         image = getattr(material, "image", None)
         twosided, approximated = True, False
-        if name in maps:
-            image, lookup = _mtl_image(name, *maps[name], warnings)
+        if name in own.map_kd:
+            image, lookup = _mtl_image(name, *own.map_kd[name], warnings)
     texture = None
     if image is not None:
         if not has_uvs:
