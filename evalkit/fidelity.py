@@ -235,7 +235,7 @@ def summary_line(result: dict) -> str:
     if camera and not camera["within"]:
         line += f"; the camera's rays part from the file's by up to {camera['angle_degrees']:.3g} degrees"
     if verdict == "inconclusive":
-        chunks = result["settings"].get("chunks", Z_CHUNKS)
+        chunks = result["settings"]["chunks"]
         if total["z_outside_share"] > 1.0 - Z_SHARE and chunks < Z_CHUNKS:
             line += f"; the z-test's variances come from {chunks} chunks: check again with --chunks {Z_CHUNKS}"
         else:

@@ -46,11 +46,13 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
     if os.path.getsize(path) == 0:
         raise InputError(path, "the file is empty")
     extension = os.path.splitext(path)[1].lower()
+    obj_text = None
     if extension in (".obj", ".ply"):  # text records checked to the line first (mesh_lines)
         with open(path, "rb") as f:
             data = f.read()
         if extension == ".obj":
-            check_obj(path, data.decode("utf-8", "replace"))
+            obj_text = data.decode("utf-8", "replace")
+            check_obj(path, obj_text)
         else:
             check_ply(path, data)
     import trimesh
@@ -66,7 +68,7 @@ def load_mesh_file(path: str | os.PathLike) -> Scene:
 
     warnings: list[str] = []
     doc = _gltf_document(path) if extension in (".gltf", ".glb") else {}
-    own = OwnReading(_mtl_maps(path) if extension == ".obj" else {}, _emissive_strengths(doc, warnings))
+    own = OwnReading(_mtl_maps(path, obj_text) if obj_text is not None else {}, _emissive_strengths(doc, warnings))
     materials: list[Material] = []
     material_index: dict[int, int] = {}
     meshes: list[Mesh] = []
@@ -114,13 +116,12 @@ MTL_OPTIONS = {
 }  # fmt: skip
 
 
-def _mtl_maps(obj_path: str) -> dict[str, tuple[str, dict, str]]:
-    """Per material of an OBJ's MTL files, its map_Kd: (the image's path, its options, the MTL
-    file), read here because trimesh takes an option for part of the file name and then drops the
-    texture without a word."""
+def _mtl_maps(obj_path: str, obj_text: str) -> dict[str, tuple[str, dict, str]]:
+    """Per material of the MTL files the OBJ text names, its map_Kd: (the image's path, its
+    options, the MTL file), read here because trimesh takes an option for part of the file name
+    and then drops the texture without a word."""
     folder = os.path.dirname(os.path.abspath(obj_path))
-    with open(obj_path, encoding="utf-8", errors="replace") as f:
-        libraries = [name for line in f if line.startswith("mtllib") for name in line.split()[1:]]
+    libraries = [name for line in obj_text.splitlines() if line.startswith("mtllib") for name in line.split()[1:]]
     maps, material = {}, None
     for library in libraries:
         mtl = os.path.join(folder, library)
@@ -226,11 +227,13 @@ def _gltf_camera(doc: dict) -> Camera | None:
 
 
 def _gltf_document(path: str) -> dict:
+    """A glTF file's JSON; of a GLB, its first chunk alone (not its binary buffers)."""
     with open(path, "rb") as f:
-        data = f.read()
-    if data[:4] == b"glTF":  # GLB: a 12-byte header, then the JSON chunk's length, type and text
-        length = int.from_bytes(data[12:16], "little")
-        data = data[20 : 20 + length]
+        data = f.read(20)
+        if data[:4] == b"glTF":  # a 12-byte header, then the JSON chunk's length, type and text
+            data = f.read(int.from_bytes(data[12:16], "little"))
+        else:
+            data += f.read()
     try:
         doc = json.loads(data)
     except ValueError as e:
@@ -354,9 +357,9 @@ def _material(path: str, node, visual, has_uvs: bool, colors, own: OwnReading, w
             left_out.append(f"its alpha mode {material.alphaMode} (rendered opaque)")
         if left_out:
             warnings.append(f"material '{name}': {' and '.join(left_out)} left out")
-        colors = getattr(visual, "vertex_attributes", {}).get("color")
-        if colors is not None:  # glTF's base colour is the factor times COLOR_0 (linear)
-            mean = np.asarray(colors, dtype=np.float64)[:, :3].mean(axis=0) / 255.0
+        color_0 = getattr(visual, "vertex_attributes", {}).get("color")
+        if color_0 is not None:  # glTF's base colour is the factor times COLOR_0 (linear)
+            mean = np.asarray(color_0, dtype=np.float64)[:, :3].mean(axis=0) / 255.0
             factor = rgb(np.asarray(factor) * mean)
             warnings.append(
                 f"material '{name}': its COLOR_0 vertex colours are approximated by their mean {_rounded(mean)} "
