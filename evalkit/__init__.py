@@ -11,7 +11,9 @@ Scene model and importers (`evalkit.core.scene`), settings (`evalkit.core.settin
 trimesh and OpenGL are loaded only by the functions that need them.
 """
 
-__version__ = "0.1.0"
+from evalkit.core import VERSION
+
+__version__ = VERSION
 
 # What `import evalkit` offers, and the module each comes from (loaded at first use).
 _EXPORTS = {

@@ -19,14 +19,13 @@ where the samples cannot tell a difference from their noise.
 
 from __future__ import annotations
 
-import importlib.metadata
 import os
 import time
 from dataclasses import replace
 
 import numpy as np
 
-from evalkit.core import cache
+from evalkit.core import VERSION, cache
 from evalkit.core.errors import InputError
 from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene import Light, Material, load_scene
@@ -137,7 +136,7 @@ def check_scene(
         "bundles": bundle_check if bundles is not None else None,
         "mitsuba": mi.__version__,
         "variant": mi.variant(),
-        "evalkit": importlib.metadata.version("raybundle-evalkit"),
+        "evalkit": VERSION,
         "seconds": round(time.perf_counter() - start, 3),
     }
     cache.store("facts", _key(result["scene_hash"]), result)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import ast
 import html
-import importlib.metadata
 import json
 import os
 import shlex
@@ -18,6 +17,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import NamedTuple
 
+from evalkit.core import VERSION
 from gpu_impl.context import default_context
 
 
@@ -100,7 +100,7 @@ def notebook_markdown(path: str | os.PathLike, repository: str | os.PathLike) ->
                 parts.append(f'<div class="ek-output">{" ".join(cell.shown.splitlines())}</div>')
     gl = default_context().info  # the context the cells rendered with
     when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-    version = importlib.metadata.version("raybundle-evalkit")
+    version = VERSION
     parts.append(
         f"*Run when this page was built: `{path.relative_to(Path(repository).resolve())}`, "
         f"evalkit {version}, {gl['renderer']}, {when}.*"

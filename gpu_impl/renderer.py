@@ -17,7 +17,6 @@ through the bundles) and indirect (max_depth B + 2 minus max_depth 2), so they c
 
 from __future__ import annotations
 
-import importlib.metadata
 import json
 import math
 import os
@@ -29,6 +28,7 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
+from evalkit.core import VERSION
 from evalkit.core.atomic import write_text
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.display import fields_html, image_html
@@ -421,7 +421,7 @@ class Renderer:
         derived, the shader variant and the GL device."""
         st = self.settings
         return {
-            "evalkit": importlib.metadata.version("raybundle-evalkit"),
+            "evalkit": VERSION,
             "scene": self.scene.name,
             "scene_source": self.scene.source,
             "scene_hash": self.scene.content_hash(),

@@ -33,7 +33,6 @@ Entries are locked one by one, so different references of one store render side 
 
 from __future__ import annotations
 
-import importlib.metadata
 import json
 import os
 import shutil
@@ -43,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evalkit.core import VERSION
 from evalkit.core.atomic import atomic_path, write_text
 from evalkit.core.cache import CACHE_VARIABLE, cache_root
 from evalkit.core.errors import InputError
@@ -189,7 +189,7 @@ def _render_entry(scene, scene_hash, entry, bounces, spp, width, height, seed, c
         "variance": "variance of the pixel mean from the spread of the chunk means (batch means), per RGB channel",
         "mitsuba": mi.__version__,
         "variant": mi.variant(),
-        "evalkit": importlib.metadata.version("raybundle-evalkit"),
+        "evalkit": VERSION,
         "warnings": list(scene.warnings),
         "render_s": round(time.perf_counter() - start, 3),
         "files": {},

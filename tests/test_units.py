@@ -3,6 +3,7 @@ ShadowMaps, Paths), parametrized over the registries: a new unit is tested by re
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
 import subprocess
 import sys
@@ -11,8 +12,12 @@ from pathlib import Path
 import pytest
 from conftest import render_with
 
+import evalkit
+from evalkit.core.bundleset import DirectionSet
 from evalkit.core.scene import load_scene
 from evalkit.core.settings import RenderSettings
+from evalkit.study.run import versions
+from gpu_impl.api import trace_bundles
 from gpu_impl.registry import KINDS, LIGHT_VISIBILITIES, METHODS, STRATEGIES
 from gpu_impl.renderer import Renderer
 from gpu_impl.units import Paths, ShadowMaps, Tracer
@@ -97,3 +102,22 @@ def test_render_with_drops_what_a_unit_does_not_declare(gl):
     result = render_with(gl, load_scene("cornell-box"), method=METHODS.default.name, points=1024, frames=1,
                          directions=2, resolution=16, width=8, height=8)  # fmt: skip
     assert "points" not in result.params
+
+
+def test_a_checkout_run_without_installing_records_the_toolkit_s_version(gl, monkeypatch):
+    """Run from a checkout that was never `pip install`ed (a GPU machine given the sources and its
+    own Python), renders, bundles and records take the toolkit's version from its package: read
+    from the installed metadata, every render stopped with PackageNotFoundError."""
+    installed = importlib.metadata.version("raybundle-evalkit")
+    real = importlib.metadata.version
+
+    def version(name):
+        if name == "raybundle-evalkit":
+            raise importlib.metadata.PackageNotFoundError(name)
+        return real(name)
+
+    monkeypatch.setattr(importlib.metadata, "version", version)
+    result = render_with(gl, load_scene("furnace"), width=8, height=8, frames=1, directions=4, resolution=16)
+    bundles = trace_bundles(load_scene("furnace"), DirectionSet.make(2, seed=0), RenderSettings(resolution=16), gl=gl)
+    assert result.params["evalkit"] == bundles.params["evalkit"] == versions()["raybundle-evalkit"] == installed
+    assert evalkit.__version__ == installed  # the package's version is the one pip installs

@@ -10,3 +10,7 @@
 `gpu_impl` and `references` import only this layer; the upper modules of evalkit (metrics, study,
 report, check, cli, demo) import downward. tests/test_layers.py enforces the direction.
 """
+
+# The toolkit's version, pyproject.toml's (`evalkit.__version__`): read here, not from the installed
+# metadata, so a checkout run without installing it records it too.
+VERSION = "0.1.0"

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from evalkit.core import VERSION
 from evalkit.core.atomic import atomic_path
 from evalkit.core.display import bars_html, fields_html
 from evalkit.core.errors import InputError
@@ -126,10 +127,8 @@ def lines_origins(
 
 def bundle_params(scene, method: str, directions: DirectionSet, resolution: int) -> dict:
     """The provenance every builder records in `BundleSet.params` (builders add their own)."""
-    import importlib.metadata
-
     return {
-        "evalkit": importlib.metadata.version("raybundle-evalkit"),
+        "evalkit": VERSION,
         "scene": scene.name,
         "scene_source": scene.source,  # what `load_scene` reads it from
         "scene_hash": scene.content_hash(),

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evalkit.core import VERSION
 from evalkit.core.atomic import atomic_path, write_text
 from evalkit.core.bundleset import DirectionSet
 from evalkit.core.errors import LimitError
@@ -38,7 +39,6 @@ from gpu_impl.scene_buffers import GpuScene
 from references.mitsuba import timed_render
 
 VERSIONED = (
-    "raybundle-evalkit",
     "mitsuba",
     "drjit",
     "moderngl",
@@ -51,7 +51,7 @@ VERSIONED = (
 
 def versions() -> dict:
     """The versions of Python and of every package a row's numbers depend on."""
-    out = {"python": platform.python_version()}
+    out = {"python": platform.python_version(), "raybundle-evalkit": VERSION}
     for package in VERSIONED:
         try:
             out[package] = importlib.metadata.version(package)
