@@ -100,9 +100,8 @@ def notebook_markdown(path: str | os.PathLike, repository: str | os.PathLike) ->
                 parts.append(f'<div class="ek-output">{" ".join(cell.shown.splitlines())}</div>')
     gl = default_context().info  # the context the cells rendered with
     when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-    version = VERSION
     parts.append(
         f"*Run when this page was built: `{path.relative_to(Path(repository).resolve())}`, "
-        f"evalkit {version}, {gl['renderer']}, {when}.*"
+        f"evalkit {VERSION}, {gl['renderer']}, {when}.*"
     )
     return "\n\n".join(parts) + "\n"
