@@ -396,12 +396,12 @@ class BundleTracer:
         if self.directions is None:
             raise RuntimeError("node_refs() before build()")
         b, L = self.buffers, self.list_count
-        first = np.frombuffer(b["LIST_OFFSETS"].read(4 * L), dtype=np.uint32).astype(np.int64)
-        counts = np.frombuffer(b["LIST_COUNTS"].read(4 * L), dtype=np.uint32).astype(np.int64)
+        first = self.gl.read(b["LIST_OFFSETS"], np.uint32, L).astype(np.int64)
+        counts = self.gl.read(b["LIST_COUNTS"], np.uint32, L).astype(np.int64)
         offsets = np.concatenate([[0], np.cumsum(counts)])
         slots = np.repeat(first - offsets[:-1], counts) + np.arange(offsets[-1])
         used = int(first[-1] + counts[-1]) if L else 0
-        keys = np.frombuffer(b["NODES"].read(NODE.itemsize * used), dtype=np.uint32).reshape(-1, 2)[slots]
+        keys = self.gl.read(b["NODES"], np.uint32, NODE.itemsize // 4 * used).reshape(-1, 2)[slots]
         return offsets, order_bits_depth(keys[:, 1]), keys[:, 0] & ~FACING_BIT, slots
 
     def params(self) -> dict:
@@ -420,7 +420,7 @@ class BundleTracer:
             expand = self.gl.program("expand_nodes", TEXTURES=self.textures, **self.defines)
             self._uniforms(expand)
             self.gl.dispatch(expand, self.list_count)
-            words = np.frombuffer(attributes.read(16 * used), dtype=np.uint32).reshape(used, 4)[slots]
+            words = self.gl.read(attributes, np.uint32, 4 * used).reshape(used, 4)[slots]
         finally:
             attributes.release()
         prim = words[:, 3]

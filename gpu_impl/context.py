@@ -32,6 +32,8 @@ GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT = 0x8236, 0x8D94, 0x1405
 # 1.4 GiB beyond its buffers, and with 80 % the memory cgroup killed it
 # (docs/results/decisions.toml: llvmpipe-memory-headroom).
 MEMORY_HEADROOM = 0.5
+# The most `GLContext.read` copies through its staging buffer at a time.
+STAGING_BYTES = 16 << 20
 GL_RED, GL_RG, GL_FLOAT, GL_DEPTH_COMPONENT, GL_DEPTH_COMPONENT24 = 0x1903, 0x8227, 0x1406, 0x1902, 0x81A6
 GL_TEXTURE_2D_ARRAY, GL_COLOR_ATTACHMENT0, GL_DEPTH_ATTACHMENT = 0x8C1A, 0x8CE0, 0x8D00
 
@@ -71,7 +73,7 @@ class GLContext:
                 f"EGL device {device_index}", f"no OpenGL 4.5 context ({e}); `evalkit doctor` says what to install"
             ) from None
         self._programs: dict = {}
-        self._staging = None  # the small buffer `read` copies through
+        self._staging = None  # the buffer `read` copies through, at most STAGING_BYTES
         # GL calls go to the context current on the thread, and making a context makes it current:
         # a second one would take the GL calls of objects made on the first (seen as buffers that
         # cannot be mapped, and a hung pass). So the process's first context is the one the
@@ -262,13 +264,19 @@ class GLContext:
         counter the passes update) is never mapped."""
         dtype = np.dtype(dtype)
         count = buffer.size // dtype.itemsize - first if count is None else count
-        size = dtype.itemsize * count
-        if self._staging is None or self._staging.size < size:
+        size, offset = dtype.itemsize * count, dtype.itemsize * first
+        # In pieces of at most STAGING_BYTES: a read of a whole node buffer (gigabytes at high R)
+        # neither holds a staging buffer its size afterwards nor needs one beside it.
+        if self._staging is None or self._staging.size < min(size, STAGING_BYTES):
             if self._staging is not None:
                 self._staging.release()
-            self._staging = self.ctx.buffer(reserve=max(size, 4096))
-        self.ctx.copy_buffer(self._staging, buffer, size, read_offset=dtype.itemsize * first)
-        return np.frombuffer(self._staging.read(size), dtype=dtype)
+            self._staging = self.ctx.buffer(reserve=max(min(size, STAGING_BYTES), 4096))
+        out = np.empty(size, dtype=np.uint8)
+        for start in range(0, size, STAGING_BYTES):
+            piece = min(STAGING_BYTES, size - start)
+            self.ctx.copy_buffer(self._staging, buffer, piece, read_offset=offset + start)
+            self._staging.read_into(memoryview(out)[start : start + piece], piece)
+        return out.view(dtype)
 
     def vertex_array(self, program, content: list, **kw):
         return self.ctx.vertex_array(program, content, **kw)

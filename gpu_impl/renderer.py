@@ -404,13 +404,13 @@ class Renderer:
     def _read_images(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray] | None]:
         """The images, and their per-pixel variances of the mean (None after one frame)."""
         shape = (self.height, self.width, 4)
-        raw = np.frombuffer(self.buffers["IMAGES"].read(), dtype=np.float32).reshape(2, *shape)
+        raw = self.gl.read(self.buffers["IMAGES"], np.float32).reshape(2, *shape)
         direct, indirect = raw[0, ..., :3].copy(), raw[1, ..., :3].copy()
         images = {"direct": direct, "indirect": indirect, "total": direct + indirect}
         frames = self.frames_rendered
         if frames < 2:
             return images, None
-        m2 = np.frombuffer(self.buffers["IMAGE_M2"].read(), dtype=np.float32).reshape(3, *shape)[..., :3]
+        m2 = self.gl.read(self.buffers["IMAGE_M2"], np.float32).reshape(3, *shape)[..., :3]
         variances = {name: m2[i] / (frames * (frames - 1)) for i, name in enumerate(IMAGES)}
         return images, variances
 

@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -213,6 +214,13 @@ def test_buffers_are_filled_and_read_by_the_gl_without_mapping_them(gl):
         np.testing.assert_array_equal(got, np.arange(2990, 3000))
         gl.fill(buffer)
         assert not gl.read(buffer).any()
+        # A read longer than the staging buffer goes in pieces, starting at any record.
+        buffer.write(np.arange(words, dtype=np.uint32).tobytes())
+        with mock.patch("gpu_impl.context.STAGING_BYTES", 4096), mock.patch.object(gl, "_staging", None):
+            records = gl.read(buffer, np.dtype([("a", "<u4"), ("b", "<u4"), ("c", "<u4")]), 999, first=1)
+            assert gl._staging.size == 4096  # a piece's size, not the read's
+            gl._staging.release()
+        np.testing.assert_array_equal(records["c"], np.arange(5, words, 3))
     finally:
         buffer.release()
     odd = gl.buffer(reserve=6)

@@ -249,8 +249,7 @@ class SplatTracer(BundleTracer):
 
     def read_points(self) -> np.ndarray:
         """The last build's splat points (K N,) as `SPLAT_POINT` records."""
-        raw = self.buffers["POINTS"].read(SPLAT_POINT.itemsize * self.K * self.N)
-        return np.frombuffer(raw, dtype=SPLAT_POINT).copy()
+        return self.gl.read(self.buffers["POINTS"], SPLAT_POINT, self.K * self.N)
 
     def splat_fields(self, refs: np.ndarray) -> dict:
         # Each node's splat point: its triangle and its centre.
