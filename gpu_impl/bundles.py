@@ -120,8 +120,7 @@ class BundleTracer:
         if self.list_count >= 2**32 - 1:
             raise LimitError(f"K={self.K}, R={self.R} exceed the 32-bit list indices", ("directions", "resolution"))
         # 0: the shader variant without texture fetches or vertex colours, for scenes with neither.
-        f = gpu_scene.features
-        self.textures = int((f.textures or f.vertex_colors) if textures is None else textures)
+        self.textures = int(gpu_scene.features.varying_reflectance if textures is None else textures)
         self.defines = {"NODE_REFERENCE": self.node_reference}
         self.buffers: dict = {}
         self._scan_sums: list = []

@@ -149,7 +149,7 @@ class Renderer:
             **self.lights.defines(),
             **self.strategy.defines(),
             "NODE_SIDES": 2 if features.twosided else 1,
-            "TEXTURES": int(features.textures or features.vertex_colors),
+            "TEXTURES": int(features.varying_reflectance),
             "GLOSSY": int(features.glossy),
             **self.tracer.defines,
         }

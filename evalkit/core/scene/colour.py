@@ -18,6 +18,11 @@ def rgb(value) -> RGB:
     return (float(a[0]), float(a[1]), float(a[2]))
 
 
+def rounded(c) -> tuple:
+    """A colour's channels to 4 decimals, as warnings print them."""
+    return tuple(round(float(x), 4) for x in c)
+
+
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     """The sRGB transfer function inverted: 8-bit texture values (scaled to [0, 1]) to linear."""
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)

@@ -25,7 +25,7 @@ import numpy as np
 
 from evalkit.core.errors import InputError
 from evalkit.core.scene.assemble import assemble, default_sun, face_colors_at_corners
-from evalkit.core.scene.colour import rgb, srgb_to_linear
+from evalkit.core.scene.colour import rgb, rounded, srgb_to_linear
 from evalkit.core.scene.gloss import metallic_roughness
 from evalkit.core.scene.mesh_lines import check_obj, check_ply
 from evalkit.core.scene.model import Camera, Gloss, Material, Mesh, Scene
@@ -362,7 +362,7 @@ def _material(path: str, node, visual, has_uvs: bool, colors, own: OwnReading, w
             mean = np.asarray(color_0, dtype=np.float64)[:, :3].mean(axis=0) / 255.0
             factor = rgb(np.asarray(factor) * mean)
             warnings.append(
-                f"material '{name}': its COLOR_0 vertex colours are approximated by their mean {_rounded(mean)} "
+                f"material '{name}': its COLOR_0 vertex colours are approximated by their mean {rounded(mean)} "
                 "(a glossy base takes no vertex colours)"
             )
         twosided = bool(material.doubleSided)
@@ -427,7 +427,7 @@ def _mtl(material, name: str, warnings: list[str]) -> tuple[tuple, tuple]:
     emission = rgb(ke[:3]) if ke is not None and ke.size >= 3 else (0.0, 0.0, 0.0)
     left_out = []
     if ks is not None and ks.size >= 3 and ks[:3].max() > 0.0:
-        left_out.append(f"its specular Ks {_rounded(ks[:3])}")
+        left_out.append(f"its specular Ks {rounded(ks[:3])}")
     opacity, transparency = values("d"), values("tr")
     if (opacity is not None and opacity[:1].min(initial=1.0) < 1.0) or (
         transparency is not None and transparency[:1].max(initial=0.0) > 0.0
@@ -436,10 +436,6 @@ def _mtl(material, name: str, warnings: list[str]) -> tuple[tuple, tuple]:
     if left_out:
         warnings.append(f"material '{name}': {' and '.join(left_out)} left out; rendered diffuse with Kd")
     return diffuse, emission
-
-
-def _rounded(c) -> tuple:
-    return tuple(round(float(x), 4) for x in c)
 
 
 def _color(value, default):

@@ -40,7 +40,7 @@ from evalkit.core.bsdf import MIN_ALPHA, rough_plastic_tables
 from evalkit.core.errors import InputError
 from evalkit.core.mitsuba_env import mitsuba
 from evalkit.core.scene.assemble import assemble, face_colors_at_corners
-from evalkit.core.scene.colour import rgb, sample_texture
+from evalkit.core.scene.colour import rgb, rounded, sample_texture
 from evalkit.core.scene.gloss import metallic_roughness
 from evalkit.core.scene.model import FILTER_TYPES, WRAP_MODES, Camera, Gloss, Light, Material, Mesh, Scene
 from evalkit.core.scene.tessellate import unit_cylinder, unit_disk, unit_sphere
@@ -392,9 +392,9 @@ def _material(mi, bsdf, shape_name: str, emission, warnings: list[str], source: 
         # A rough conductor's "diffuse reflectance" reads as 20 or more: a diffuse surface with it
         # would create energy.
         clamped = tuple(min(a, 1.0) for a in albedo)
-        reflectance = "its diffuse reflectance" + ("" if clamped == albedo else f" {_rounded(albedo)}, clamped to 1")
+        reflectance = "its diffuse reflectance" + ("" if clamped == albedo else f" {rounded(albedo)}, clamped to 1")
         notes.append(
-            f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo {_rounded(clamped)} ({reflectance})"
+            f"BSDF '{name}' ({kind}) is approximated as diffuse with albedo {rounded(clamped)} ({reflectance})"
         )
         if texture.get("texture") is not None:
             texture["texture"] = np.minimum(texture["texture"], 1.0)
@@ -517,10 +517,6 @@ def _twosided_diffuse(mi, bsdf) -> bool:
     """Whether a twosided BSDF wraps diffuse BSDFs only: their parameters are a reflectance alone."""
     keys = mi.traverse(bsdf).keys()  # noqa: SIM118 (SceneParameters iterate as items)
     return {k.split(".")[1] for k in keys if k.startswith("brdf_")} <= {"reflectance"}
-
-
-def _rounded(albedo) -> tuple:
-    return tuple(round(float(a), 4) for a in albedo)
 
 
 def _shape(texture: dict) -> str:

@@ -254,6 +254,12 @@ class SceneFeatures:
     glossy: bool = False  # a material has a `Gloss`
     vertex_colors: bool = False  # a material reflects its meshes' vertex colours
 
+    @property
+    def varying_reflectance(self) -> bool:
+        """A surface's reflectance varies over it (a texture or vertex colours): what the shaders'
+        TEXTURES variant compiles in."""
+        return self.textures or self.vertex_colors
+
 
 @dataclass(frozen=True, eq=False)
 class SceneArrays:
