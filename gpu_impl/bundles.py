@@ -635,8 +635,10 @@ def order_bits_depth(bits: np.ndarray) -> np.ndarray:
 def decode_normals(packed: np.ndarray) -> np.ndarray:
     """Octahedral snorm16x2 normals (shaders/include/common.glsl: encode_normal) to unit (M, 3) float32."""
     e = np.clip(packed.astype(np.uint32).view(np.int16).reshape(-1, 2).astype(np.float64) / 32767.0, -1.0, 1.0)
-    n = np.stack([e[:, 0], e[:, 1], 1.0 - np.abs(e[:, 0]) - np.abs(e[:, 1])], axis=1)
-    back = n[:, 2] < 0
-    sign = np.where(e[back] >= 0.0, 1.0, -1.0)
-    n[back, :2] = (1.0 - np.abs(e[back][:, ::-1])) * sign
-    return (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
+    x, y = e[:, 0], e[:, 1]
+    z = 1.0 - np.abs(x) - np.abs(y)
+    # Below the equator the octahedron is folded: (1 - |y|, 1 - |x|) with the signs of x and y.
+    back = z < 0.0
+    x, y = (np.where(back, (1.0 - np.abs(b)) * np.where(a >= 0.0, 1.0, -1.0), a) for a, b in ((x, y), (y, x)))
+    length = np.sqrt(x * x + y * y + z * z)
+    return np.stack([x / length, y / length, z / length], axis=1).astype(np.float32)

@@ -252,20 +252,21 @@ class SplatTracer(BundleTracer):
         return self.gl.read(self.buffers["POINTS"], SPLAT_POINT, self.K * self.N)
 
     def splat_fields(self, refs: np.ndarray) -> dict:
-        # Each node's splat point: its triangle and its centre.
-        points = self.read_points()[refs]
+        # Each node's splat point: its triangle and its centre, worked out once per point (a node
+        # list holds each point about twice) and then gathered per node.
+        points = self.read_points()
         return {
-            "splat_triangle": points["triangle"].astype(np.int32),
-            "splat_centre": splat_centres(points, self.gpu_scene.arrays),
+            "splat_triangle": points["triangle"][refs].astype(np.int32),
+            "splat_centre": splat_centres(points, self.gpu_scene.arrays)[refs],
         }
 
 
 def splat_centres(points: np.ndarray, arrays) -> np.ndarray:
     """The centres (P, 3) float64, in scene space, of `SPLAT_POINT` records, as shaders/include/bundle.glsl
     places them: the triangle's first corner plus its two unorm16 barycentrics along its edges."""
-    triangle = points["triangle"].astype(np.int64)
     b = np.stack([points["barycentrics"] & 0xFFFF, points["barycentrics"] >> 16], axis=-1) / 65535.0
-    p0, p1, p2 = (arrays.positions[arrays.faces[triangle, i]] for i in range(3))
+    corners = arrays.positions[arrays.faces[points["triangle"]]]  # (P, 3 corners, 3)
+    p0, p1, p2 = corners[..., 0, :], corners[..., 1, :], corners[..., 2, :]
     return p0 + b[..., :1] * (p1 - p0) + b[..., 1:] * (p2 - p0)
 
 
