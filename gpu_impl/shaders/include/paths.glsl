@@ -41,7 +41,8 @@ layout(std430, binding = BINDING_PATH_SUMS) buffer Sums { PathSums sums[]; };
 // and b the light side's density of vertex j - 1 (strategies/bidirectional.py).
 layout(std430, binding = BINDING_PATH_MIS) buffer PathMis { float path_mis[]; };
 #endif
-// Paths still alive after a bounce pass: when none is, the passes left are skipped.
+// The paths alive after the primary pass (the renderer's lighting choice weighs them), and after a
+// bounce pass not 0 where any is: when none is, the passes left are skipped.
 layout(std430, binding = BINDING_ALIVE_PATHS) buffer AlivePaths { uint alive_paths; };
 
 #if defined PRECOMPUTED_IRRADIANCE

@@ -248,7 +248,10 @@ void main() {
     path_mis[id] = next_mis;
 #endif
     path.bundle = alive ? uint(k) : PATH_ENDED;
-    if (alive) atomicAdd(alive_paths, 1u);
+    // Only whether any path is alive matters after a bounce (paths.glsl: alive_paths): a store where
+    // no lane has made one yet, not an atomic per path on one word, which llvmpipe runs lane by lane
+    // with the two CPU threads taking turns at its cache line.
+    if (alive && alive_paths == 0u) alive_paths = 1u;
     paths[id] = path;
 }
 
