@@ -442,7 +442,7 @@ def bundle_lookup(
     own_surface = _own_surface_test(splats, plane, h)
     triangle = np.full(len(k), -1) if triangle is None else np.asarray(triangle)
     smaller_than_pixel = _smaller_than_pixel(bundles, arrays)
-    walk = _surface_walk(bundles, arrays, splats)
+    walk = _surface_walk(bundles, arrays)
     bias = self_hit_bias * h
     node = np.full(len(k), -1, np.int64)
     point = np.full((len(k), 3), np.nan)
@@ -610,19 +610,6 @@ class _SplatShapes:
         distances = self.distances(j, self.barycentrics(j, self.centres[j]))
         return float(sharp_splat_radii(self.radius, distances[None], self.growth)[0])
 
-    def inside(self, j: int, b: np.ndarray, beyond_disk: bool) -> bool:
-        """Whether the point at barycentrics b of node j's splat's plane, within its radius, lies in
-        the splat: on the inner side of every line that cuts it and, beyond the disk it grew from,
-        inside its triangle, up to round-off as scene.glsl's inside_splat allows."""
-        t = self.triangles[j]
-        lines = self.lines[self.first[t] : self.first[t + 1]]
-        if not len(lines):
-            return True
-        tolerance = 1e-4 * np.abs(lines[:, :2]).max(axis=1)
-        if np.any(self.distances(j, b)[: len(lines)] < -tolerance):
-            return False
-        return not beyond_disk or _in_triangle(b)
-
 
 def _own_surface_test(splats: _SplatShapes | None, plane, h: float):
     """Whether the lines around vertex x (geometric normal ng, towards the side the ray leaves, on
@@ -680,25 +667,17 @@ def _smaller_than_pixel(bundles: BundleSet, arrays):
 WALK_REACH, MAX_WALK_HOPS = 2.0, 64  # shaders/include/bundle_step.glsl: how far a walk goes
 
 
-def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
+def _surface_walk(bundles: BundleSet, arrays):
     """Where the ray from x along o meets node j's plane, at distance s (shaders/include/bundle_step.glsl:
-    walk_surface): ("met", -1, s) on the node's surface (inside its triangle, up to 1e-4 of the
-    barycentrics; or, for a splat, within its radius, up to 1e-4 of its square, and its shape:
-    `_SplatShapes.inside`), else, walking across its triangle's edges, ("met", triangle, distance)
+    walk_surface): ("met", -1, s) on the node's surface (inside its triangle, a splat's too, up to
+    1e-4 of the barycentrics), else, walking across its triangle's edges, ("met", triangle, distance)
     where the ray meets a triangle the walk reaches (across edges within WALK_REACH pixels of the
     line's node ``met``, at most MAX_WALK_HOPS), ("outside",) where it passes an outline
     edge (the triangle across faces the other way along o, or there is none), reaches a plane only
-    behind x or the vertex's own triangle ``own``, else ("open",). The splats' shapes bring the
-    scene's edge pairs."""
+    behind x or the vertex's own triangle ``own``, else ("open",)."""
     triangles = bundles.node_triangle()
     facts = _triangle_facts(arrays)
     across, turned = facts["across"], facts["turned"]
-
-    def within_splat(j, b, y):
-        d2 = np.sum((y - splats.centres[j]) ** 2)
-        return d2 <= splats.splat_radius(j) ** 2 * (1 + 1e-4) and splats.inside(
-            j, b, d2 > splats.radius**2 * (1 + 1e-4)
-        )
 
     reach2 = (WALK_REACH * bundles.pixel_size()) ** 2
     positions, faces, normals = arrays.positions, arrays.faces, arrays.tri_normal
@@ -717,8 +696,6 @@ def _surface_walk(bundles: BundleSet, arrays, splats: _SplatShapes | None):
             corner = min(range(3), key=w.__getitem__)
             if w[corner] >= -1e-4:  # inside, up to round-off (`_in_triangle`); at the first, the node itself
                 return ("met", t if hop else -1, s)
-            if hop == 0 and splats is not None and within_splat(j, np.array(b), np.array(y)):
-                return ("met", -1, s)
             # The edge to cross, opposite that corner, must pass within reach of the line's node.
             a, end = corners[(corner + 1) % 3], corners[(corner + 2) % 3]
             e = _sub(end, a)

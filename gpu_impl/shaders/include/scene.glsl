@@ -298,20 +298,6 @@ bool inside_cuts(SplatShape shape, vec2 b) {
 bool inside_splat(SplatShape shape, vec2 b, bool beyond_disk) {
     return inside_cuts(shape, b) && (!beyond_disk || inside_triangle(b));
 }
-
-// inside_splat for a splat of triangle t cut by `lines` (bit i for its line i), reading only
-// those lines, one at a time, for a test of one splat: its SplatShape reads all six. A lookup's
-// walk tests one splat a node (bundle_step.glsl: within_splat), and its bounces are faster so
-// (docs/results/decisions.toml: walk-by-distance).
-bool inside_splat_lines(uint t, uint lines, vec2 b, bool beyond_disk) {
-    uint first = cut_lines_start(t);
-    vec3 v = vec3(b, 1.0);
-    for (; lines != 0u; lines &= lines - 1u) {
-        vec3 l = cut_line_at(first, uint(findLSB(lines)));
-        if (!(dot(v, l) >= -cut_slack(l))) return false;
-    }
-    return !beyond_disk || inside_triangle(b);
-}
 #endif
 
 vec3 texel(uint first, uint width, int x, int y) {

@@ -10,7 +10,7 @@
 // here at the hit (the renderer decides per frame).
 
 #define BUNDLE_LOOKUP
-// bundle_step.glsl: a splat's shape, and the triangles across a met triangle's edges (walk_surface)
+// bundle_step.glsl: the triangles across a met triangle's edges (walk_surface), and its smooth surface
 #define SPLAT_SHAPES
 #if SHADOW_LIGHTS && !LAZY_LIGHTING
 #define PRECOMPUTED_IRRADIANCE

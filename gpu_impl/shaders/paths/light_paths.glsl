@@ -34,7 +34,7 @@
 // for the environment, which eye paths reach; 0 for a directional light, which they cannot).
 
 #define BUNDLE_LOOKUP
-// bundle_step.glsl: a splat's shape, and the triangles across a met triangle's edges (walk_surface)
+// bundle_step.glsl: the triangles across a met triangle's edges (walk_surface), and its smooth surface
 #define SPLAT_SHAPES
 #define SHADOW_LIGHTS 1
 #include "common.glsl"
