@@ -87,9 +87,10 @@ class ImperfectSettings:
     )
     merge: bool = setting(True, "merge the nodes of one surface crossing that several splats make")
     lighting: str = setting(
-        "auto",
-        "splat points' shadow-mapped light: precomputed per point, lazy at each path's hit, or auto per frame "
-        "(lazy with glossy materials, whose reflected light depends on direction)",
+        "lazy",
+        "splat points' shadow-mapped light: lazy at each path's hit, precomputed per point at its centre (a splat "
+        "centre may lie where no hit does, as in a crevice, and its light is biased there), or auto per frame, "
+        "whichever evaluates less (lazy with glossy materials, whose reflected light depends on direction)",
         choices=LIGHTING,
     )
 
