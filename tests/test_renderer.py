@@ -638,6 +638,14 @@ def test_perfect_bundles_light_each_hit_where_its_ray_lands(gl):
     assert render(gl, lit_stage(LAMP), **kw).stats["lighting_frames"] == {"lazy": 2}
 
 
+# Fixed directions on a static scene with 1,024 splat points against 16,384 paths: where auto
+# precomputes the splat points' light, once for every frame.
+FEW_POINTS_MANY_PATHS = dict(
+    method="imperfect", points=256, bounces=1, directions=4, resolution=16, width=64, height=64, spp=4,
+    rotate_directions=False,
+)  # fmt: skip
+
+
 def test_auto_lighting_picks_the_cheaper_way_per_frame(gl):
     # A small image has few paths: lighting their hits costs less than lighting every splat point.
     scene = lit_stage(LAMP)
@@ -648,10 +656,7 @@ def test_auto_lighting_picks_the_cheaper_way_per_frame(gl):
     assert small.stats["lighting_frames"] == {"lazy": 2}
     # Fixed directions on a static scene: the irradiance of splat points made in frame 0 serves every
     # frame (1,024 points, against 16,384 paths: precomputing is the cheaper way).
-    reused = render(
-        gl, scene, method="imperfect", lighting="auto", points=256, bounces=1, directions=4, resolution=16, frames=3,
-        width=64, height=64, spp=4, rotate_directions=False,
-    )  # fmt: skip
+    reused = render(gl, scene, lighting="auto", frames=3, **FEW_POINTS_MANY_PATHS)
     assert reused.stats["lighting_frames"] == {"precomputed": 3}
     assert [fr.get("irradiance") is not None for fr in reused.timings["frames_ms"]] == [True, False, False]
 
@@ -661,10 +666,7 @@ def test_imperfect_bundles_light_each_hit_where_it_lands_by_default(gl):
     # centre may lie in a crevice the hits, which rays see, seldom reach (atrium's indirect light 3 %
     # darker; docs/results/decisions.toml: lazy-lighting-default). The configuration in which auto
     # precomputes (above) is lit lazily by default.
-    default = render(
-        gl, lit_stage(LAMP), method="imperfect", points=256, bounces=1, directions=4, resolution=16, frames=2,
-        width=64, height=64, spp=4, rotate_directions=False,
-    )  # fmt: skip
+    default = render(gl, lit_stage(LAMP), frames=2, **FEW_POINTS_MANY_PATHS)
     assert default.params["lighting"] == "lazy" and default.stats["lighting_frames"] == {"lazy": 2}
 
 
