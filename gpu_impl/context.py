@@ -186,7 +186,8 @@ class GLContext:
         rows = max(1, -(-records // TEXEL_ROW))
         made = None
         if rows <= self.limit("GL_MAX_TEXTURE_SIZE"):
-            made = self.allocate(lambda: [self.texture((TEXEL_ROW, rows), components, dtype)])
+            nbytes = TEXEL_ROW * rows * components * np.dtype(dtype).itemsize
+            made = self.allocate(lambda: [self.texture((TEXEL_ROW, rows), components, dtype)], nbytes)
         if made is None:
             raise LimitError(
                 f"{records:,} {what} as texels need a texture of {TEXEL_ROW} x {rows}, which the GL driver refused",
@@ -204,11 +205,15 @@ class GLContext:
         array of its own; the caller owns the arrays and the targets."""
         return LayerTargets(self, color)
 
-    def allocate(self, make):
-        """The GL objects ``make()`` returns (a list), or None, with them released, where the
-        driver ran out of memory making them: drivers cap one texture's bytes below what their
-        size limits say (llvmpipe at about 1.3 GiB: docs/platform.md), and a texture past it is
-        left empty, not refused."""
+    def allocate(self, make, nbytes: int):
+        """The GL objects ``make()`` returns (a list), or None, with nothing or them released, where
+        the driver cannot hold their ``nbytes``: more than the memory it has free (the NVIDIA
+        driver makes a texture of terabytes without an error, docs/platform.md), or an
+        out-of-memory error making them (llvmpipe caps one texture's bytes below what its size
+        limits say, at about 1.3 GiB, and leaves a texture past it empty, not refused)."""
+        room = self.free_memory()
+        if room is not None and nbytes > room[0]:
+            return None
         while self.ctx.error != "GL_NO_ERROR":  # errors of earlier calls are not this one's
             pass
         made = make()

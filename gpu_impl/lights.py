@@ -429,7 +429,8 @@ class AtlasTextures:
                     ("light_paths",),
                 )
             sizes = [min(per, atlas.pages - i * per) for i in range(count)]
-            made = gl.allocate(functools.partial(self._make, gl, atlas.page, sizes, triangles, facing))
+            nbytes = atlas.pages * atlas.page[0] * atlas.page[1] * _texel_bytes(triangles, facing)
+            made = gl.allocate(functools.partial(self._make, gl, atlas.page, sizes, triangles, facing), nbytes)
             if made is not None:
                 break
             if per == 1:

@@ -705,10 +705,9 @@ def test_the_triangle_texels_hold_what_the_scene_buffers_hold_in_every_pose(gl):
 
 @pytest.mark.parametrize("splat_scale", [1.5, 4.0])
 def test_compute_and_raster_splatters_find_the_same_nodes_but_at_splat_rims(gl, splat_scale):
-    # The raster splatter decides coverage from the rasterizer's interpolated disk coordinates,
-    # the compute splatter from the line's exact distance to the splat centre: they may disagree
-    # only for a line through a splat's rim, within the rasterizer's rounding: its vertices snap to
-    # 1/256 pixel (on the splat's plane, 1/256 pixel over |cos| of the plane's slope). Unmerged, so
+    # Both splatters decide coverage from the line's offset from the splat centre in pixels, the
+    # raster splatter by disk coordinates, the compute splatter by the ellipse in the pixel grid:
+    # they may disagree only for a line within float rounding of a splat's rim. Unmerged, so
     # every splat's nodes are compared; with large splats, also those the compute splatter's scatter
     # finds again.
     scene = nested_boxes()

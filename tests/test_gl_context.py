@@ -232,19 +232,29 @@ def test_buffers_are_filled_and_read_by_the_gl_without_mapping_them(gl):
 
 
 def test_allocate_returns_nothing_and_releases_what_the_driver_could_not_hold(gl):
-    """`GLContext.allocate`: a texture past the driver's memory (every layer the GL allows of the
-    largest side, 16 bytes a texel: terabytes) is None, not an empty texture; one that fits is
-    made; an error of an earlier call is not taken for it."""
+    """`GLContext.allocate`: objects past the memory the driver has free (every layer the GL allows
+    of the largest side, 16 bytes a texel: terabytes) are None, and never asked for, as the NVIDIA
+    driver makes them without an error; on llvmpipe, a texture within the free memory but past the
+    bytes one of its textures holds (3 layers of 8192 x 8192 RG32F, 1.5 GiB) is None, not an empty
+    texture; one that fits is made; an error of an earlier call is not taken for it."""
     side, layers = gl.limit("GL_MAX_TEXTURE_SIZE"), gl.limit("GL_MAX_ARRAY_TEXTURE_LAYERS")
-    made = []
+    asked = []
 
     def huge():
-        made.append(gl.texture_array((side, side), layers, 4, "f4"))
-        return made[-1:]
+        asked.append(gl.texture_array((side, side), layers, 4, "f4"))
+        return asked[-1:]
 
-    assert gl.allocate(huge) is None
+    assert gl.allocate(huge, side * side * layers * 16) is None and not asked
+    if gl.is_llvmpipe and gl.free_memory()[0] > 2 * 2**30:
+        made = []
+
+        def over_one_texture():
+            made.append(gl.texture_array((8192, 8192), 3, 2, "f4"))
+            return made[-1:]
+
+        assert gl.allocate(over_one_texture, 8192 * 8192 * 3 * 8) is None and len(made) == 1
     gl.ctx.texture((side + 1, 1), 1)  # refused: GL_INVALID_VALUE, left pending
-    small = gl.allocate(lambda: [gl.texture_array((8, 8), 2, 2, "f4")])
+    small = gl.allocate(lambda: [gl.texture_array((8, 8), 2, 2, "f4")], 8 * 8 * 2 * 8)
     assert small is not None and small[0].size == (8, 8, 2)
     small[0].release()
 

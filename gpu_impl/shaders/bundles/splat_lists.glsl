@@ -76,10 +76,6 @@ uniform uint queue_first;  // COUNT_SPLATS: the count pass's first splat in spla
 #define LINES_BOX 8
 #define LINES_FOUND_AGAIN 0xFFFFFFFFu
 
-// A splat seen nearly edge-on covers no line centre (its ellipse has no width); one exactly
-// edge-on has no depth plane.
-#define MIN_COS 1e-7
-
 // Splats of one triangle that overlap put the same node (its plane's depth) on every line they
 // share, which the merge would then remove. With nearest_only, a splat leaves a line to a nearer
 // splat of the same triangle among the NEIGHBOURS points on either side of it in its direction's

@@ -5,6 +5,10 @@
 
 layout(std430, binding = BINDING_COUNTERS) buffer Counters { uint counters[]; };
 
+// A splat seen nearly edge-on covers no line centre (its ellipse has no width); one exactly
+// edge-on has no depth plane. Both splatters skip it.
+#define MIN_COS 1e-7
+
 #if defined LINKED_LISTS && !defined NODE_KEYS
 #define NODE_KEYS  // a linked node is a key too
 #endif
