@@ -147,8 +147,8 @@ def small_textures(gl, monkeypatch, side: int, most_layers: int) -> None:
     atlas texture array of more than ``most_layers`` layers (as llvmpipe caps one texture's bytes)."""
     limit, allocate = gl.limit, gl.allocate
 
-    def capped(make):
-        made = allocate(make)
+    def capped(make, nbytes):
+        made = allocate(make, nbytes)
         layers = [arrays.distances.size[2] for arrays in made or () if hasattr(arrays, "distances")]
         if layers and max(layers) > most_layers:
             for arrays in made:
