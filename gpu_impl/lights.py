@@ -419,6 +419,7 @@ class AtlasTextures:
     def __init__(self, gl: GLContext, atlas: Atlas, triangles: bool, facing: bool, most: int):
         self.page, self.pages = atlas.page, atlas.pages
         per = refused = atlas.pages  # the pages in one texture, tried; the fewest the driver refused
+        nbytes = _atlas_bytes(atlas.pages, atlas.page, triangles, facing)
         while True:
             count = -(-atlas.pages // per)
             if count > most:
@@ -429,7 +430,6 @@ class AtlasTextures:
                     ("light_paths",),
                 )
             sizes = [min(per, atlas.pages - i * per) for i in range(count)]
-            nbytes = atlas.pages * atlas.page[0] * atlas.page[1] * _texel_bytes(triangles, facing)
             made = gl.allocate(functools.partial(self._make, gl, atlas.page, sizes, triangles, facing), nbytes)
             if made is not None:
                 break
@@ -889,7 +889,7 @@ class ShadowLights:
     def _check_memory(self, atlas: Atlas, triangles: bool, facing: bool, map_size_setting: str) -> None:
         """Refuse an atlas past half the memory free now (the bundles' headroom), before it is made."""
         room = self.gl.free_memory()
-        needed = atlas.pages * atlas.page[0] * atlas.page[1] * _texel_bytes(triangles, facing)
+        needed = _atlas_bytes(atlas.pages, atlas.page, triangles, facing)
         if room is not None and needed > room[0] * MEMORY_HEADROOM:
             raise LimitError(
                 f"{self.light_vertices:,} light vertices' shadow maps need {format_bytes(needed)} in {atlas.pages} "
@@ -903,8 +903,7 @@ class ShadowLights:
         if self.atlas is None:
             return sum(b.size for b in self.buffers.values()) + self.visibility.nbytes
         arrays = self.atlas.arrays[0]
-        texel = _texel_bytes(arrays.triangles is not None, bool(arrays.facing))
-        atlas = self.pages * self.page_size[0] * self.page_size[1] * texel
+        atlas = _atlas_bytes(self.pages, self.page_size, arrays.triangles is not None, bool(arrays.facing))
         views = self.view_indices.size
         return sum(b.size for b in self.buffers.values()) + views + atlas + self.visibility.nbytes
 
@@ -921,8 +920,8 @@ class ShadowLights:
                 self.commands.release()
 
 
-def _texel_bytes(triangles: bool, facing: bool) -> int:
-    """An atlas texel's bytes: RG32F distances and 24-bit depth (stored in 32), the triangle seen
-    (R32UI, with light paths) and two facing surfaces (R32UI each, where not every triangle bounds
-    a solid)."""
-    return 12 + 4 * triangles + 8 * facing
+def _atlas_bytes(pages: int, page: tuple[int, int], triangles: bool, facing: bool) -> int:
+    """The bytes of an atlas of ``pages`` pages of ``page`` texels. A texel: RG32F distances and
+    24-bit depth (stored in 32), the triangle seen (R32UI, with light paths) and two facing surfaces
+    (R32UI each, where not every triangle bounds a solid)."""
+    return pages * page[0] * page[1] * (12 + 4 * triangles + 8 * facing)
