@@ -54,10 +54,9 @@ void main() {
     // A splat seen nearly edge-on covers no line centre, as in the compute splatter; one exactly
     // edge-on has no depth plane. Its triangle has no area.
     if (abs(nd) < MIN_COS) p = center;
-    float pixels = 0.5 * float(resolution) / radius;  // per scene unit
     v_centre_pixel = bundle_grid_position(f, center);
     v_b = s.b;
-    v_to_barycentrics = inverse(pixels * mat2(dot(s.e1, f.u.xyz), dot(s.e1, f.v.xyz), dot(s.e2, f.u.xyz), dot(s.e2, f.v.xyz)));
+    v_to_barycentrics = inverse(grid_edges(f, s.e1, s.e2));
     v_to_disk = mat2(dot(s.e1, tangent), dot(s.e1, bitangent), dot(s.e2, tangent), dot(s.e2, bitangent)) / s.radius;
     SplatShape shape = splat_shape(s.triangle, s.cut_lines);
     v_cut = shape.cut ? 1u : 0u;

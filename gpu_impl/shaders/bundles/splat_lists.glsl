@@ -156,7 +156,7 @@ uint splat(uint id) {
     bool smaller = false;
     uint first_point = uint(k) * points_per_direction, end_point = first_point + points_per_direction;
     // The triangle's edges in pixels: a neighbour's offset is linear in its barycentrics' offset.
-    mat2 edges = pixels * mat2(dot(e1, f.u.xyz), dot(e1, f.v.xyz), dot(e2, f.u.xyz), dot(e2, f.v.xyz));
+    mat2 edges = grid_edges(f, e1, e2);
     // The splat's shape (scene.glsl: SplatShape), its lines as functions of a line's offset q in
     // pixels: vec3(q, 1) * cuts gives each one's distance plus its slack (scene.glsl: inside_cuts).
 #if defined PLAIN_SPLATS

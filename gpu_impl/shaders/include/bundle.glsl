@@ -152,6 +152,14 @@ vec2 bundle_grid_position(BundleFrame f, vec3 p) {
     return (vec2(dot(p, f.u.xyz), dot(p, f.v.xyz)) / radius * 0.5 + 0.5) * float(resolution) - vec2(f.u.w, f.v.w) - 0.5;
 }
 
+// A triangle's edges e1, e2 from its first corner as bundle f's pixel grid sees them: a point's
+// offset db in barycentrics moves it by grid_edges * db pixels. Both splatters take a splat's from
+// here, so they find its lines with the same arithmetic.
+mat2 grid_edges(BundleFrame f, vec3 e1, vec3 e2) {
+    float pixels = 0.5 * float(resolution) / radius;  // per scene unit
+    return pixels * mat2(dot(e1, f.u.xyz), dot(e1, f.v.xyz), dot(e2, f.u.xyz), dot(e2, f.v.xyz));
+}
+
 // Where the lines of bundle k meet the plane dot(n, p) = w, as depth = dot(plane, (1, i, j)) at
 // line (i, j): a line's origin is s u + t v - radius d with s = radius (2 (i + 0.5 + jitter_u) / R
 // - 1) (line_origin), so its depth (w - dot(n, origin)) / dot(n, d) is affine in (i, j). Exact to
