@@ -706,6 +706,17 @@ def test_instances_cylinders_and_flipped_shapes_import_as_mitsuba_sees_them(mi, 
             r"shape 'ball' \(Sphere\): a mesh_attribute texture needs a mesh's attributes",
         ),
         ('<emitter type="projector"/>', "emitter plugin Projector is not supported"),
+        (  # Mitsuba loads a volume texture without its volume, and crashes evaluating it
+            '<shape type="sphere"><bsdf type="diffuse" id="fog"><texture type="volume" name="reflectance"/></bsdf>'
+            "</shape>",
+            r"BSDF 'fog' \(SmoothDiffuse\): a volume texture is not supported",
+        ),
+        (
+            '<shape type="sphere"><bsdf type="diffuse" id="fog"><texture type="volume" name="reflectance">'
+            '<volume type="constvolume" name="volume"><rgb name="value" value="0.2, 0.4, 0.6"/></volume></texture>'
+            "</bsdf></shape>",
+            r"BSDF 'fog' \(SmoothDiffuse\): a volume texture is not supported",
+        ),
     ],
 )
 def test_what_the_toolkit_cannot_represent_is_refused_in_one_line(tmp_path, body, message):

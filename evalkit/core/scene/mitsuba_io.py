@@ -288,6 +288,9 @@ def _shape_geometry(mi, shape, kind, source: str):
     return None
 
 
+# A texture read from a volume at the shaded point (Mitsuba's `volume` texture plugin; not a
+# GridVolume or ConstVolume inside one, which the word boundary leaves out).
+VOLUME_TEXTURE = re.compile(r"\bVolume\[")
 # A diffuse BSDF's reflectance read from a mesh attribute.
 MESH_ATTRIBUTE = re.compile(r'\breflectance = MeshAttribute\[\s*name = "((?:vertex|face)_\w+)",\s*scale = "([^"]+)"')
 
@@ -370,6 +373,10 @@ def _material(mi, bsdf, shape_name: str, emission, warnings: list[str], source: 
     params = mi.traverse(bsdf)
     kind = bsdf.class_name()
     name = bsdf.id() or f"{shape_name}.bsdf"
+    if VOLUME_TEXTURE.search(str(bsdf)):
+        # Read at the surface's position, which a lookup by uv cannot reproduce; Mitsuba crashes
+        # evaluating one whose volume is missing.
+        raise InputError(source, f"BSDF '{name}' ({kind}): a volume texture is not supported")
     attributes = str(bsdf).count("MeshAttribute[")
     if attributes and (colors is None or attributes != len(MESH_ATTRIBUTE.findall(str(bsdf)))):
         raise InputError(
