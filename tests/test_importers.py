@@ -736,3 +736,27 @@ def test_what_the_toolkit_cannot_represent_is_refused_in_one_line(tmp_path, body
     with pytest.raises(InputError, match=message) as e:
         load_scene(path)
     assert str(e.value).startswith(path) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        (
+            '<shape type="sphere"><bsdf type="diffuse"><texture type="bitmap" name="reflectance"/></bsdf></shape>',
+            "texture 'reflectance': a bitmap texture without a filename",
+        ),
+        ('<shape type="sphere"><bsdf type="blendbsdf" id="mix"/></shape>', "bsdf 'mix': a blendbsdf without a weight"),
+        ('<include filename="parts.xml"/>', "parts.xml: a blendbsdf without a weight"),  # named in the file it is in
+    ],
+)
+def test_what_crashes_mitsubas_loader_is_refused_before_it_loads(tmp_path, body, message):
+    """Mitsuba 3.9's loader dies of a segmentation fault on these (no exception to catch): the
+    importer refuses them in one line before Mitsuba sees them, in files, included files and dicts."""
+    xml_scene(tmp_path, '<shape type="sphere"><bsdf type="blendbsdf"/></shape>', name="parts.xml")
+    path = xml_scene(tmp_path, body)
+    with pytest.raises(InputError, match=message) as e:
+        load_scene(path)
+    assert "Mitsuba crashes loading it" in str(e.value) and "\n" not in str(e.value)
+    d = {"type": "scene", "ball": {"type": "sphere", "bsdf": {"type": "diffuse", "reflectance": {"type": "bitmap"}}}}
+    with pytest.raises(InputError, match="d: 'reflectance': a bitmap texture without a filename"):
+        load_mitsuba_dict(d, name="d")

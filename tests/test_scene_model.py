@@ -81,6 +81,19 @@ def test_zero_area_emitter_is_an_error():
         scene_of(Mesh("q", QUAD, QUAD_FACES, 0), Mesh("lamp", line, np.array([[0, 1, 2]]), 1), materials=mats)
 
 
+def test_negative_light_or_reflectance_is_an_error():
+    # A negative emitter was taken for no emitter, without a word (a Mitsuba area light's
+    # radiance is not range-checked as a diffuse reflectance is).
+    q = Mesh("q", QUAD, QUAD_FACES, 0)
+    for material, message in [
+        (Material("lamp", emission=(5, -5, 5)), "material 'lamp' emission is negative \\(down to -5\\)"),
+        (Material("paint", albedo=(0.5, -0.1, 0.5)), "material 'paint' albedo is negative"),
+        (Material("map", texture=np.full((2, 2, 3), -1.0, np.float32)), "material 'map' texture is negative"),
+    ]:
+        with pytest.raises(InputError, match=message):
+            scene_of(q, materials=[material])
+
+
 def test_bad_lights_are_errors():
     q = Mesh("q", QUAD, QUAD_FACES, 0)
     with pytest.raises(InputError, match="point light position contains NaN"):

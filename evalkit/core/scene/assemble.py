@@ -98,8 +98,11 @@ def assemble(
     for i, mat in enumerate(materials):
         _check_finite(source, f"material '{mat.name}' albedo", mat.albedo)
         _check_finite(source, f"material '{mat.name}' emission", mat.emission)
+        _check_not_negative(source, f"material '{mat.name}' albedo", mat.albedo)
+        _check_not_negative(source, f"material '{mat.name}' emission", mat.emission)
         if mat.texture is not None:
             _check_finite(source, f"material '{mat.name}' texture", mat.texture)
+            _check_not_negative(source, f"material '{mat.name}' texture", mat.texture)
             if mat.to_uv is not None:
                 _check_finite(source, f"material '{mat.name}' to_uv", mat.to_uv)
             if mat.wrap_mode not in WRAP_MODES or mat.filter_type not in FILTER_TYPES:
@@ -153,6 +156,14 @@ def _check_finite(source: str, what: str, value) -> None:
     a = np.asarray(value, dtype=np.float64)
     if not np.isfinite(a).all():
         raise InputError(source, f"{what} contains NaN or Inf")
+
+
+def _check_not_negative(source: str, what: str, value) -> None:
+    # Negative light is no light the renderers or Mitsuba agree on: an emitter with it was taken
+    # for none, without a word.
+    a = np.asarray(value, dtype=np.float64)
+    if a.size and a.min() < 0:
+        raise InputError(source, f"{what} is negative (down to {a.min():.4g})")
 
 
 def _validate_mesh(source: str, mesh: Mesh, n_materials: int) -> Mesh:

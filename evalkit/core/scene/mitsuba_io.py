@@ -91,6 +91,7 @@ def _load_xml(mi, path: str, flatten: bool):
         root = ElementTree.parse(path).getroot()
     except ElementTree.ParseError as e:
         raise InputError(path, f"malformed XML: {e}") from None
+    _refuse_loader_crashes_xml(path, root)
     unused = _render_settings(root)
     flattened = flatten and _flatten_instances(path, root)
 
@@ -109,6 +110,43 @@ def _load_xml(mi, path: str, flatten: bool):
             return load_edited(), unused
         except Exception:
             raise InputError(path, f"Mitsuba could not load it: {_last_line(e)}") from None
+
+
+def _loader_crash(plugin, names: set) -> str | None:
+    """What Mitsuba's loader would crash on (a segmentation fault, which no handler catches) in a
+    plugin of type ``plugin`` given the properties ``names``, instead of refusing it; None if nothing."""
+    if plugin == "bitmap" and not {"filename", "data"} & names:
+        return "a bitmap texture without a filename"
+    if plugin == "blendbsdf" and "weight" not in names:
+        return "a blendbsdf without a weight"
+    return None
+
+
+def _refuse_loader_crashes_xml(path: str, root, seen: tuple = ()) -> None:
+    """Refuses what Mitsuba's loader would crash on in the file at ``path`` or a file it includes."""
+    for element in root.iter():
+        if element.tag == "include" and element.get("filename"):
+            included = os.path.join(os.path.dirname(os.path.abspath(path)), element.get("filename"))
+            if os.path.isfile(included) and included not in seen:  # Mitsuba names a missing one
+                try:
+                    _refuse_loader_crashes_xml(included, ElementTree.parse(included).getroot(), (*seen, included))
+                except ElementTree.ParseError as e:
+                    raise InputError(included, f"malformed XML: {e}") from None
+        problem = _loader_crash(element.get("type"), {child.get("name") for child in element})
+        if problem:
+            label = element.get("id") or element.get("name")
+            where = f"{element.tag} '{label}': " if label else ""
+            raise InputError(path, f"{where}{problem} (Mitsuba crashes loading it)")
+
+
+def _refuse_loader_crashes_dict(source: str, value, key: str = "scene") -> None:
+    """`_refuse_loader_crashes_xml` for a scene dict."""
+    if isinstance(value, dict):
+        problem = _loader_crash(value.get("type"), set(value))
+        if problem:
+            raise InputError(source, f"'{key}': {problem} (Mitsuba crashes loading it)")
+        for k, v in value.items():
+            _refuse_loader_crashes_dict(source, v, k)
 
 
 def _flatten_instances(path: str, root) -> bool:
@@ -195,6 +233,7 @@ def load_mitsuba_dict(scene_dict: dict, name: str, source: str | None = None, va
     """Load a Mitsuba scene dict (as ``mi.load_dict`` takes it)."""
     source = source or name
     mi = mitsuba(variant)
+    _refuse_loader_crashes_dict(source, scene_dict)
     try:
         mi_scene = mi.load_dict(scene_dict)
     except Exception as e:
