@@ -122,16 +122,41 @@ def _loader_crash(plugin, names: set) -> str | None:
     return None
 
 
+def _refuse_ply_crash(path: str) -> None:
+    """Mitsuba's PLY loader takes face indices unchecked: one past the vertices crashed it (a
+    segmentation fault) or was read from memory past them."""
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False, validate=False)
+    except Exception:
+        return  # unreadable: Mitsuba's own error says why
+    faces = np.asarray(mesh.faces)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(mesh.vertices)):
+        worst = int(faces.min()) if faces.min() < 0 else int(faces.max())
+        raise InputError(
+            path,
+            f"face index {worst} is out of range for {len(mesh.vertices)} vertices (Mitsuba's PLY loader reads past "
+            "them, and crashes or reads garbage)",
+        )
+
+
 def _refuse_loader_crashes_xml(path: str, root, seen: tuple = ()) -> None:
-    """Refuses what Mitsuba's loader would crash on in the file at ``path`` or a file it includes."""
+    """Refuses what Mitsuba's loader would crash on in the file at ``path``, a file it includes or a
+    PLY mesh it names."""
+    folder = os.path.dirname(os.path.abspath(path))
     for element in root.iter():
         if element.tag == "include" and element.get("filename"):
-            included = os.path.join(os.path.dirname(os.path.abspath(path)), element.get("filename"))
+            included = os.path.join(folder, element.get("filename"))
             if os.path.isfile(included) and included not in seen:  # Mitsuba names a missing one
                 try:
                     _refuse_loader_crashes_xml(included, ElementTree.parse(included).getroot(), (*seen, included))
                 except ElementTree.ParseError as e:
                     raise InputError(included, f"malformed XML: {e}") from None
+        if element.tag == "shape" and element.get("type") == "ply":
+            filename = next((child.get("value") for child in element if child.get("name") == "filename"), None)
+            if filename and os.path.isfile(os.path.join(folder, filename)):
+                _refuse_ply_crash(os.path.join(folder, filename))
         problem = _loader_crash(element.get("type"), {child.get("name") for child in element})
         if problem:
             label = element.get("id") or element.get("name")
@@ -142,6 +167,9 @@ def _refuse_loader_crashes_xml(path: str, root, seen: tuple = ()) -> None:
 def _refuse_loader_crashes_dict(source: str, value, key: str = "scene") -> None:
     """`_refuse_loader_crashes_xml` for a scene dict."""
     if isinstance(value, dict):
+        filename = value.get("filename")
+        if value.get("type") == "ply" and isinstance(filename, str) and os.path.isfile(filename):
+            _refuse_ply_crash(filename)
         problem = _loader_crash(value.get("type"), set(value))
         if problem:
             raise InputError(source, f"'{key}': {problem} (Mitsuba crashes loading it)")
