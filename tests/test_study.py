@@ -83,6 +83,17 @@ def test_grids_expand_to_the_union_of_their_products():
         ({"plots": []}, "unknown key"),
         ({"plot": [{"x": "wall_s"}]}, "needs x and y"),
         ({"plot": [{"x": "wall_s", "y": "indirect_relmse", "versus": "stratgy"}]}, "versus names a run parameter"),
+        # A file's structure of the wrong type: each was a traceback or taken without a word.
+        ({"title": 5}, "title = 5 must be a string"),
+        ({"grid": 5}, r"grid = 5 must be a table or an array of tables \(\[\[grid\]\]\)"),
+        ({"grid": ["perfect"]}, "must be a table or an array of tables"),
+        ({"grid": []}, r"grid = \[\] declares no runs"),
+        ({"plot": [5]}, "must be an array of tables"),
+        ({"plot": [{"x": "wall_s", "y": []}]}, "x names a column and y one or more"),
+        ({"report": 5}, r"\[report\] must be a table"),
+        ({"measure": {"metrics": "relmse"}}, r"\[measure\] metrics = 'relmse' must be an array of names"),
+        ({"measure": {"render": 3}}, r"\[measure\] render = 3 must be true or false"),
+        ({"measure": {"reference_spp": True}}, "reference_spp = True must be a whole number"),
     ],
 )
 def test_bad_studies_are_refused_with_the_problem_named(spec, problem):

@@ -76,6 +76,7 @@ MEASURE_DEFAULTS = {
     "reference_store": "",
 }
 TOP_KEYS = {"name", "title", "description", "reduced", "defaults", "grid", "measure", "hole_model", "plot", "report"}
+TEXT_KEYS = ("name", "title", "description", "reduced")
 
 
 @dataclass
@@ -112,10 +113,17 @@ def study_from_dict(spec: dict, path: Path | None = None) -> Study:
     unknown = set(spec) - TOP_KEYS
     if unknown:
         raise InputError(where, f"unknown key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(TOP_KEYS))}")
+    for key in TEXT_KEYS:
+        if key in spec and not isinstance(spec[key], str):
+            raise InputError(where, f"{key} = {spec[key]!r} must be a string")
     defaults = _table(spec, "defaults", where)
     grids = spec.get("grid", [{}])
     if isinstance(grids, dict):
         grids = [grids]
+    if not isinstance(grids, list) or not all(isinstance(grid, dict) for grid in grids):
+        raise InputError(where, f"grid = {grids!r} must be a table or an array of tables ([[grid]])")
+    if not grids:
+        raise InputError(where, "grid = [] declares no runs")
     runs, seen = [], set()
     for grid in grids:
         axes = {k: v if isinstance(v, list) else [v] for k, v in grid.items()}
@@ -127,9 +135,14 @@ def study_from_dict(spec: dict, path: Path | None = None) -> Study:
                 runs.append(run)
     measure = measure_settings(_table(spec, "measure", where), where)
     plots = spec.get("plot", [])
+    if not isinstance(plots, list) or not all(isinstance(p, dict) for p in plots):
+        raise InputError(where, f"plot = {plots!r} must be an array of tables ([[plot]])")
     for p in plots:
         if "x" not in p or "y" not in p:
             raise InputError(where, f"a [[plot]] needs x and y, got {sorted(p)}")
+        ys = p["y"] if isinstance(p["y"], list) else [p["y"]]
+        if not isinstance(p["x"], str) or not ys or not all(isinstance(y, str) for y in ys):
+            raise InputError(where, f"a [[plot]]'s x names a column and y one or more, got {p['x']!r} and {p['y']!r}")
         if "versus" in p and p["versus"] not in PARAMETERS:
             raise InputError(where, f"a [[plot]]'s versus names a run parameter, got {p['versus']!r}")
     name = spec.get("name") or (path.stem if path else "study")
@@ -141,9 +154,9 @@ def study_from_dict(spec: dict, path: Path | None = None) -> Study:
         spec.get("reduced", ""),
         runs,
         measure,
-        spec.get("hole_model"),
+        _table(spec, "hole_model", where) if "hole_model" in spec else None,
         plots,
-        spec.get("report", {}),
+        _table(spec, "report", where),
     )
 
 
@@ -153,6 +166,17 @@ def measure_settings(table: dict, where: str) -> dict:
     if set(measure) - set(MEASURE_DEFAULTS):
         unknown = ", ".join(sorted(set(measure) - set(MEASURE_DEFAULTS)))
         raise InputError(where, f"[measure]: unknown key(s) {unknown}; known: {', '.join(MEASURE_DEFAULTS)}")
+    for key, default in MEASURE_DEFAULTS.items():  # each of the default's type (a bool is no number)
+        value = measure[key]
+        if isinstance(default, list):
+            fits, kind = isinstance(value, list) and all(isinstance(v, str) for v in value), "an array of names"
+        else:
+            fits, kind = (
+                type(value) is type(default),
+                {bool: "true or false", int: "a whole number"}.get(type(default), "a string"),
+            )
+        if not fits:
+            raise InputError(where, f"[measure] {key} = {value!r} must be {kind}")
     bad = set(measure["metrics"]) - set(METRICS)
     if bad:
         raise InputError(where, f"[measure] metrics: unknown {', '.join(sorted(bad))}; known: {', '.join(METRICS)}")
