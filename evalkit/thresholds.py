@@ -13,6 +13,7 @@ study's) and one metric column of the run's row, with:
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +44,10 @@ def load_thresholds(path: str | os.PathLike = DEFAULT_THRESHOLDS) -> list[Case]:
     path = Path(path)
     spec = read_toml(path, "thresholds")
     cases = []
-    for i, c in enumerate(spec.get("case", [])):
+    tables = spec.get("case", [])
+    if not isinstance(tables, list) or not all(isinstance(c, dict) for c in tables):
+        raise InputError(str(path), f"case = {tables!r} must be an array of tables ([[case]])")
+    for i, c in enumerate(tables):
         where = f"{path}: case {i + 1} ({c.get('name', 'unnamed')})"
         unknown = set(c) - CASE_KEYS
         if unknown:
@@ -53,6 +57,12 @@ def load_thresholds(path: str | os.PathLike = DEFAULT_THRESHOLDS) -> list[Case]:
         missing = {"name", "metric", "kind", "why", "calibration"} - set(c)
         if missing:
             raise InputError(where, f"missing {', '.join(sorted(missing))}")
+        for key in ("name", "metric", "kind", "why", "calibration"):
+            if not isinstance(c[key], str):
+                raise InputError(where, f"{key} = {c[key]!r} must be a string")
+        for key in ("run", "measure"):
+            if not isinstance(c.get(key, {}), dict):
+                raise InputError(where, f"{key} = {c[key]!r} must be a table")
         if c["kind"] not in KINDS:
             raise InputError(where, f"kind '{c['kind']}' is not one of {', '.join(KINDS)}")
         if c["kind"] == "falls":
@@ -61,8 +71,13 @@ def load_thresholds(path: str | os.PathLike = DEFAULT_THRESHOLDS) -> list[Case]:
                     where,
                     "a 'falls' case needs tolerance and a sweep of one parameter, e.g. sweep = {directions = [8, 32]}",
                 )
+            if not isinstance(next(iter(c["sweep"].values())), list):
+                raise InputError(where, f"sweep = {c['sweep']!r} must give its parameter an array of values")
         elif "threshold" not in c:
             raise InputError(where, "needs a threshold")
+        limit = "tolerance" if c["kind"] == "falls" else "threshold"
+        if isinstance(c[limit], bool) or not isinstance(c[limit], int | float) or not math.isfinite(c[limit]):
+            raise InputError(where, f"{limit} = {c[limit]!r} must be a finite number")
         base = c.get("run", {})
         sweep = next(iter(c["sweep"])) if c["kind"] == "falls" else None
         given = [{**base, sweep: v} for v in c["sweep"][sweep]] if sweep else [base]

@@ -11,6 +11,7 @@ import pytest
 from conftest import REPO, run_evalkit
 
 from evalkit.check import evaluate
+from evalkit.core.errors import InputError
 from evalkit.thresholds import DEFAULT_THRESHOLDS, load_thresholds
 
 CASES = load_thresholds(DEFAULT_THRESHOLDS)
@@ -98,3 +99,27 @@ def test_bad_threshold_tables_end_in_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         f"evalkit: error: {bad}: case 1 (x): kind 'below' is not one of max, min, falls"
     ]
+
+
+CASE = 'name = "x"\nmetric = "hole_rate"\nkind = "max"\nthreshold = 0.1\nwhy = "w"\ncalibration = "c"\n'
+FALLS = CASE.replace('kind = "max"', 'kind = "falls"').replace("threshold = 0.1", "tolerance = 0.1")
+
+
+@pytest.mark.parametrize(
+    "text, problem",
+    [  # each was taken without a word, to fail or crash when checked, or a traceback here
+        ("case = 5\n", r"case = 5 must be an array of tables \(\[\[case\]\]\)"),
+        ("[[case]]\n" + CASE.replace("threshold = 0.1", 'threshold = "0.1"'), "threshold = '0.1' must be a finite"),
+        ("[[case]]\n" + CASE.replace("threshold = 0.1", "threshold = nan"), "threshold = nan must be a finite number"),
+        ("[[case]]\n" + CASE.replace('metric = "hole_rate"', "metric = 5"), "metric = 5 must be a string"),
+        ("[[case]]\n" + CASE + 'run = "cornell-box"\n', "run = 'cornell-box' must be a table"),
+        ("[[case]]\n" + FALLS + "sweep = {directions = 8}\n", "must give its parameter an array of values"),
+        ("[[case]]\n" + FALLS.replace("tolerance = 0.1", "tolerance = true") + "sweep = {directions = [8, 32]}\n",
+         "tolerance = True must be a finite number"),
+    ],
+)  # fmt: skip
+def test_threshold_tables_of_the_wrong_types_are_refused(tmp_path, text, problem):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    with pytest.raises(InputError, match=problem):
+        load_thresholds(bad)
