@@ -114,6 +114,8 @@ def _settings_table(settings_type) -> list[str]:
             allowed = " / ".join(f"`{c}`" for c in m["choices"])
         elif m["positive"]:
             allowed = "> 0"
+        elif m["minimum"] is not None and m["maximum"] is not None:
+            allowed = f"{m['minimum']:g} to {m['maximum']}"
         elif m["minimum"] is not None:
             allowed = f">= {m['minimum']:g}"
         else:

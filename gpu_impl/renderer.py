@@ -198,7 +198,7 @@ class Renderer:
             "resolution": settings.resolution,
             "bounces": settings.bounces,
             "direction_count": settings.directions,
-            "seed": settings.seed & 0xFFFFFFFF,
+            "seed": settings.seed,
             "self_hit_bias": settings.self_hit_bias,
             "image_size": (self.width, self.height),
             "supersampling": s,

@@ -56,6 +56,9 @@ def test_a_setting_of_another_unit_is_refused_with_its_owner_named_or_left_out_o
         (dict(method="imperfect", sampler="sobol"), "sampler must be one of random, stratified, got 'sobol'"),
         (dict(light_samples=-1), "light_samples must be at least 0, got -1"),
         (dict(light_sample_map_size=4), "light_sample_map_size must be at least 8 texels, got 4"),
+        # The shaders hash the seed as a 32-bit word: one beyond it would repeat a smaller seed's samples.
+        (dict(seed=-1), "seed must be at least 0, got -1"),
+        (dict(seed=2**32), "seed must be at most 4294967295, got 4294967296"),
         # A bad value is named before whether its unit is chosen.
         (dict(method="perfect", splat_scale=-1.0), "splat_scale must be positive and finite, got -1.0"),
     ],

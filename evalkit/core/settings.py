@@ -36,6 +36,7 @@ def setting(
     help: str,
     *,
     minimum: float | None = None,
+    maximum: float | None = None,
     positive: bool = False,
     choices: tuple | None = None,
     finite: bool = True,
@@ -43,10 +44,11 @@ def setting(
     unit: str = "",
 ) -> Any:
     """A declared setting: a dataclass field with its default and, for `check_settings` and the
-    command line, its ``help``, the least value it may take (``minimum``, inclusive; ``positive``:
-    above 0), its ``choices``, whether it must be finite, its ``symbol`` in short descriptions (K,
-    R, N, s) and the ``unit`` its messages give."""
-    metadata = {"help": help, "minimum": minimum, "positive": positive, "choices": choices, "finite": finite}
+    command line, its ``help``, the least and largest values it may take (``minimum``,
+    ``maximum``, inclusive; ``positive``: above 0), its ``choices``, whether it must be finite, its
+    ``symbol`` in short descriptions (K, R, N, s) and the ``unit`` its messages give."""
+    metadata = {"help": help, "minimum": minimum, "maximum": maximum, "positive": positive, "choices": choices}
+    metadata["finite"] = finite
     return field(default=default, metadata={**metadata, "symbol": symbol, "unit": unit})
 
 
@@ -82,6 +84,8 @@ def check_value(f, value: Any) -> None:
         raise ValueError(f"{f.name} must be finite, got {value}")
     elif m["minimum"] is not None and value < m["minimum"]:
         raise ValueError(f"{f.name} must be at least {m['minimum']}{unit}, got {value}")
+    elif m["maximum"] is not None and value > m["maximum"]:
+        raise ValueError(f"{f.name} must be at most {m['maximum']}{unit}, got {value}")
     if m["choices"] is not None and value not in m["choices"]:
         raise ValueError(f"{f.name} must be one of {', '.join(map(str, m['choices']))}, got {value!r}")
 
@@ -130,7 +134,8 @@ class RenderSettings:
         minimum=0,
         unit="seconds",
     )
-    seed: int = setting(0, "the seed of every random choice")
+    # The shaders hash it as a 32-bit word: a larger seed would repeat a smaller one's GPU samples.
+    seed: int = setting(0, "the seed of every random choice", minimum=0, maximum=2**32 - 1)
     time: float = setting(0.0, "animated scenes: the time (s) of the first frame")
     time_step: float = setting(0.0, "animated scenes: seconds between frames (0: every frame at time, accumulating)")
     self_hit_bias: float = setting(0.05, "nodes within this many bundle pixels beyond a vertex are skipped", minimum=0)
