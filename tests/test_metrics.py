@@ -50,6 +50,20 @@ def test_flip_and_delta_e_are_zero_for_identical_images_and_grow_with_the_error(
     assert flip(ref * 1.5, ref).params["dynamic_range"] == "HDR"
 
 
+def test_flip_of_a_black_reference_is_undefined_not_the_end_of_the_process(tmp_path):
+    # flip-evaluator picks its exposure range from the reference and ends the process when the range
+    # is empty (a black reference: the indirect image of a scene without indirect light).
+    black, lit = np.zeros((8, 8, 3)), np.ones((8, 8, 3))
+    for reference in (black, np.full((8, 8, 3), 1e-12)):
+        m = flip(lit, reference)
+        assert np.isnan(m.value) and m.params["undefined"].startswith("the reference is black")
+    assert flip(black, lit).value > 0.5  # a black test image against a lit reference is measured
+    write_exr(tmp_path / "lit.exr", lit.astype(np.float32), {"what": "test"})
+    write_exr(tmp_path / "black.exr", black.astype(np.float32), {"what": "reference"})
+    r = run_evalkit("compare", str(tmp_path / "lit.exr"), str(tmp_path / "black.exr"))
+    assert r.returncode == 0 and "undefined the reference is black" in r.stdout
+
+
 def test_delta_e2000_matches_sharmas_published_pair():
     # Sharma, Wu and Dalal (2005), pair 7: Lab (50, 0, 0) and (50, -1, 2) differ by 2.3669.
     import colour

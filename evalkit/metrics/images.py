@@ -9,7 +9,8 @@ renderer and Mitsuba's rgb variants write them.
   from dominating.
 - ``smape``: mean of |t - r| / (|t| + |r| + eps), tev's form (in [0, 1)).
 - ``flip``: HDR-FLIP (Andersson et al. 2021) through `flip-evaluator`, at 67 pixels per degree,
-  ACES tone mapping and the exposure range FLIP picks from the reference.
+  ACES tone mapping and the exposure range FLIP picks from the reference; undefined (NaN, with
+  the reason in its parameters) for a black reference, which leaves that range empty.
 - ``delta_e2000``: CIEDE2000 through colour-science, after a stated exposure (2^exposure scale),
   clipping to [0, 1] (the display) and the sRGB primaries' D65 XYZ -> CIELAB.
 
@@ -27,6 +28,8 @@ from evalkit.core.errors import InputError
 RELMSE_EPSILON = 0.01
 SMAPE_EPSILON = 0.01
 FLIP_PPD = 67.0
+FLIP_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # FLIP's linear RGB to Y
+FLIP_BLACK = 2.0 * float(np.finfo(np.float32).eps)
 DELTA_E_EXPOSURE = 0.0
 METRICS = ("mse", "relmse", "smape", "flip", "delta_e2000")
 
@@ -74,8 +77,17 @@ def flip(test: np.ndarray, ref: np.ndarray, ppd: float = FLIP_PPD) -> Metric:
 
     # FLIP needs non-negative HDR input; the renderer and Mitsuba never write negative radiance,
     # but a difference image (indirect = total - direct) can be -1e-9, which is clamped.
+    ref = np.maximum(ref, 0)
+    # HDR-FLIP's exposures run from the reference's brightest luminance to its median, the median
+    # floored at float32's epsilon: a reference darker than that floor (black: no indirect light in
+    # the scene, say) leaves the range empty, and flip-evaluator then ends the process. FLIP is
+    # undefined there: NaN, and the parameters say why.
+    brightest = float((ref @ FLIP_LUMINANCE).max())
+    if brightest < FLIP_BLACK:
+        why = f"the reference is black: its brightest luminance {brightest:.3g} is below {FLIP_BLACK:.3g}"
+        return Metric("flip", float("nan"), np.zeros(ref.shape[:2]), {"dynamic_range": "HDR", "undefined": why})
     error_map, mean, used = flip_evaluator.evaluate(
-        np.maximum(ref, 0).astype(np.float32),
+        ref.astype(np.float32),
         np.maximum(test, 0).astype(np.float32),
         "HDR",
         applyMagma=False,
