@@ -377,6 +377,10 @@ def _view(args) -> int:
     print(f"image       {args.image}: {image.shape[1]}x{image.shape[0]}, {provenance.get('image', 'no provenance')}")
     for line in _image_lines({name: image}, variances):
         print(line)
+    bad = ~np.isfinite(image).all(axis=2)
+    if bad.any():
+        y, x = np.argwhere(bad)[0]
+        print(f"warning     {int(bad.sum())} pixel(s) are NaN or Inf, the first at x={x}, y={y} (NaN shown black)")
     print(f"written     {args.png}: exposure {args.exposure:g} stops, clipped to [0, 1], sRGB")
     return 0
 

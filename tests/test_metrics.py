@@ -64,6 +64,19 @@ def test_flip_of_a_black_reference_is_undefined_not_the_end_of_the_process(tmp_p
     assert r.returncode == 0 and "undefined the reference is black" in r.stdout
 
 
+def test_view_says_where_an_image_is_nan_and_shows_it_black(tmp_path):
+    image = np.ones((4, 6, 3), np.float32)
+    image[2, 5, 1] = np.nan
+    write_exr(tmp_path / "hole.exr", image, {"what": "test"})
+    r = run_evalkit("view", str(tmp_path / "hole.exr"), "--png", str(tmp_path / "hole.png"))
+    assert r.returncode == 0 and "1 pixel(s) are NaN or Inf, the first at x=5, y=2 (NaN shown black)" in r.stdout
+    assert "RuntimeWarning" not in r.stderr
+    from PIL import Image
+
+    png = np.asarray(Image.open(tmp_path / "hole.png"))
+    assert tuple(png[2, 5]) == (255, 0, 255) and tuple(png[0, 0]) == (255, 255, 255)
+
+
 def test_delta_e2000_matches_sharmas_published_pair():
     # Sharma, Wu and Dalal (2005), pair 7: Lab (50, 0, 0) and (50, -1, 2) differ by 2.3669.
     import colour

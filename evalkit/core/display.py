@@ -12,8 +12,8 @@ import numpy as np
 
 
 def tonemap(image: np.ndarray, exposure: float = 0.0) -> np.ndarray:
-    """Linear RGB -> 8-bit sRGB: scale by 2^exposure, clip to [0, 1], the sRGB curve."""
-    x = np.clip(image * 2.0**exposure, 0.0, 1.0)
+    """Linear RGB -> 8-bit sRGB: scale by 2^exposure, clip to [0, 1], the sRGB curve (NaN black)."""
+    x = np.clip(np.nan_to_num(image * 2.0**exposure, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
     srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     return (srgb * 255 + 0.5).astype(np.uint8)
 
