@@ -104,13 +104,14 @@ class Renderer:
         self.paths = self.gbuffer_size[0] * self.gbuffer_size[1] * settings.spp
         if self.paths >= 2**32 // 2:
             raise LimitError(f"{self.paths:,} eye paths per frame exceed the 32-bit path index", ("spp",))
-        # An animated scene is posed at time + f * time_step in frame f, inside one bundle frame
-        # that holds every pose.
-        self.times = [settings.time + f * settings.time_step for f in range(settings.frames)]
+        # An animated scene is posed at time + f * time_step in frame f (frame_time), inside one
+        # bundle frame that holds every pose. Nothing is kept per frame: a render may ask for more
+        # frames than memory holds and stop at its time budget.
         self.frames_rendered = 0  # set by render()
         self.moving = scene.animated and settings.time_step != 0.0
-        first = scene.at(self.times[0])
-        sphere = enclosing_sphere([scene.at(t) for t in self.times]) if self.moving else None
+        first = scene.at(self.frame_time(0))
+        poses = (scene.at(self.frame_time(f)) for f in range(settings.frames))
+        sphere = enclosing_sphere(list(poses)) if self.moving else None
         self.gpu_scene = GpuScene(gl, first, sphere=sphere)
         units, own = self.resolved.units, self.resolved.unit_settings
         self.tracer = units["method"].tracer(gl, self.gpu_scene, settings)
@@ -190,7 +191,7 @@ class Renderer:
             "ALIVE_PATHS": gl.buffer(reserve=4),
         }
         self.irradiance_of = None  # the build whose irradiance the buffer holds (bundles reused: reused too)
-        self._posed_at = self.times[0]  # the pose on the GPU
+        self._posed_at = self.frame_time(0)  # the pose on the GPU
         self.camera = scene.camera.frame(self.gpu_scene.centre, self.width, self.height)
         # Uniforms that stay the same for every frame, set once.
         fixed = {
@@ -219,6 +220,10 @@ class Renderer:
 
     # -- frames --------------------------------------------------------------------------
 
+    def frame_time(self, f: int) -> float:
+        """The time frame ``f`` poses the scene at (seconds)."""
+        return self.settings.time + f * self.settings.time_step
+
     def render(self, progress=None) -> RenderResult:
         """All frames; ``progress`` (optional) gets one line per frame."""
         st = self.settings
@@ -230,9 +235,9 @@ class Renderer:
         for f in range(st.frames):
             frame_start = time.perf_counter()
             timer = PassTimer(self.gl)
-            if self.moving and (f > 0 or self._posed_at != self.times[0]):
-                self.gpu_scene.pose(self.scene.at(self.times[f]))
-            self._posed_at = self.times[f]
+            if self.moving and (f > 0 or self._posed_at != self.frame_time(0)):
+                self.gpu_scene.pose(self.scene.at(self.frame_time(f)))
+            self._posed_at = self.frame_time(f)
             reused = self.reuse_bundles and f > 0
             if reused:
                 gpu_ms = dict.fromkeys(self.tracer.stats["gpu_ms"], 0.0)
