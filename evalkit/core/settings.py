@@ -48,8 +48,7 @@ def setting(
     ``maximum``, inclusive; ``positive``: above 0), its ``choices``, whether it must be finite, its
     ``symbol`` in short descriptions (K, R, N, s) and the ``unit`` its messages give."""
     metadata = {"help": help, "minimum": minimum, "maximum": maximum, "positive": positive, "choices": choices}
-    metadata["finite"] = finite
-    return field(default=default, metadata={**metadata, "symbol": symbol, "unit": unit})
+    return field(default=default, metadata={**metadata, "finite": finite, "symbol": symbol, "unit": unit})
 
 
 def declared(settings_type) -> list:
