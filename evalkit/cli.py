@@ -34,7 +34,15 @@ from evalkit.fidelity import DEFAULT_WIDTH, TOLERANCE, check_scene, fidelity_of,
 from evalkit.figures import REPORT_EXPOSURE, error_map_png, save_png, teaser
 from evalkit.metrics.bundles import compare_bundles, scene_surfaces
 from evalkit.metrics.confidence import confidence, pool_renders
-from evalkit.metrics.images import DELTA_E_EXPOSURE, FLIP_PPD, METRICS, RELMSE_EPSILON, SMAPE_EPSILON, compare_images
+from evalkit.metrics.images import (
+    DELTA_E_EXPOSURE,
+    FLIP_PPD,
+    METRICS,
+    RELMSE_EPSILON,
+    SMAPE_EPSILON,
+    compare_images,
+    non_finite_pixels,
+)
 from evalkit.records import study_record, write_record
 from evalkit.study.executors import run_study
 from evalkit.study.spec import load_study
@@ -377,10 +385,9 @@ def _view(args) -> int:
     print(f"image       {args.image}: {image.shape[1]}x{image.shape[0]}, {provenance.get('image', 'no provenance')}")
     for line in _image_lines({name: image}, variances):
         print(line)
-    bad = ~np.isfinite(image).all(axis=2)
-    if bad.any():
-        y, x = np.argwhere(bad)[0]
-        print(f"warning     {int(bad.sum())} pixel(s) are NaN or Inf, the first at x={x}, y={y} (NaN shown black)")
+    bad = non_finite_pixels(image)
+    if bad:
+        print(f"warning     {bad} (NaN shown black)")
     print(f"written     {args.png}: exposure {args.exposure:g} stops, clipped to [0, 1], sRGB")
     return 0
 

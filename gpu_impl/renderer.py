@@ -110,8 +110,9 @@ class Renderer:
         self.frames_rendered = 0  # set by render()
         self.moving = scene.animated and settings.time_step != 0.0
         first = scene.at(self.frame_time(0))
-        poses = (scene.at(self.frame_time(f)) for f in range(settings.frames))
-        sphere = enclosing_sphere(list(poses)) if self.moving else None
+        sphere = None
+        if self.moving:
+            sphere = enclosing_sphere([scene.at(self.frame_time(f)) for f in range(settings.frames)])
         self.gpu_scene = GpuScene(gl, first, sphere=sphere)
         units, own = self.resolved.units, self.resolved.unit_settings
         self.tracer = units["method"].tracer(gl, self.gpu_scene, settings)

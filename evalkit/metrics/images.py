@@ -42,15 +42,23 @@ class Metric:
     params: dict = field(default_factory=dict)
 
 
+def non_finite_pixels(image: np.ndarray) -> str | None:
+    """How many pixels of an (H, W, 3) image hold NaN or Inf and where the first is; None if none."""
+    bad = ~np.isfinite(image).all(axis=2)
+    if not bad.any():
+        return None
+    y, x = np.argwhere(bad)[0]
+    return f"{int(bad.sum())} pixel(s) are NaN or Inf, the first at x={x}, y={y}"
+
+
 def check_images(test: np.ndarray, ref: np.ndarray, test_name: str = "test", ref_name: str = "reference") -> None:
     """`InputError` naming the image when the two are not comparable: shape, NaN or Inf."""
     for image, name in ((test, test_name), (ref, ref_name)):
         if image.ndim != 3 or image.shape[2] != 3:
             raise InputError(name, f"expected an (H, W, 3) RGB image, got shape {image.shape}")
-        bad = ~np.isfinite(image)
-        if bad.any():
-            y, x = np.argwhere(bad.any(axis=2))[0]
-            raise InputError(name, f"{int(bad.any(axis=2).sum())} pixel(s) are NaN or Inf, the first at x={x}, y={y}")
+        bad = non_finite_pixels(image)
+        if bad:
+            raise InputError(name, bad)
     if test.shape != ref.shape:
         raise InputError(
             test_name, f"is {test.shape[1]}x{test.shape[0]} but {ref_name} is {ref.shape[1]}x{ref.shape[0]}"
